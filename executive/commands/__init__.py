@@ -1,0 +1,1 @@
+"""One module per `kitchenbot` subcommand; each exposes `register(subparsers)`."""

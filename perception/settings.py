@@ -1,0 +1,24 @@
+"""Perception settings (the `perception:` section of the cell config). Defaults follow the paper's
+sensitivity analysis: 10 mm voxels, top-K = 3 candidates, IoU 0.6 for cross-view association."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class PerceptionSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    detector: Literal["geometric", "llmdet", "grounding-dino"] = "geometric"
+    segmenter: Literal["geometric", "sam2"] = "geometric"
+    image_encoder: Literal["none", "colour", "dinov2", "beit", "clip"] = "colour"
+    point_encoder: str = Field("fpfh", description="'fpfh' or the name of a registered plug-in")
+    prompt: str = "dishware"
+    weights_dir: str = Field("~/.cache/kitchenbot/weights", description="local folder with model weights")
+    voxel_size: float = Field(0.010, gt=0.0005, le=0.05, description="metres")
+    top_k: int = Field(3, ge=1, le=20)
+    candidate_threshold: float = Field(0.3, ge=-1.0, le=1.0)
+    iou_threshold: float = Field(0.6, gt=0.0, lt=1.0)
+    min_overlap: float = Field(0.5, ge=0.0, le=1.0, description="reject poses whose mean overlap ratio is lower")
