@@ -1,0 +1,368 @@
+"""The object inventory: CAD models, symmetries and predefined grasps.
+
+Two sources, one type:
+- ``Inventory.builtin()``: the project's procedural dishware (perception/dishware.py) with generated grasps.
+- ``Inventory.load(models_dir, grasps_file)``: any BOP ``models/`` folder (PLY in mm + ``models_info.json``),
+  optionally with a grasps JSON (format below), so users can bring their own dishware.
+
+Grasps JSON (metres)::
+
+    {"units": "m",
+     "objects": {"1": {"name": "dinner_plate", "class": "plate",
+                       "grasps": [{"name": "rim_00", "T_obj_tcp": [[...4x4...]], "opening": 0.05, "width": 0.01}]}}}
+
+TCP frame of the Fin-Ray gripper: z is the approach direction (out of the gripper, into the object), y is the
+closing axis between the two finger pads, x = y x z. ``opening`` is the pre-grasp pad distance, ``width``
+the expected pad distance when closed on the object.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from kitchenbot.perception.dishware import BUILTIN_DISHES, build_mesh
+from kitchenbot.transforms import check_rigid, make_T
+
+GRIPPER_MAX_OPENING = 0.10  # m, Fin-Ray pads fully open
+PAD_DEPTH = 0.035  # m, how far the pads reach past the TCP along the approach axis
+
+
+class InventoryError(ValueError):
+    """A model folder, mesh or grasps file is missing or malformed."""
+
+
+@dataclass
+class GraspSpec:
+    name: str
+    T_obj_tcp: np.ndarray
+    opening: float
+    width: float
+
+
+@dataclass
+class ObjectModel:
+    obj_id: int
+    name: str
+    cls: str
+    mesh: o3d.geometry.TriangleMesh  # metres, object frame
+    diameter: float  # metres (BOP: max distance between vertices)
+    symmetries_discrete: list[np.ndarray] = field(default_factory=list)  # 4x4, metres
+    symmetries_continuous: list[dict] = field(default_factory=list)  # {"axis": [..], "offset": [.. m]}
+    grasps: list[GraspSpec] = field(default_factory=list)
+    colour: tuple[float, float, float] = (0.8, 0.8, 0.8)
+
+    @property
+    def extents(self) -> np.ndarray:
+        return np.asarray(self.mesh.get_axis_aligned_bounding_box().get_extent())
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        """2048 surface points (metres, object frame), evenly spread (Poisson disk)."""
+        pcd = self.mesh.sample_points_poisson_disk(2048, seed=1) if len(self.mesh.triangles) else None
+        return np.asarray(pcd.points) if pcd is not None else np.zeros((0, 3))
+
+    @property
+    def is_rotationally_symmetric(self) -> bool:
+        return bool(self.symmetries_continuous)
+
+    def symmetry_transforms(self, n_continuous: int = 36) -> list[np.ndarray]:
+        """Discretised symmetry group (identity first), as used for symmetry-aware scoring and metrics."""
+        out = [np.eye(4)]
+        for S in self.symmetries_discrete:
+            out.append(S)
+        for sym in self.symmetries_continuous:
+            axis = np.asarray(sym["axis"], float)
+            axis /= np.linalg.norm(axis)
+            off = np.asarray(sym.get("offset", [0, 0, 0]), float)
+            from scipy.spatial.transform import Rotation
+
+            for k in range(1, n_continuous):
+                R = Rotation.from_rotvec(axis * 2 * np.pi * k / n_continuous).as_matrix()
+                out.append(make_T(R, off - R @ off))
+        return out
+
+
+def _diameter(points: np.ndarray) -> float:
+    """Max pairwise distance, via the convex hull vertices (exact, fast)."""
+    from scipy.spatial import ConvexHull
+
+    if len(points) < 4:
+        return 0.0
+    hull = points[ConvexHull(points).vertices]
+    d = np.linalg.norm(hull[:, None] - hull[None], axis=-1)
+    return float(d.max())
+
+
+class Inventory:
+    def __init__(self, models: list[ObjectModel], source: str = "builtin"):
+        self.models: dict[int, ObjectModel] = {m.obj_id: m for m in models}
+        self.source = source
+
+    def __iter__(self):
+        return iter(self.models.values())
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def __getitem__(self, obj_id: int) -> ObjectModel:
+        try:
+            return self.models[obj_id]
+        except KeyError:
+            raise KeyError(f"object id {obj_id} is not in the inventory ({sorted(self.models)})") from None
+
+    def by_name(self, name: str) -> ObjectModel:
+        for m in self.models.values():
+            if m.name == name:
+                return m
+        raise KeyError(f"no model named {name!r} (have {[m.name for m in self.models.values()]})")
+
+    @property
+    def classes(self) -> list[str]:
+        return sorted({m.cls for m in self.models.values()})
+
+    def fingerprint(self) -> str:
+        """Hash of the geometry and ids: the key of caches derived from this inventory."""
+        h = hashlib.sha1()
+        for m in sorted(self.models.values(), key=lambda m: m.obj_id):
+            h.update(str(m.obj_id).encode())
+            h.update(np.asarray(m.mesh.vertices, np.float32).tobytes())
+        return h.hexdigest()[:16]
+
+    # ---- the builtin dishware -----------------------------------------------------------------------------
+    @classmethod
+    def builtin(cls) -> "Inventory":
+        models = []
+        for i, spec in enumerate(BUILTIN_DISHES, start=1):
+            mesh = build_mesh(spec)
+            model = ObjectModel(
+                obj_id=i,
+                name=spec.name,
+                cls=spec.cls,
+                mesh=mesh,
+                diameter=_diameter(np.asarray(mesh.vertices)),
+                symmetries_continuous=[] if spec.handle else [{"axis": [0, 0, 1], "offset": [0, 0, 0]}],
+                colour=spec.colour,
+            )
+            model.grasps = generate_grasps(model)
+            models.append(model)
+        return cls(models, "builtin")
+
+    # ---- BOP models/ folders ------------------------------------------------------------------------------
+    @classmethod
+    def load(cls, models_dir: str | Path, grasps_file: str | Path | None = None) -> "Inventory":
+        models_dir = Path(models_dir)
+        info_path = models_dir / "models_info.json"
+        if not info_path.is_file():
+            raise InventoryError(f"{info_path}: missing; a BOP models/ folder needs models_info.json")
+        try:
+            info = json.loads(info_path.read_text())
+        except json.JSONDecodeError as e:
+            raise InventoryError(f"{info_path}: not valid JSON ({e})") from None
+        extra = _read_grasps(Path(grasps_file)) if grasps_file else {}
+        models = []
+        for key, rec in sorted(info.items(), key=lambda kv: int(kv[0])):
+            obj_id = int(key)
+            ply = models_dir / f"obj_{obj_id:06d}.ply"
+            mesh = _read_mesh(ply)
+            mesh.scale(0.001, center=(0, 0, 0))  # BOP meshes are in mm
+            mesh.compute_vertex_normals()
+            if "diameter" not in rec:
+                raise InventoryError(f"{info_path}: object {key} has no 'diameter'")
+            sym_d = []
+            for k, S in enumerate(rec.get("symmetries_discrete", [])):
+                S = np.asarray(S, float).reshape(4, 4)
+                S[:3, 3] *= 0.001
+                sym_d.append(check_rigid(S, f"{info_path}: object {key} symmetries_discrete[{k}]"))
+            sym_c = [
+                {"axis": list(map(float, s["axis"])), "offset": [0.001 * float(v) for v in s.get("offset", [0, 0, 0])]}
+                for s in rec.get("symmetries_continuous", [])
+            ]
+            ex = extra.get(obj_id, {})
+            colour = _mesh_colour(mesh)
+            models.append(
+                ObjectModel(
+                    obj_id=obj_id,
+                    name=ex.get("name", f"obj_{obj_id:06d}"),
+                    cls=ex.get("class", ex.get("name", f"obj_{obj_id:06d}")),
+                    mesh=mesh,
+                    diameter=float(rec["diameter"]) * 0.001,
+                    symmetries_discrete=sym_d,
+                    symmetries_continuous=sym_c,
+                    grasps=ex.get("grasps", []),
+                    colour=colour,
+                )
+            )
+        if not models:
+            raise InventoryError(f"{info_path}: lists no models")
+        return cls(models, str(models_dir))
+
+    def save_bop(self, models_dir: str | Path, grasps_file: str | Path | None = None) -> None:
+        """Write BOP models (PLY in mm with vertex normals/colours, models_info.json) and the grasps JSON."""
+        models_dir = Path(models_dir)
+        models_dir.mkdir(parents=True, exist_ok=True)
+        info = {}
+        for m in self:
+            mesh_mm = o3d.geometry.TriangleMesh(m.mesh)
+            mesh_mm.scale(1000.0, center=(0, 0, 0))
+            mesh_mm.compute_vertex_normals()
+            mesh_mm.paint_uniform_color(m.colour)
+            o3d.io.write_triangle_mesh(str(models_dir / f"obj_{m.obj_id:06d}.ply"), mesh_mm, write_ascii=False)
+            bb = mesh_mm.get_axis_aligned_bounding_box()
+            lo, ext = bb.get_min_bound(), bb.get_extent()
+            rec = {
+                "diameter": m.diameter * 1000.0,
+                "min_x": lo[0], "min_y": lo[1], "min_z": lo[2],
+                "size_x": ext[0], "size_y": ext[1], "size_z": ext[2],
+            }
+            if m.symmetries_continuous:
+                rec["symmetries_continuous"] = [
+                    {"axis": s["axis"], "offset": [1000.0 * v for v in s["offset"]]} for s in m.symmetries_continuous
+                ]
+            if m.symmetries_discrete:
+                out = []
+                for S in m.symmetries_discrete:
+                    S = S.copy()
+                    S[:3, 3] *= 1000.0
+                    out.append(S.reshape(-1).tolist())
+                rec["symmetries_discrete"] = out
+            info[str(m.obj_id)] = rec
+        (models_dir / "models_info.json").write_text(json.dumps(info, indent=2))
+        if grasps_file is not None:
+            write_grasps(self, grasps_file)
+
+
+def _read_mesh(ply: Path) -> o3d.geometry.TriangleMesh:
+    if not ply.is_file():
+        raise InventoryError(f"{ply}: missing model mesh (expected obj_XXXXXX.ply beside models_info.json)")
+    mesh = o3d.io.read_triangle_mesh(str(ply))
+    if len(mesh.triangles) == 0 or len(mesh.vertices) < 4:
+        raise InventoryError(f"{ply}: not a readable triangle mesh (no faces)")
+    V = np.asarray(mesh.vertices)
+    if not np.all(np.isfinite(V)):
+        raise InventoryError(f"{ply}: mesh has non-finite vertices")
+    return mesh
+
+
+def _mesh_colour(mesh: o3d.geometry.TriangleMesh) -> tuple[float, float, float]:
+    if mesh.has_vertex_colors():
+        return tuple(float(c) for c in np.asarray(mesh.vertex_colors).mean(axis=0))
+    return (0.8, 0.8, 0.8)
+
+
+def _read_grasps(path: Path) -> dict[int, dict]:
+    try:
+        data = json.loads(path.read_text())
+    except OSError as e:
+        raise InventoryError(f"{path}: cannot read the grasps file ({e.strerror})") from None
+    except json.JSONDecodeError as e:
+        raise InventoryError(f"{path}: not valid JSON ({e})") from None
+    if data.get("units", "m") != "m":
+        raise InventoryError(f"{path}: 'units' must be \"m\"")
+    out: dict[int, dict] = {}
+    for key, rec in data.get("objects", {}).items():
+        grasps = []
+        for k, g in enumerate(rec.get("grasps", [])):
+            where = f"{path}: objects.{key}.grasps[{k}]"
+            try:
+                T = check_rigid(np.asarray(g["T_obj_tcp"], float), f"{where}.T_obj_tcp")
+                grasps.append(GraspSpec(str(g.get("name", f"g{k}")), T, float(g["opening"]), float(g["width"])))
+            except KeyError as e:
+                raise InventoryError(f"{where}: missing key {e.args[0]!r}") from None
+            except ValueError as e:
+                raise InventoryError(str(e)) from None
+        out[int(key)] = {"name": rec.get("name"), "class": rec.get("class"), "grasps": grasps}
+        out[int(key)] = {k: v for k, v in out[int(key)].items() if v is not None}
+    return out
+
+
+def write_grasps(inv: Inventory, path: str | Path) -> None:
+    data = {
+        "units": "m",
+        "objects": {
+            str(m.obj_id): {
+                "name": m.name,
+                "class": m.cls,
+                "grasps": [
+                    {"name": g.name, "T_obj_tcp": np.round(g.T_obj_tcp, 6).tolist(), "opening": g.opening, "width": g.width}
+                    for g in m.grasps
+                ],
+            }
+            for m in inv
+        },
+    }
+    Path(path).write_text(json.dumps(data, indent=1))
+
+
+# ---- grasp generation for the builtin dishware ------------------------------------------------------------
+def _tcp_frame(approach: np.ndarray, closing: np.ndarray, position: np.ndarray) -> np.ndarray:
+    z = approach / np.linalg.norm(approach)
+    y = closing - z * (closing @ z)
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    return make_T(np.stack([x, y, z], axis=1), position)
+
+
+def pad_span(
+    model: ObjectModel, T_obj_tcp: np.ndarray, half_length: float = 0.06, scene: o3d.t.geometry.RaycastingScene | None = None
+) -> float | None:
+    """Width the pads would close to: extent of the mesh along the closing axis through the TCP point.
+
+    Casts rays from both sides along the closing axis at the TCP and a few points along the pad depth;
+    returns None when the line misses the object.
+    """
+    if scene is None:
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(model.mesh))
+    y, z, p = T_obj_tcp[:3, 1], T_obj_tcp[:3, 2], T_obj_tcp[:3, 3]
+    widths = []
+    for depth in (-0.005, 0.0, 0.005):
+        c = p + z * depth
+        rays = np.array([[*(c - y * half_length), *y], [*(c + y * half_length), *(-y)]], np.float32)
+        t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        if np.all(np.isfinite(t)):
+            widths.append(2 * half_length - t[0] - t[1])
+    return float(max(widths)) if widths else None
+
+
+def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
+    """Predefined Fin-Ray grasps for a builtin item.
+
+    - rim pinch (all items): approach from above the rim, pads straddling the wall, closing radially;
+    - side grasps (cups, mugs, glasses, bowls): horizontal approach at mid height, closing across the body.
+    Expected widths are measured on the mesh, and grasps wider than the gripper are dropped.
+    """
+    V = np.asarray(model.mesh.vertices)
+    z_top = V[:, 2].max()
+    r_rim = np.max(np.linalg.norm(V[V[:, 2] > z_top - 0.004][:, :2], axis=1))
+    grasps: list[GraspSpec] = []
+    bite = 0.012 if model.cls in ("plate",) else 0.015
+    for k in range(n_around):
+        a = 2 * np.pi * k / n_around
+        radial = np.array([np.cos(a), np.sin(a), 0.0])
+        pos = radial * (r_rim - 0.004) + np.array([0, 0, z_top - bite])
+        T = _tcp_frame(np.array([0, 0, -1.0]), radial, pos)
+        grasps.append(("rim", k, T))
+    if model.cls in ("cup", "mug", "glass", "bowl"):
+        z_mid = V[:, 2].min() + 0.55 * (z_top - V[:, 2].min())
+        for k in range(n_around):
+            a = 2 * np.pi * k / n_around
+            radial = np.array([np.cos(a), np.sin(a), 0.0])
+            tangent = np.array([-np.sin(a), np.cos(a), 0.0])
+            T = _tcp_frame(-radial, tangent, np.array([0, 0, z_mid]))
+            grasps.append(("side", k, T))
+    out = []
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(model.mesh))
+    for kind, k, T in grasps:
+        w = pad_span(model, T, scene=scene)
+        if w is None or w > GRIPPER_MAX_OPENING - 0.01 or w <= 0:
+            continue
+        out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=min(GRIPPER_MAX_OPENING, w + 0.03), width=w))
+    return out
