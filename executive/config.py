@@ -189,6 +189,15 @@ class CellConfig(_Strict):
             T_flange_tcp=self.robot.tool.T_flange_tcp.matrix(),
         )
 
+    def T_flange_cam(self) -> np.ndarray:
+        """The hand-eye transform: from `calibration.file` (a `kitchenbot calibrate` YAML, path relative to
+        this config) when set, else `calibration.T_flange_cam`."""
+        if self.calibration.file:
+            from kitchenbot.calibration.files import load_hand_eye
+
+            return load_hand_eye(self.resolve_path(self.calibration.file), "T_flange_cam")
+        return self.calibration.T_flange_cam.matrix()
+
     def resolve_path(self, p: str) -> Path:
         """Paths in a config file are relative to that file."""
         path = Path(p).expanduser()
