@@ -1,0 +1,265 @@
+"""Value types that planning produces: grasps, placement targets, timed trajectories, plans, typed failures.
+
+Failures are returned, not raised: every planning entry point returns either its plan or a
+:class:`PlanningFailure` subclass whose ``kind`` the executive can branch on (re-scan, try another object,
+recover the arm, give up). ``plan.ok`` is True for plans and False for failures, so ``if not result.ok`` works
+for both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from kitchenbot.perception.inventory import GraspSpec
+from kitchenbot.perception.types import ObjectPose
+
+
+# ---- trajectories -------------------------------------------------------------------------------------------
+@dataclass
+class Trajectory:
+    """A timed joint trajectory: ``times`` (N,) seconds from 0, strictly increasing; ``q`` (N, 6) radians.
+
+    Waypoints are dense enough (<= ~4 mm of TCP/link travel apart along collision-checked segments) that
+    linear interpolation between them is what was checked; velocities/accelerations by finite differences
+    stay within the safety limits (drivers.safety.SafetyLimits.check_trajectory).
+    """
+
+    times: np.ndarray
+    q: np.ndarray
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        self.times = np.asarray(self.times, dtype=np.float64)
+        self.q = np.asarray(self.q, dtype=np.float64)
+        if self.q.ndim != 2 or self.q.shape[1] != 6 or len(self.times) != len(self.q):
+            raise ValueError(
+                f"Trajectory {self.name!r}: expected times (N,) and q (N, 6), got {self.times.shape} and {self.q.shape}"
+            )
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1] - self.times[0]) if len(self.times) else 0.0
+
+    @property
+    def start(self) -> np.ndarray:
+        return self.q[0]
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.q[-1]
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def sample(self, t: float) -> np.ndarray:
+        """Joint positions at time t (linear between waypoints, clamped at the ends)."""
+        return np.array([np.interp(t, self.times, self.q[:, j]) for j in range(6)])
+
+
+# ---- grasps and placements ----------------------------------------------------------------------------------
+@dataclass
+class Grasp:
+    """A grasp of one perceived object, resolved for this robot.
+
+    ``T_base_tcp = obj.T_base_obj @ spec.T_obj_tcp``; ``q`` the IK solution at the grasp,
+    ``q_pregrasp`` at the pre-grasp pose (backed off along the approach axis by ``approach_distance``).
+    ``score``: higher is better (clearance and motion cost); ``clearance``: metres from the gripper to the
+    nearest obstacle other than the grasped object at the grasp pose.
+    """
+
+    spec: GraspSpec
+    obj: ObjectPose
+    T_base_tcp: np.ndarray
+    q: np.ndarray
+    q_pregrasp: np.ndarray
+    T_base_pregrasp: np.ndarray
+    score: float = 0.0
+    clearance: float = 0.0
+
+    @property
+    def T_tcp_obj(self) -> np.ndarray:
+        """The held object's pose in the TCP frame once grasped (rigid attachment)."""
+        from kitchenbot.transforms import inv
+
+        return inv(self.spec.T_obj_tcp)
+
+    @property
+    def approach(self) -> np.ndarray:
+        """Unit approach direction in the base frame (TCP z)."""
+        return self.T_base_tcp[:3, 2].copy()
+
+
+@dataclass
+class PlaceTarget:
+    """Where the held object should end up: its pose ``T_base_obj`` (object frame as in the inventory).
+
+    ``kind``: "slot" (dishwasher rack), "stack" (on a cup of the same type), "drop" (counter drop zone).
+    ``free_yaw``: the object is rotationally symmetric about the vertical, so the planner may turn it about
+    the base z axis through the target origin to find a reachable grasp orientation.
+    ``slot``: the rack slot name for kind "slot" (SlotBook bookkeeping), else None.
+    """
+
+    T_base_obj: np.ndarray
+    kind: str
+    slot: str | None = None
+    free_yaw: bool = True
+    support: str = ""  # what it rests on: a rack name, an object instance, "counter"
+    approach_distance: float | None = None  # override the settings' approach distance (None = default)
+
+
+# ---- failures ------------------------------------------------------------------------------------------------
+@dataclass
+class PlanningFailure:
+    """Why a plan could not be made. Subclasses fix ``kind``; ``message`` is for people, ``details`` for logs."""
+
+    message: str = ""
+    details: dict = field(default_factory=dict)
+    kind: ClassVar[str] = "planning_failure"
+    ok: ClassVar[bool] = False
+
+    def __str__(self) -> str:
+        return f"{self.kind}: {self.message}"
+
+
+@dataclass
+class InvalidInput(PlanningFailure):
+    kind: ClassVar[str] = "invalid_input"
+
+
+@dataclass
+class NoIK(PlanningFailure):
+    """No joint configuration reaches the target pose within the joint limits."""
+
+    kind: ClassVar[str] = "no_ik"
+
+
+@dataclass
+class NoGraspableObject(PlanningFailure):
+    """Every candidate object was dropped (too occluded, no grasps in its model, unknown model)."""
+
+    kind: ClassVar[str] = "no_graspable_object"
+
+
+@dataclass
+class NoCollisionFreeGrasp(PlanningFailure):
+    """Grasps were reachable but each one collides or would take in another object."""
+
+    kind: ClassVar[str] = "no_collision_free_grasp"
+
+
+@dataclass
+class StartInCollision(PlanningFailure):
+    kind: ClassVar[str] = "start_in_collision"
+
+
+@dataclass
+class GoalInCollision(PlanningFailure):
+    kind: ClassVar[str] = "goal_in_collision"
+
+
+@dataclass
+class PlannerTimeout(PlanningFailure):
+    """RRT-Connect found no path within the time budget."""
+
+    kind: ClassVar[str] = "planner_timeout"
+
+
+@dataclass
+class CartesianPathFailed(PlanningFailure):
+    """A straight approach/retreat/lift segment has no IK or collides along the line."""
+
+    kind: ClassVar[str] = "cartesian_path_failed"
+
+
+@dataclass
+class NoFreeSlot(PlanningFailure):
+    """No free place for this object (rack full, no stack base, drop zone full)."""
+
+    kind: ClassVar[str] = "no_free_slot"
+
+
+@dataclass
+class NoFeasiblePlacement(PlanningFailure):
+    """Places exist but none is reachable and collision-free with the grasp used."""
+
+    kind: ClassVar[str] = "no_feasible_placement"
+
+
+# ---- plans ---------------------------------------------------------------------------------------------------
+@dataclass
+class PickPlan:
+    """Pick one object: ``approach`` (start -> pre-grasp, collision-free joint motion),
+    ``grasp_in`` (straight line pre-grasp -> grasp, then close the gripper to ``grasp.spec.width``),
+    ``lift`` (straight up by ``lift_height`` with the object attached).
+    Execute: open gripper to ``grasp.spec.opening`` -> approach -> grasp_in -> close -> lift.
+    """
+
+    grasp: Grasp
+    approach: Trajectory
+    grasp_in: Trajectory
+    lift: Trajectory
+    candidates_tried: int = 0
+    timings_ms: dict = field(default_factory=dict)
+    ok: ClassVar[bool] = True
+
+    @property
+    def trajectories(self) -> list[Trajectory]:
+        return [self.approach, self.grasp_in, self.lift]
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.lift.end
+
+
+@dataclass
+class PlacePlan:
+    """Place the held object: ``transfer`` (start -> pre-place, joint motion with the object attached),
+    ``lower`` (straight line down onto the target), then open the gripper, ``retreat`` (straight back out).
+    """
+
+    target: PlaceTarget
+    T_base_obj: np.ndarray  # the object's pose at release (target, possibly turned about z when free_yaw)
+    T_base_tcp: np.ndarray
+    transfer: Trajectory
+    lower: Trajectory
+    retreat: Trajectory
+    timings_ms: dict = field(default_factory=dict)
+    ok: ClassVar[bool] = True
+
+    @property
+    def trajectories(self) -> list[Trajectory]:
+        return [self.transfer, self.lower, self.retreat]
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.retreat.end
+
+
+@dataclass
+class MovePlan:
+    """A plain collision-free joint motion (e.g. to a scan waypoint or home)."""
+
+    trajectory: Trajectory
+    timings_ms: dict = field(default_factory=dict)
+    ok: ClassVar[bool] = True
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.trajectory.end
+
+
+FAILURE_TYPES: tuple[type[PlanningFailure], ...] = (
+    InvalidInput,
+    NoIK,
+    NoGraspableObject,
+    NoCollisionFreeGrasp,
+    StartInCollision,
+    GoalInCollision,
+    PlannerTimeout,
+    CartesianPathFailed,
+    NoFreeSlot,
+    NoFeasiblePlacement,
+)
