@@ -70,7 +70,7 @@ class RobotConfig(_Strict):
     model: str = "ur5e"
     limits: LimitsConfig = LimitsConfig()
     tool: ToolConfig = ToolConfig()
-    home: Six = Field(default_factory=lambda: [0.0, -1.9, 1.9, -1.57, -1.57, 0.0])
+    home: Six = Field(default_factory=lambda: [3.1416, -1.9, 1.9, -1.57, -1.57, 0.0])
 
     @field_validator("model")
     @classmethod
@@ -165,9 +165,9 @@ class CellConfig(_Strict):
     sim: SimConfig = SimConfig()
     scan_waypoints: list[Six] = Field(
         default_factory=lambda: [
-            [0.0, -1.75, 1.55, -1.45, -1.57, 0.0],
-            [0.45, -1.75, 1.55, -1.45, -1.57, 0.0],
-            [-0.45, -1.75, 1.55, -1.45, -1.57, 0.0],
+            [2.598, -2.638, 2.552, -1.873, -1.347, 0.425],
+            [3.541, -1.723, 2.133, -1.959, -2.105, -0.054],
+            [2.198, -1.734, 2.006, -1.53, -1.13, 0.142],
         ],
         description="joint configurations (rad) the arm visits to scan the sink",
     )

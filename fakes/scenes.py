@@ -1,0 +1,150 @@
+"""Random sink scenes from a seed: 3-10 dishware items with clutter, stacks, leaning plates and occlusion.
+
+Items are placed largest first (plates, then bowls, then cups), each in a random resting mode (upright,
+upside down, on its side, leaning on a basin wall, stacked/nested on one of its kind) and dropped onto what
+is already there (fakes/placement.py). Two kitchen styles: stainless and white ceramic sinks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from kitchenbot.fakes.placement import drop_onto
+from kitchenbot.fakes.world import SimWorld
+from kitchenbot.perception.cell import Cell, CellSpec
+from kitchenbot.perception.inventory import Inventory, ObjectModel
+from kitchenbot.transforms import make_T, rot_x, rot_y, rot_z, trans
+from scipy.spatial.transform import Rotation
+
+MAX_TOP_Z = 0.08  # m above the counter: higher piles are re-drawn
+
+
+@dataclass
+class SceneOptions:
+    min_objects: int = 3
+    max_objects: int = 10
+    style: str = "random"  # stainless | ceramic | random
+    stack_probability: float = 0.35
+    lean_probability: float = 0.3
+
+
+_ORDER = {"plate": 0, "bowl": 1, "mug": 2, "cup": 2, "glass": 3}
+
+
+def _resting_rotation(model: ObjectModel, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+    """A random resting orientation (4x4) and its name."""
+    yaw = rot_z(rng.uniform(0, 2 * np.pi))
+    tilt = rot_x(rng.normal(0, 0.03)) @ rot_y(rng.normal(0, 0.03))
+    r = rng.random()
+    if model.cls == "plate":
+        return yaw @ tilt, "flat"
+    if model.cls == "bowl":
+        if r < 0.65:
+            return yaw @ tilt, "upright"
+        return yaw @ rot_x(np.pi) @ tilt, "upside_down"
+    # cups, mugs, glasses
+    if r < 0.45:
+        return yaw @ tilt, "upright"
+    if r < 0.7:
+        return yaw @ rot_x(np.pi) @ tilt, "upside_down"
+    return yaw @ rot_x(np.pi / 2) @ rot_z(rng.uniform(0, 2 * np.pi)), "on_side"
+
+
+def _footprint_radius(model: ObjectModel, R: np.ndarray) -> float:
+    V = np.asarray(model.mesh.vertices) @ R[:3, :3].T
+    return float(np.max(np.linalg.norm(V[:, :2] - (V[:, :2].max(0) + V[:, :2].min(0)) / 2, axis=1)))
+
+
+def _sample_xy(cell: Cell, radius: float, rng: np.random.Generator) -> np.ndarray | None:
+    lo, hi = cell.sink_interior
+    lo_xy, hi_xy = lo[:2] + radius + 0.003, hi[:2] - radius - 0.003
+    if np.any(lo_xy > hi_xy):
+        return None
+    return rng.uniform(lo_xy, hi_xy)
+
+
+def _lean_pose(world: SimWorld, model: ObjectModel, rng: np.random.Generator) -> np.ndarray | None:
+    """A plate standing on its rim, leaning against one of the basin's long walls."""
+    lo, hi = world.cell.sink_interior
+    side = rng.choice([-1, 1])  # lean on the wall at y = lo or y = hi
+    tilt = rng.uniform(np.radians(55), np.radians(75))  # from horizontal
+    x = rng.uniform(lo[0] + model.diameter / 2 + 0.01, hi[0] - model.diameter / 2 - 0.01)
+    if lo[0] + model.diameter / 2 + 0.01 > hi[0] - model.diameter / 2 - 0.01:
+        return None
+    R = rot_x(side * tilt)  # rim tips towards the wall on `side`
+    T = trans(x, (lo[1] + hi[1]) / 2, 0.3) @ R
+    # Slide towards the wall until the nearest vertex touches it.
+    V = np.asarray(model.mesh.vertices) @ T[:3, :3].T + T[:3, 3]
+    if side > 0:
+        T[1, 3] += hi[1] - V[:, 1].max() - 0.001
+    else:
+        T[1, 3] += lo[1] - V[:, 1].min() + 0.001
+    return T
+
+
+def generate_scene(
+    seed: int,
+    inventory: Inventory | None = None,
+    cell_spec: CellSpec | None = None,
+    options: SceneOptions | None = None,
+    world_kwargs: dict | None = None,
+) -> SimWorld:
+    """A SimWorld with a random sink scene. Same seed, same scene."""
+    rng = np.random.default_rng(seed)
+    options = options or SceneOptions()
+    inventory = inventory or Inventory.builtin()
+    spec = cell_spec or CellSpec()
+    style = options.style if options.style != "random" else str(rng.choice(["stainless", "ceramic"]))
+    spec = spec.model_copy(update={"sink": spec.sink.model_copy(update={"style": style})})
+    world = SimWorld(Cell(spec), inventory, seed=seed, **(world_kwargs or {}))
+
+    n = int(rng.integers(options.min_objects, options.max_objects + 1))
+    models = list(inventory)
+    picks: list[ObjectModel] = []
+    while len(picks) < n:
+        m = models[int(rng.integers(len(models)))]
+        group = 1
+        if rng.random() < options.stack_probability and m.cls in ("plate", "bowl", "cup", "glass"):
+            group = int(rng.integers(2, 4))
+        picks.extend([m] * min(group, n - len(picks)))
+    picks.sort(key=lambda m: _ORDER.get(m.cls, 5))
+
+    prev: tuple[ObjectModel, np.ndarray, str] | None = None
+    for model in picks:
+        for _attempt in range(8):
+            stacked = prev is not None and prev[0] is model and prev[2] in ("flat", "upright", "upside_down") \
+                and rng.random() < 0.8
+            if stacked:
+                base_T, mode = prev[1], prev[2]
+                T = base_T.copy()
+                T[:2, 3] += rng.normal(0, 0.004, 2)
+                T = T @ rot_z(rng.uniform(0, 2 * np.pi)) if model.is_rotationally_symmetric else T
+                T[2, 3] = base_T[2, 3] + 0.25
+            elif model.cls == "plate" and rng.random() < options.lean_probability:
+                T, mode = _lean_pose(world, model, rng), "leaning"
+                if T is None:
+                    continue
+            else:
+                R, mode = _resting_rotation(model, rng)
+                xy = _sample_xy(world.cell, _footprint_radius(model, R), rng)
+                if xy is None:
+                    continue
+                T = make_T(R[:3, :3], (xy[0], xy[1], 0.3))
+            uid = world.add_object(model, T)
+            T_rest = drop_onto(world, uid, T)
+            V = np.asarray(model.mesh.vertices) @ T_rest[:3, :3].T + T_rest[:3, 3]
+            lo, hi = world.cell.sink_interior
+            inside = np.all(V[:, :2] >= lo[:2] - 1e-3) and np.all(V[:, :2] <= hi[:2] + 1e-3)
+            if V[:, 2].max() > MAX_TOP_Z or not inside or V[:, 2].min() < lo[2] - 0.002:
+                world.remove_object(uid)
+                continue
+            world.set_pose(uid, T_rest)
+            prev = (model, T_rest, mode)
+            break
+    return world
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    return make_T(Rotation.random(random_state=int(rng.integers(2**31))).as_matrix())
