@@ -329,10 +329,10 @@ class Servo:
             f = BY_ADDR.get(a)
             if f is None:  # a reserved byte or the middle of a field
                 raise AccessError(ERR_ACCESS)
-            if a + f.size > end:
-                raise AccessError(ERR_DATA_LENGTH)
             if not f.writable:
                 raise AccessError(ERR_ACCESS)
+            if a + f.size > end:
+                raise AccessError(ERR_DATA_LENGTH)
             if f.eeprom and self.get("torque_enable"):
                 raise AccessError(ERR_ACCESS)
             value = int.from_bytes(data[a - addr : a - addr + f.size], "little", signed=f.signed)

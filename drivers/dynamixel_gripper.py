@@ -1,0 +1,434 @@
+"""The Fin-Ray gripper on a Dynamixel XM430 servo (Protocol 2.0) through ``dynamixel-sdk`` over pyserial.
+
+The servo runs in current-based position mode (Operating Mode 5): it moves to the goal position but never pushes
+harder than the goal current, so closing on a cup stalls on its wall with the current at the goal. A grasp is
+*holding* when the fingers stalled before they were fully closed with the current near the goal.
+
+Calibration (linear, documented in the constructor): the opening between the finger pads is
+``max_opening * (ticks - closed_ticks) / (open_ticks - closed_ticks)``; ``closed_ticks`` is the servo position
+where the pads touch, ``open_ticks`` the one where they are ``max_opening`` apart. Measure both once by jogging
+the servo with torque off and reading Present Position (e.g. with the Dynamixel Wizard). Either may be larger.
+
+Errors: a missing/unopenable port or a silent servo -> DeviceNotConnectedError (naming port, baud, id); no answer
+after the retries -> DriverTimeoutError; Hardware Error Status (@70) set -> HardwareError with the decoded text
+(a shutdown needs :meth:`reboot`); a refused write -> DriverError with the SDK's text.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import termios
+import time
+from dataclasses import dataclass
+
+from dynamixel_sdk import PacketHandler, PortHandler
+from serial import SerialException
+
+from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverError, DriverTimeoutError, HardwareError
+from kitchenbot.drivers.gripper import GraspResult, Gripper, GripperStatus
+
+log = logging.getLogger(__name__)
+
+# ---- XM430 control table (Protocol 2.0; DESIGN.md section 7) ---------------------------------------------
+ADDR_MODEL_NUMBER = 0  # 2
+ADDR_FIRMWARE_VERSION = 6  # 1
+ADDR_OPERATING_MODE = 11  # 1 (EEPROM)
+ADDR_TEMPERATURE_LIMIT = 31  # 1 (EEPROM)
+ADDR_MAX_VOLTAGE_LIMIT = 32  # 2 (EEPROM, 0.1 V)
+ADDR_MIN_VOLTAGE_LIMIT = 34  # 2 (EEPROM, 0.1 V)
+ADDR_CURRENT_LIMIT = 38  # 2 (EEPROM)
+ADDR_TORQUE_ENABLE = 64  # 1
+ADDR_HARDWARE_ERROR = 70  # 1
+ADDR_GOAL_CURRENT = 102  # 2
+ADDR_GOAL_POSITION = 116  # 4
+ADDR_MOVING = 122  # 1; one READ of 122..146 gets every present value at once
+ADDR_PRESENT_CURRENT = 126  # 2 signed
+ADDR_PRESENT_VELOCITY = 128  # 4 signed
+ADDR_PRESENT_POSITION = 132  # 4 signed
+ADDR_PRESENT_VOLTAGE = 144  # 2 (0.1 V)
+ADDR_PRESENT_TEMPERATURE = 146  # 1 (deg C)
+
+MODE_CURRENT_BASED_POSITION = 5
+XM430_MODELS = {1020: "XM430-W350", 1030: "XM430-W210"}
+CURRENT_UNIT_A = 0.00269  # A per current unit (XM430)
+HW_ERROR_BITS = {
+    0x01: "input voltage out of range",
+    0x04: "overheating",
+    0x08: "motor encoder error",
+    0x10: "electrical shock (circuit fault)",
+    0x20: "overload",
+}
+
+# ---- SDK result codes (dynamixel_sdk.robotis_def) -----------------------------------------------------------
+COMM_SUCCESS = 0
+COMM_RETRYABLE = {-3001, -3002, -1001, -1002}  # rx timeout, rx corrupt, tx fail, rx fail
+ERRBIT_ALERT = 0x80
+
+
+def decode_hardware_error(status: int) -> str | None:
+    """Hardware Error Status (@70) as text, None when clear."""
+    if not status:
+        return None
+    parts = [text for bit, text in HW_ERROR_BITS.items() if status & bit]
+    unknown = status & ~sum(HW_ERROR_BITS)
+    if unknown:
+        parts.append(f"unknown bits 0x{unknown:02x}")
+    return ", ".join(parts)
+
+
+def _signed(value: int, size: int) -> int:
+    bits = 8 * size
+    return value - (1 << bits) if value & (1 << (bits - 1)) else value
+
+
+@dataclass
+class _Present:
+    moving: bool
+    current_units: int
+    velocity_units: int
+    position: int
+    voltage_v: float
+    temperature_c: float
+    alert: bool
+
+
+class DynamixelGripper(Gripper):
+    """Fin-Ray gripper on one XM430. All units SI (m, A, V, degC) at this interface."""
+
+    def __init__(
+        self,
+        port: str = "/dev/ttyUSB0",
+        baudrate: int = 57600,
+        servo_id: int = 1,
+        *,
+        closed_ticks: int = 2048,
+        open_ticks: int = 3072,
+        max_opening: float = 0.085,
+        current_limit_ma: float = 600.0,
+        closing_overshoot_ticks: int = 40,
+        min_holding_opening: float = 0.004,
+        holding_current_fraction: float = 0.7,
+        position_tolerance_ticks: int = 25,
+        retries: int = 3,
+        poll_interval: float = 0.01,
+        temperature_warn_c: float = 70.0,
+    ):
+        """`closed_ticks`/`open_ticks`/`max_opening`: the linear calibration above. `current_limit_ma` is
+        written to Current Limit (@38) at connect and bounds every grasp. `closing_overshoot_ticks`: a grasp
+        aims this far past closed so the pads press together when there is nothing between them.
+        `min_holding_opening` (m): below it a stall counts as fully closed (not holding)."""
+        if closed_ticks == open_ticks:
+            raise ValueError("closed_ticks and open_ticks must differ (the calibration would divide by zero)")
+        if max_opening <= 0:
+            raise ValueError(f"max_opening {max_opening} m: expected a positive opening")
+        self.port_name = port
+        self.baudrate = int(baudrate)
+        self.servo_id = int(servo_id)
+        self.closed_ticks = int(closed_ticks)
+        self.open_ticks = int(open_ticks)
+        self.max_opening = float(max_opening)
+        self.current_limit_units = max(1, int(round(current_limit_ma / 1000.0 / CURRENT_UNIT_A)))
+        self.max_current = self.current_limit_units * CURRENT_UNIT_A
+        self.closing_overshoot_ticks = int(closing_overshoot_ticks)
+        self.min_holding_opening = float(min_holding_opening)
+        self.holding_current_fraction = float(holding_current_fraction)
+        self.position_tolerance_ticks = int(position_tolerance_ticks)
+        self.retries = max(1, int(retries))
+        self.poll_interval = float(poll_interval)
+        self.temperature_warn_c = float(temperature_warn_c)
+        self.model_number: int | None = None
+        self.firmware_version: int | None = None
+        self._port: PortHandler | None = None
+        self._ph = PacketHandler(2.0)
+        self._goal_current_units = self.current_limit_units
+        self._grasping = False
+        self._temperature_limit_c = 80.0
+        self._voltage_range = (9.5, 16.0)
+
+    # ---- calibration ------------------------------------------------------------------------------
+    @property
+    def _closing_sign(self) -> int:
+        """+1 when closing increases the ticks."""
+        return 1 if self.closed_ticks > self.open_ticks else -1
+
+    def ticks_to_opening(self, ticks: float) -> float:
+        return self.max_opening * (ticks - self.closed_ticks) / (self.open_ticks - self.closed_ticks)
+
+    def opening_to_ticks(self, opening: float) -> int:
+        return int(round(self.closed_ticks + (self.open_ticks - self.closed_ticks) * opening / self.max_opening))
+
+    # ---- connection -------------------------------------------------------------------------------
+    def connect(self) -> None:
+        where = f"{self.port_name} ({self.baudrate} baud, id {self.servo_id})"
+        if not os.path.exists(self.port_name):
+            raise DeviceNotConnectedError(
+                f"Dynamixel gripper: serial port {self.port_name} does not exist. Is the U2D2/USB adapter plugged "
+                f"in and powered? Check `ls /dev/ttyUSB* /dev/serial/by-id/` and drivers.gripper.port in the config."
+            )
+        port = PortHandler(self.port_name)
+        try:
+            port.openPort()
+        except (SerialException, OSError) as e:
+            hint = " (add your user to the 'dialout' group)" if "ermission" in str(e) else ""
+            raise DeviceNotConnectedError(
+                f"Dynamixel gripper: cannot open serial port {self.port_name}: {e}{hint}"
+            ) from None
+        if not port.setBaudRate(self.baudrate):
+            port.closePort()
+            raise ValueError(f"drivers.gripper.baudrate {self.baudrate}: not a baud rate the Dynamixel SDK supports")
+        self._port = port
+        try:
+            model = self._ping()
+            if model not in XM430_MODELS:
+                raise DriverError(
+                    f"Dynamixel gripper on {where}: model number {model} is not an XM430 "
+                    f"(expected one of {XM430_MODELS})"
+                )
+            self.model_number = model
+            self.firmware_version = self._read(ADDR_FIRMWARE_VERSION, 1)
+            self._temperature_limit_c = float(self._read(ADDR_TEMPERATURE_LIMIT, 1))
+            self._voltage_range = (self._read(ADDR_MIN_VOLTAGE_LIMIT, 2) / 10.0, self._read(ADDR_MAX_VOLTAGE_LIMIT, 2) / 10.0)
+            hw = self._read(ADDR_HARDWARE_ERROR, 1)
+            if hw:
+                log.warning("gripper servo reports a hardware error at connect: %s", decode_hardware_error(hw))
+                return  # stay connected so status()/reboot() work; commands raise HardwareError
+            self._configure()
+        except BaseException:
+            self.disconnect()
+            raise
+
+    def _configure(self) -> None:
+        """EEPROM settings need torque off: operating mode and current limit (only written when different)."""
+        self._write(ADDR_TORQUE_ENABLE, 1, 0)
+        if self._read(ADDR_OPERATING_MODE, 1) != MODE_CURRENT_BASED_POSITION:
+            self._write(ADDR_OPERATING_MODE, 1, MODE_CURRENT_BASED_POSITION)
+        if self._read(ADDR_CURRENT_LIMIT, 2) != self.current_limit_units:
+            self._write(ADDR_CURRENT_LIMIT, 2, self.current_limit_units)
+        self._write(ADDR_TORQUE_ENABLE, 1, 1)
+
+    def disconnect(self) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            try:
+                port.closePort()
+            except OSError:
+                pass
+
+    @property
+    def is_connected(self) -> bool:
+        return self._port is not None
+
+    def describe(self) -> dict:
+        """Model, firmware and port (for `kitchenbot doctor`)."""
+        return {
+            "model": XM430_MODELS.get(self.model_number or 0, str(self.model_number)),
+            "model_number": self.model_number,
+            "firmware": self.firmware_version,
+            "port": self.port_name,
+            "baudrate": self.baudrate,
+            "servo_id": self.servo_id,
+        }
+
+    # ---- low-level access with retries ------------------------------------------------------------------
+    def _txrx(self, what: str, fn, *args):
+        """Run one SDK transaction; retry communication failures; map results to our errors.
+        Returns (value, error_byte)."""
+        if self._port is None:
+            raise DeviceNotConnectedError(f"Dynamixel gripper on {self.port_name}: not connected; call connect() first")
+        last = ""
+        for attempt in range(self.retries):
+            try:
+                out = fn(self._port, self.servo_id, *args)
+            except (SerialException, OSError, termios.error) as e:
+                self._port.is_using = False
+                raise DeviceNotConnectedError(f"Dynamixel gripper: serial link {self.port_name} failed: {e}") from None
+            value, result, error = (None, out[0], out[1]) if len(out) == 2 else out
+            if result == COMM_SUCCESS:
+                if error & ~ERRBIT_ALERT:
+                    raise DriverError(
+                        f"Dynamixel gripper: {what} refused by servo id {self.servo_id}: "
+                        f"{self._ph.getRxPacketError(error & ~ERRBIT_ALERT)}"
+                    )
+                return value, error
+            last = self._ph.getTxRxResult(result)
+            if result not in COMM_RETRYABLE:
+                break
+            if attempt + 1 < self.retries:
+                time.sleep(0.005 * (attempt + 1))
+        raise DriverTimeoutError(
+            f"Dynamixel gripper: no valid answer to {what} from servo id {self.servo_id} on {self.port_name} "
+            f"after {self.retries} tries ({last}). Is the servo powered and the baud rate {self.baudrate}?"
+        )
+
+    def _ping(self) -> int:
+        try:
+            model, _ = self._txrx("PING", self._ph.ping)
+        except DriverTimeoutError as e:
+            raise DeviceNotConnectedError(
+                f"Dynamixel gripper: no servo with id {self.servo_id} answers on {self.port_name} at "
+                f"{self.baudrate} baud. Check power (12 V), the id and the baud rate. ({e})"
+            ) from None
+        return int(model)
+
+    def _read(self, addr: int, size: int) -> int:
+        fn = {1: self._ph.read1ByteTxRx, 2: self._ph.read2ByteTxRx, 4: self._ph.read4ByteTxRx}[size]
+        value, _ = self._txrx(f"READ @{addr}", fn, addr)
+        return int(value)
+
+    def _write(self, addr: int, size: int, value: int) -> None:
+        fn = {1: self._ph.write1ByteTxRx, 2: self._ph.write2ByteTxRx, 4: self._ph.write4ByteTxRx}[size]
+        try:
+            self._txrx(f"WRITE {value} @{addr}", fn, addr, int(value) & ((1 << (8 * size)) - 1))
+        except DriverError as e:
+            if type(e) is DriverError:  # refused: a latched hardware error explains it better
+                hw = self._read(ADDR_HARDWARE_ERROR, 1)
+                if hw:
+                    raise HardwareError(
+                        f"Dynamixel gripper: {decode_hardware_error(hw)} (Hardware Error Status 0x{hw:02x}); "
+                        "the servo shut down, call reboot()"
+                    ) from None
+            raise
+
+    def _present(self) -> _Present:
+        """Moving .. Present Temperature (addresses 122-146) in one READ."""
+        data, error = self._txrx("READ present values", self._ph.readTxRx, ADDR_MOVING, 25)
+
+        def field(addr: int, size: int) -> int:
+            o = addr - ADDR_MOVING
+            return int.from_bytes(bytes(data[o : o + size]), "little")
+
+        return _Present(
+            moving=bool(field(ADDR_MOVING, 1)),
+            current_units=_signed(field(ADDR_PRESENT_CURRENT, 2), 2),
+            velocity_units=_signed(field(ADDR_PRESENT_VELOCITY, 4), 4),
+            position=_signed(field(ADDR_PRESENT_POSITION, 4), 4),
+            voltage_v=field(ADDR_PRESENT_VOLTAGE, 2) / 10.0,
+            temperature_c=float(field(ADDR_PRESENT_TEMPERATURE, 1)),
+            alert=bool(error & ERRBIT_ALERT),
+        )
+
+    def hardware_error(self) -> str | None:
+        return decode_hardware_error(self._read(ADDR_HARDWARE_ERROR, 1))
+
+    def _check_healthy(self, p: _Present | None = None) -> _Present:
+        p = p or self._present()
+        if p.alert:
+            hw = self._read(ADDR_HARDWARE_ERROR, 1)
+            if hw:
+                raise HardwareError(
+                    f"Dynamixel gripper: {decode_hardware_error(hw)} (Hardware Error Status 0x{hw:02x}); "
+                    "call reboot() to clear it"
+                )
+        if p.temperature_c >= self.temperature_warn_c:
+            raise HardwareError(
+                f"Dynamixel gripper: servo at {p.temperature_c:.0f} degC, near its {self._temperature_limit_c:.0f} "
+                "degC shutdown limit; let it cool before grasping"
+            )
+        lo, hi = self._voltage_range
+        if not (lo <= p.voltage_v <= hi):
+            log.warning("gripper servo input voltage %.1f V outside %.1f..%.1f V", p.voltage_v, lo, hi)
+        return p
+
+    def _ensure_torque(self) -> None:
+        if not self._read(ADDR_TORQUE_ENABLE, 1):
+            if self._read(ADDR_OPERATING_MODE, 1) != MODE_CURRENT_BASED_POSITION or (
+                self._read(ADDR_CURRENT_LIMIT, 2) != self.current_limit_units
+            ):
+                self._configure()
+            else:
+                self._write(ADDR_TORQUE_ENABLE, 1, 1)
+
+    # ---- commands ---------------------------------------------------------------------------------
+    def _holding(self, p: _Present, goal_units: int) -> bool:
+        stalled = not p.moving  # Present Velocity under the servo's Moving Threshold
+        pushing = p.current_units * self._closing_sign >= self.holding_current_fraction * goal_units
+        return stalled and pushing and self.ticks_to_opening(p.position) > self.min_holding_opening
+
+    def open(self, opening: float | None = None, timeout: float = 3.0) -> None:
+        target = self.max_opening if opening is None else float(opening)
+        if not (0.0 <= target <= self.max_opening):
+            raise ValueError(f"opening {target} m: expected 0 <= opening <= {self.max_opening} m")
+        self._check_healthy()
+        self._ensure_torque()
+        self._grasping = False
+        self._goal_current_units = self.current_limit_units
+        self._write(ADDR_GOAL_CURRENT, 2, self.current_limit_units)
+        goal = self.opening_to_ticks(target)
+        self._write(ADDR_GOAL_POSITION, 4, goal)
+        deadline = time.monotonic() + timeout
+        while True:
+            p = self._check_healthy()
+            if abs(p.position - goal) <= self.position_tolerance_ticks:
+                return
+            if time.monotonic() > deadline:
+                raise DriverTimeoutError(
+                    f"Dynamixel gripper: did not reach {target * 1000:.1f} mm within {timeout} s "
+                    f"(stuck at {self.ticks_to_opening(p.position) * 1000:.1f} mm; something in the way?)"
+                )
+            time.sleep(self.poll_interval)
+
+    def grasp(self, current_limit: float, timeout: float = 3.0) -> GraspResult:
+        limit = self._check_current(current_limit)
+        self._check_healthy()
+        self._ensure_torque()
+        goal_units = max(1, min(self.current_limit_units, int(round(limit / CURRENT_UNIT_A))))
+        self._goal_current_units = goal_units
+        self._write(ADDR_GOAL_CURRENT, 2, goal_units)
+        goal = self.closed_ticks + self._closing_sign * self.closing_overshoot_ticks
+        self._write(ADDR_GOAL_POSITION, 4, goal)
+        self._grasping = True
+        deadline = time.monotonic() + timeout
+        settled = 0
+        last_pos = None
+        while True:
+            time.sleep(self.poll_interval)
+            p = self._check_healthy()
+            reached = abs(p.position - goal) <= self.position_tolerance_ticks
+            still = last_pos is not None and abs(p.position - last_pos) <= 1 and not p.moving
+            pushing = p.current_units * self._closing_sign >= self.holding_current_fraction * goal_units
+            settled = settled + 1 if (still and (pushing or reached)) else 0
+            last_pos = p.position
+            if settled >= 3:
+                opening = max(0.0, self.ticks_to_opening(p.position))
+                holding = self._holding(p, goal_units)
+                return GraspResult(holding=holding, opening=opening, current=p.current_units * self._closing_sign * CURRENT_UNIT_A)
+            if time.monotonic() > deadline:
+                raise DriverTimeoutError(
+                    f"Dynamixel gripper: grasp did not settle within {timeout} s "
+                    f"(at {self.ticks_to_opening(p.position) * 1000:.1f} mm, {p.current_units * CURRENT_UNIT_A:.2f} A)"
+                )
+
+    def status(self) -> GripperStatus:
+        p = self._present()
+        error = None
+        if p.alert:
+            error = decode_hardware_error(self._read(ADDR_HARDWARE_ERROR, 1))
+        return GripperStatus(
+            opening=self.ticks_to_opening(p.position),
+            current=p.current_units * self._closing_sign * CURRENT_UNIT_A,
+            holding=self._grasping and error is None and self._holding(p, self._goal_current_units),
+            moving=p.moving,
+            error=error,
+            temperature_c=p.temperature_c,
+            voltage_v=p.voltage_v,
+        )
+
+    def reboot(self, timeout: float = 2.0) -> None:
+        """REBOOT the servo (clears a shutdown), wait until it answers again; it comes back with torque off."""
+        self._txrx("REBOOT", self._ph.reboot)
+        self._grasping = False
+        deadline = time.monotonic() + timeout
+        while True:
+            time.sleep(0.05)
+            try:
+                self._txrx("PING", self._ph.ping)
+                break
+            except DriverTimeoutError:
+                if time.monotonic() > deadline:
+                    raise DriverTimeoutError(
+                        f"Dynamixel gripper: servo id {self.servo_id} did not come back within {timeout} s of REBOOT"
+                    ) from None
+        hw = self._read(ADDR_HARDWARE_ERROR, 1)
+        if hw:
+            raise HardwareError(f"Dynamixel gripper: still {decode_hardware_error(hw)} after REBOOT")
