@@ -65,8 +65,10 @@ class ObjectModel:
     @cached_property
     def points(self) -> np.ndarray:
         """2048 surface points (metres, object frame), evenly spread (Poisson disk)."""
-        pcd = self.mesh.sample_points_poisson_disk(2048, seed=1) if len(self.mesh.triangles) else None
-        return np.asarray(pcd.points) if pcd is not None else np.zeros((0, 3))
+        if not len(self.mesh.triangles):
+            return np.zeros((0, 3))
+        o3d.utility.random.seed(1)  # deterministic sampling
+        return np.asarray(self.mesh.sample_points_poisson_disk(2048).points)
 
     @property
     def is_rotationally_symmetric(self) -> bool:
