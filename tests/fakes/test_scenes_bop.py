@@ -8,7 +8,6 @@ from PIL import Image
 
 from kitchenbot.executive.config import load_config
 from kitchenbot.fakes.bop import generate_dataset
-from kitchenbot.fakes.geometry import build_scene
 from kitchenbot.fakes.scenes import generate_scene
 from kitchenbot.perception.inventory import Inventory
 from kitchenbot.transforms import make_T, transform_points
@@ -26,6 +25,19 @@ def test_same_seed_same_scene(inventory):
         assert np.allclose(oa.T_base_obj, ob.T_base_obj)
 
 
+def test_interpenetration_check_detects_overlap(inventory):
+    """The occupancy test below can fail: a cup pushed into a bowl's wall is caught."""
+    import open3d as o3d
+
+    bowl, cup = inventory.by_name("bowl"), inventory.by_name("cup")
+    s = o3d.t.geometry.RaycastingScene()
+    s.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(bowl.mesh))
+    pts = transform_points(make_T(t=(0.03, 0, 0)), cup.points).astype(np.float32)
+    occ = s.compute_occupancy(o3d.core.Tensor(pts)).numpy()
+    sd = np.abs(s.compute_signed_distance(o3d.core.Tensor(pts)).numpy())
+    assert ((occ > 0.5) & (sd > 0.001)).mean() > 0.01
+
+
 def test_scenes_are_in_the_sink_and_do_not_interpenetrate(inventory):
     counts, styles = [], set()
     for seed in range(6):
@@ -37,9 +49,9 @@ def test_scenes_are_in_the_sink_and_do_not_interpenetrate(inventory):
             V = transform_points(o.T_base_obj, np.asarray(o.model.mesh.vertices))
             assert np.all(V[:, :2] > lo[:2] - 0.002) and np.all(V[:, :2] < hi[:2] + 0.002)
             assert V[:, 2].min() > lo[2] - 0.003
-            # No other object's surface points lie deep inside this one (occupancy by ray parity).
-            scene, _ = build_scene(w, include_cell=False)
-            others = np.vstack([transform_points(p.T_base_obj, p.model.points[::8])
+            # No other object's surface points lie inside this one's walls (occupancy by ray parity; walls
+            # are 2.5-5 mm thick, so "inside by more than 1 mm" means interpenetration).
+            others = np.vstack([transform_points(p.T_base_obj, p.model.points[::4])
                                 for u, p in w.objects.items() if u != uid] or [np.zeros((0, 3))])
             if len(others) == 0:
                 continue
@@ -49,8 +61,8 @@ def test_scenes_are_in_the_sink_and_do_not_interpenetrate(inventory):
             single.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(w.object_mesh(uid)))
             occ = single.compute_occupancy(o3d.core.Tensor(others.astype(np.float32))).numpy()
             sd = np.abs(single.compute_signed_distance(o3d.core.Tensor(others.astype(np.float32))).numpy())
-            deep = (occ > 0.5) & (sd > 0.004)
-            assert deep.mean() < 0.01, f"seed {seed}: objects interpenetrate"
+            inside = (occ > 0.5) & (sd > 0.001)
+            assert inside.mean() < 0.002, f"seed {seed}: objects interpenetrate"
     assert min(counts) >= 3 and max(counts) <= 10
     assert styles == {"stainless", "ceramic"}
 
