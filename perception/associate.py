@@ -1,0 +1,91 @@
+"""Cross-view association of per-view masks (paper III-C "Instance segmentation across multi-view images").
+
+Each mask is lifted to 3D with its depth and camera pose, projected into every other view, kept where the
+other view's depth agrees (so occluded parts do not count), and compared with that view's masks by IoU.
+Two masks get the same instance id when the IoU passes the threshold in BOTH directions (a->b and b->a)
+and each is the other's best match; ids are made transitive with a union-find over all view pairs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import binary_dilation
+
+from kitchenbot.perception.detect import Detection
+from kitchenbot.perception.rgbd import backproject, project_pixels
+from kitchenbot.perception.types import View
+
+
+def projected_iou(src: View, src_dets: list[Detection], dst: View, dst_dets: list[Detection],
+                  depth_tol: float = 0.02, stride: int = 2) -> np.ndarray:
+    """IoU[a, b] between mask a of `src` projected into `dst` and mask b of `dst`."""
+    na, nb = len(src_dets), len(dst_dets)
+    iou = np.zeros((na, nb))
+    if na == 0 or nb == 0:
+        return iou
+    h, w = dst.depth.shape
+    dst_lab = np.full((h, w), -1, np.int64)
+    for j, d in enumerate(dst_dets):
+        dst_lab[d.mask & (dst_lab < 0)] = j
+    dst_area = np.array([d.mask.sum() for d in dst_dets], float)
+    dd = np.nan_to_num(np.asarray(dst.depth, np.float64), nan=0.0)
+    for i, d in enumerate(src_dets):
+        sub = np.zeros_like(d.mask)
+        sub[::stride, ::stride] = d.mask[::stride, ::stride]
+        pts, _ = backproject(src, sub)
+        if len(pts) == 0:
+            continue
+        rc, z, _ = project_pixels(dst, pts)
+        if len(rc) == 0:
+            continue
+        obs = dd[rc[:, 0], rc[:, 1]]
+        # Visible in dst: depth agrees, or dst has no depth there (holes do not veto).
+        vis = (obs <= 0) | (np.abs(obs - z) < depth_tol)
+        rc = rc[vis]
+        proj = np.zeros((h, w), bool)
+        proj[rc[:, 0], rc[:, 1]] = True
+        proj = binary_dilation(proj, iterations=stride)  # fill the gaps of the subsampled, resampled splat
+        area = proj.sum()
+        if area == 0:
+            continue
+        inter = np.bincount(dst_lab[proj & (dst_lab >= 0)], minlength=nb).astype(float)
+        iou[i] = inter / (area + dst_area - inter)
+    return iou
+
+
+class _UnionFind:
+    def __init__(self, n: int):
+        self.p = list(range(n))
+
+    def find(self, a: int) -> int:
+        while self.p[a] != a:
+            self.p[a] = self.p[self.p[a]]
+            a = self.p[a]
+        return a
+
+    def union(self, a: int, b: int) -> None:
+        ra, rb = self.find(a), self.find(b)
+        if ra != rb:
+            self.p[max(ra, rb)] = min(ra, rb)
+
+
+def associate(views: list[View], dets: list[list[Detection]], iou_threshold: float = 0.6,
+              depth_tol: float = 0.02) -> list[np.ndarray]:
+    """Instance ids (0..n-1, consistent across views) for every detection of every view."""
+    offsets = np.cumsum([0] + [len(d) for d in dets])
+    uf = _UnionFind(int(offsets[-1]))
+    for i in range(len(views)):
+        for j in range(i + 1, len(views)):
+            if not dets[i] or not dets[j]:
+                continue
+            a2b = projected_iou(views[i], dets[i], views[j], dets[j], depth_tol)
+            b2a = projected_iou(views[j], dets[j], views[i], dets[i], depth_tol).T
+            both = np.minimum(a2b, b2a)
+            for a in range(len(dets[i])):
+                b = int(np.argmax(both[a]))
+                if both[a, b] >= iou_threshold and int(np.argmax(both[:, b])) == a:
+                    uf.union(offsets[i] + a, offsets[j] + b)
+    roots = [uf.find(k) for k in range(int(offsets[-1]))]
+    remap = {r: n for n, r in enumerate(dict.fromkeys(roots))}
+    ids = np.array([remap[r] for r in roots], np.int64)
+    return [ids[offsets[v]: offsets[v + 1]] for v in range(len(views))]

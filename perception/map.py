@@ -1,0 +1,141 @@
+"""Instance-aware map (paper III-C): the views fused into base-frame points (x, y, z, id).
+
+When the scan poses are off (arm repeatability, hand-eye error), each view is first registered onto the
+first one: point-to-plane ICP on the whole view (the sink walls and floor pin all six degrees of freedom),
+with a coarse FPFH + RANSAC alignment first when ICP from the given pose does not converge. Corrections
+larger than a few centimetres / degrees are refused (then the given pose is kept).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from kitchenbot.perception.detect import Detection
+from kitchenbot.perception.rgbd import backproject
+from kitchenbot.perception.types import View
+from kitchenbot.transforms import pose_error
+
+reg = o3d.pipelines.registration
+
+
+@dataclass
+class InstanceMap:
+    """Points of the segmented instances in the base frame, with where each came from."""
+
+    points: np.ndarray  # (N, 3) base frame, metres
+    ids: np.ndarray  # (N,) instance id
+    view: np.ndarray  # (N,) index of the view the point was seen in
+    pixel: np.ndarray  # (N, 2) (row, col) in that view
+    cam_centres: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (n_views, 3)
+
+    @property
+    def instance_ids(self) -> list[int]:
+        return sorted(int(i) for i in np.unique(self.ids))
+
+    def select(self, keep: np.ndarray) -> "InstanceMap":
+        return InstanceMap(self.points[keep], self.ids[keep], self.view[keep], self.pixel[keep], self.cam_centres)
+
+    @staticmethod
+    def empty(n_views: int = 0) -> "InstanceMap":
+        return InstanceMap(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2), np.int64),
+                           np.zeros((n_views, 3)))
+
+
+def _cloud(points: np.ndarray, voxel: float) -> o3d.geometry.PointCloud:
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pc = pc.voxel_down_sample(voxel)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=voxel * 2.5, max_nn=30))
+    return pc
+
+
+def align_views(views: list[View], voxel: float = 0.01, max_trans: float = 0.03, max_rot_deg: float = 5.0,
+                coarse: bool = True, max_range: float = 1.5) -> tuple[list[View], list[np.ndarray]]:
+    """Views with corrected T_base_cam (each registered onto view 0), and the corrections applied (base frame)."""
+    if len(views) < 2:
+        return list(views), [np.eye(4) for _ in views]
+    clouds = []
+    for v in views:
+        d = np.where(np.asarray(v.depth) < max_range, v.depth, 0)
+        p, _ = backproject(View(v.rgb, d, v.K, v.T_base_cam), None)
+        clouds.append(_cloud(p, voxel))
+    out, corr = [views[0]], [np.eye(4)]
+    target = clouds[0]
+    for v, src in zip(views[1:], clouds[1:]):
+        T = np.eye(4)
+        if len(src.points) >= 50 and len(target.points) >= 50:
+            res = reg.registration_icp(src, target, 2 * voxel, np.eye(4), reg.TransformationEstimationPointToPlane(),
+                                       reg.ICPConvergenceCriteria(max_iteration=30))
+            if res.fitness < 0.5 and coarse:
+                res = _coarse_then_icp(src, target, voxel)
+            rot, tr = pose_error(np.eye(4), res.transformation)
+            if res.fitness >= 0.5 and tr <= max_trans and np.degrees(rot) <= max_rot_deg:
+                T = res.transformation
+        out.append(View(v.rgb, v.depth, v.K, T @ v.T_base_cam, v.stamp))
+        corr.append(T)
+    return out, corr
+
+
+def _coarse_then_icp(src: o3d.geometry.PointCloud, dst: o3d.geometry.PointCloud, voxel: float):
+    param = o3d.geometry.KDTreeSearchParamHybrid(radius=voxel * 5, max_nn=100)
+    fs = reg.compute_fpfh_feature(src, param)
+    fd = reg.compute_fpfh_feature(dst, param)
+    coarse = reg.registration_ransac_based_on_feature_matching(
+        src, dst, fs, fd, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+        reg.RANSACConvergenceCriteria(20000, 0.999))
+    return reg.registration_icp(src, dst, 2 * voxel, coarse.transformation, reg.TransformationEstimationPointToPlane(),
+                                reg.ICPConvergenceCriteria(max_iteration=30))
+
+
+def build_map(views: list[View], dets: list[list[Detection]], ids: list[np.ndarray], stride: int = 2) -> InstanceMap:
+    """Fuse the masked pixels of all views into one instance map (pixels subsampled by `stride`)."""
+    pts, lab, vw, px = [], [], [], []
+    for k, (v, ds, iv) in enumerate(zip(views, dets, ids)):
+        grid = np.zeros(v.depth.shape, bool)
+        grid[::stride, ::stride] = True
+        for d, i in zip(ds, iv):
+            p, rc = backproject(v, d.mask & grid)
+            pts.append(p)
+            lab.append(np.full(len(p), int(i)))
+            vw.append(np.full(len(p), k))
+            px.append(rc)
+    centres = np.array([v.T_base_cam[:3, 3] for v in views]) if views else np.zeros((0, 3))
+    if not pts:
+        return InstanceMap.empty(len(views))
+    return InstanceMap(np.concatenate(pts), np.concatenate(lab).astype(np.int64), np.concatenate(vw).astype(np.int64),
+                       np.concatenate(px).astype(np.int64), centres)
+
+
+def consolidate(m: InstanceMap, radius: float = 0.006, min_shared: float = 0.5) -> InstanceMap:
+    """Merge instances that are the same surface seen in different views but were not associated
+    (e.g. one view saw two touching items as one mask): ids whose points mostly lie on each other's."""
+    inst = m.instance_ids
+    if len(inst) < 2:
+        return m
+    trees = {i: cKDTree(m.points[m.ids == i]) for i in inst}
+    parent = {i: i for i in inst}
+
+    def find(a):
+        while parent[a] != a:
+            a = parent[a]
+        return a
+
+    for a in inst:
+        pa = m.points[m.ids == a]
+        if len(pa) > 400:
+            pa = pa[np.linspace(0, len(pa) - 1, 400).astype(int)]
+        for b in inst:
+            if b == a:
+                continue
+            d, _ = trees[b].query(pa, distance_upper_bound=radius)
+            if np.mean(np.isfinite(d)) >= min_shared:
+                ra, rb = find(a), find(b)
+                if ra != rb:
+                    parent[max(ra, rb)] = min(ra, rb)
+    new = np.array([find(int(i)) for i in m.ids], np.int64) if len(m.ids) else m.ids
+    _, dense = np.unique(new, return_inverse=True)
+    return InstanceMap(m.points, dense.astype(np.int64), m.view, m.pixel, m.cam_centres)

@@ -1,0 +1,207 @@
+"""Candidate proposal and object registration (paper III-C "Object candidate proposal" / "Object registration").
+
+Candidates: cosine similarity of the query's class tokens (image class token, mean point feature) against
+each model's rendered views, aggregated per model (max over views); the top-K over a threshold survive.
+
+Registration per candidate, multi-hypothesis:
+  1. correspondence-based coarse alignment in fused-feature space (Open3D RANSAC on feature matches with
+     the edge-length 0.9 and distance checkers);
+  2. gravity priors: dishware rests on surfaces, so its symmetry axis is up, down, or along one of the
+     query's principal axes (leaning / on its side); for models without a continuous symmetry, yaws around
+     that axis are enumerated too;
+  3. every hypothesis is refined by coarse-to-fine point-to-plane ICP and scored;
+  4. the best hypothesis is refined once more with fine ICP.
+Score: the paper's bidirectional overlap ratios with epsilon = voxel size, where the model->query ratio is
+taken over the model points the cameras could see (facing a camera and not behind the observed depth),
+and model points seen to be in free space (in front of the observed depth) count against it.
+Candidates scoring below ``min_overlap`` are rejected: unknown objects are never forced into a class.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from kitchenbot.perception.database import CadDatabase, ModelEntry
+from kitchenbot.perception.features import FusedCloud
+from kitchenbot.perception.inventory import ObjectModel
+from kitchenbot.perception.rgbd import project_pixels
+from kitchenbot.perception.types import View
+from kitchenbot.transforms import inv, make_T
+
+reg = o3d.pipelines.registration
+
+
+@dataclass
+class Hypothesis:
+    obj_id: int
+    T_base_obj: np.ndarray
+    score: float = 0.0
+    or_query: float = 0.0  # fraction of query points within eps of the model
+    or_model: float = 0.0  # fraction of the visible model points confirmed by the depth
+    free_space: float = 0.0  # fraction of the visible model points seen to be empty space
+    visible_fraction: float = 0.0
+    source: str = ""
+
+
+@dataclass
+class RegistrationConfig:
+    voxel: float = 0.01
+    top_k: int = 3
+    candidate_threshold: float = 0.3
+    min_overlap: float = 0.5
+    ransac_iterations: int = 3000
+    ransac_runs: int = 1
+    n_yaw: int = 8  # yaw hypotheses for models without a continuous symmetry
+    keep_for_refine: int = 3
+    seed: int = 0
+
+
+def propose(query: FusedCloud, db: CadDatabase, top_k: int, threshold: float) -> list[tuple[int, float]]:
+    """Top-K (obj_id, similarity) over the threshold, best first."""
+    out = []
+    for oid, e in db.entries.items():
+        geo = e.view_geo @ query.geo_token if len(e.view_geo) else np.zeros(1)
+        if query.cls_token.size and e.view_cls.size:
+            sim = 0.5 * (e.view_cls @ query.cls_token) + 0.5 * geo
+        else:
+            sim = geo
+        out.append((oid, float(np.max(sim))))
+    out.sort(key=lambda t: -t[1])
+    return [c for c in out if c[1] >= threshold][:top_k]
+
+
+def _pcd(points: np.ndarray, normals: np.ndarray) -> o3d.geometry.PointCloud:
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pc.normals = o3d.utility.Vector3dVector(normals)
+    return pc
+
+
+def _feature(f: np.ndarray) -> reg.Feature:
+    feat = reg.Feature()
+    feat.data = np.ascontiguousarray(f.T, dtype=np.float64)
+    return feat
+
+
+def _rot_from_z(axis: np.ndarray) -> np.ndarray:
+    """A rotation taking the object z axis onto `axis`."""
+    a = axis / np.linalg.norm(axis)
+    ref = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
+    x = np.cross(ref, a)
+    x /= np.linalg.norm(x)
+    y = np.cross(a, x)
+    return np.stack([x, y, a], axis=1)
+
+
+class Scorer:
+    """Overlap ratios of a posed model against the query points and the views' depth."""
+
+    def __init__(self, entry: ModelEntry, query_points: np.ndarray, views: list[View], eps: float, n_model: int = 800):
+        step = max(1, len(entry.dense_points) // n_model)
+        self.mp = entry.dense_points[::step].astype(np.float64)
+        self.mn = entry.dense_normals[::step].astype(np.float64)
+        self.model_tree = cKDTree(entry.dense_points)
+        self.q = query_points
+        self.q_tree = cKDTree(query_points)
+        self.views = views
+        self.depths = [np.nan_to_num(np.asarray(v.depth, np.float64), nan=0.0) for v in views]
+        self.eps = eps
+
+    def __call__(self, T_base_obj: np.ndarray) -> tuple[float, float, float, float, float]:
+        """(score, or_query, or_model, free_space, visible_fraction)."""
+        Ti = inv(T_base_obj)
+        q_obj = self.q @ Ti[:3, :3].T + Ti[:3, 3]
+        d, _ = self.model_tree.query(q_obj, distance_upper_bound=self.eps)
+        or_q = float(np.mean(np.isfinite(d))) if len(d) else 0.0
+        P = self.mp @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
+        N = self.mn @ T_base_obj[:3, :3].T
+        support = np.zeros(len(P), bool)
+        violate = np.zeros(len(P), bool)
+        tol = max(self.eps, 0.006)
+        for v, D in zip(self.views, self.depths):
+            facing = np.einsum("ij,ij->i", N, v.T_base_cam[:3, 3] - P) > 0
+            rc, z, inside = project_pixels(v, P)
+            obs = D[rc[:, 0], rc[:, 1]]
+            idx = np.nonzero(inside)[0]
+            known = (obs > 0) & facing[idx]
+            support[idx[known & (np.abs(z - obs) <= tol)]] = True
+            violate[idx[known & (z < obs - tol)]] = True
+        violate &= ~support
+        n_vis = support.sum() + violate.sum()
+        if n_vis == 0:
+            return 0.0, or_q, 0.0, 0.0, 0.0
+        # Model points confirmed by the depth must also be near the query (not just any surface).
+        dq, _ = self.q_tree.query(P[support], distance_upper_bound=2 * self.eps)
+        near = np.isfinite(dq).sum()
+        or_m = float(near / n_vis)
+        fs = float(violate.sum() / n_vis)
+        return 0.5 * (or_q + or_m), or_q, or_m, fs, float(near / len(P))
+
+
+def _icp(src: o3d.geometry.PointCloud, dst: o3d.geometry.PointCloud, T0: np.ndarray, dists: tuple[float, ...],
+         iters: int = 15) -> np.ndarray:
+    T = T0
+    for d in dists:
+        T = reg.registration_icp(src, dst, d, T, reg.TransformationEstimationPointToPlane(),
+                                 reg.ICPConvergenceCriteria(1e-6, 1e-6, iters)).transformation
+    return T
+
+
+def hypotheses_gravity(model: ObjectModel, query: FusedCloud, n_yaw: int) -> list[np.ndarray]:
+    """Initial T_base_obj: symmetry axis up/down/along the query's principal axes, centred on the query."""
+    c = query.points.mean(axis=0)
+    axes = [np.array([0, 0, 1.0]), np.array([0, 0, -1.0])]
+    if len(query.points) >= 5:
+        _, vecs = np.linalg.eigh(np.cov((query.points - c).T))
+        for k in range(3):
+            a = vecs[:, k]
+            if abs(a[2]) < 0.95:  # not already covered by up/down
+                axes += [a, -a]
+    yaws = [0.0] if model.is_rotationally_symmetric else list(np.linspace(0, 2 * np.pi, n_yaw, endpoint=False))
+    out = []
+    for a in axes:
+        R = _rot_from_z(a)
+        for y in yaws:
+            Rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1.0]])
+            out.append(make_T(R @ Rz, c))
+    return out
+
+
+def register_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, scorer: Scorer,
+                       cfg: RegistrationConfig, rng: np.random.Generator) -> Hypothesis:
+    v = cfg.voxel
+    src = _pcd(query.points, query.normals)
+    dst = _pcd(entry.ref.points, entry.ref.normals)
+    inits: list[tuple[str, np.ndarray]] = []
+    # (1) fused-feature RANSAC: query -> model frame.
+    if len(query.points) >= 6:
+        fq, fr = _feature(query.fused), _feature(entry.ref.fused)
+        for _ in range(cfg.ransac_runs):
+            res = reg.registration_ransac_based_on_feature_matching(
+                src, dst, fq, fr, False, 1.5 * v, reg.TransformationEstimationPointToPoint(False), 3,
+                [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * v)],
+                reg.RANSACConvergenceCriteria(cfg.ransac_iterations, 0.999))
+            if res.fitness > 0:
+                inits.append(("ransac", inv(res.transformation)))
+    # (2) gravity priors.
+    inits += [("gravity", T) for T in hypotheses_gravity(model, query, cfg.n_yaw)]
+    # (3) ICP + score every hypothesis (ICP estimates T_obj_base: query points -> model frame).
+    scored = []
+    for name, T in inits:
+        T_ob = _icp(src, dst, inv(T), (3 * v, 1.5 * v), iters=10)
+        Tb = inv(T_ob)
+        s = scorer(Tb)
+        scored.append((s[0], name, Tb, s))
+    scored.sort(key=lambda t: -t[0])
+    # (4) fine refinement of the best few.
+    best = None
+    for _, name, Tb, _ in scored[: cfg.keep_for_refine]:
+        Tb = inv(_icp(src, dst, inv(Tb), (v, 0.6 * v), iters=20))
+        s = scorer(Tb)
+        h = Hypothesis(entry.obj_id, Tb, *s, source=name)
+        if best is None or h.score > best.score:
+            best = h
+    return best if best is not None else Hypothesis(entry.obj_id, np.eye(4))
