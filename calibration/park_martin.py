@@ -46,10 +46,6 @@ class DegenerateSetError(ValueError):
     """The sample set cannot determine X (too few samples, parallel rotation axes, or tiny rotations)."""
 
 
-class InconsistentSamplesError(ValueError):
-    """The camera motions cannot come from the robot motions through any rigid X (wrong mount or pairing)."""
-
-
 @dataclass
 class HandEyeSolution:
     X: np.ndarray  # T_flange_cam (eye in hand) or T_base_cam (eye to hand)
@@ -130,21 +126,30 @@ def check_motions(A: Sequence[np.ndarray], n_samples: int | None = None) -> None
         )
 
 
-def solve_rotation(A: Sequence[np.ndarray], B: Sequence[np.ndarray]) -> np.ndarray:
-    """R_X = (M^T M)^(-1/2) M^T with M = sum beta alpha^T (Park & Martin, eq. for the rotation part)."""
-    alpha = Rotation.from_matrix(np.array([a[:3, :3] for a in A])).as_rotvec()
-    beta = Rotation.from_matrix(np.array([b[:3, :3] for b in B])).as_rotvec()
+def log_rotations(Ts: Sequence[np.ndarray]) -> np.ndarray:
+    """(m, 3) axis-angle vectors (the log map) of the rotation parts of m transforms."""
+    return Rotation.from_matrix(np.array([T[:3, :3] for T in Ts])).as_rotvec()
+
+
+def rotation_from_logs(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
+    """R_X = (M^T M)^(-1/2) M^T with M = sum beta alpha^T (Park & Martin's rotation step).
+
+    Computed through the SVD M^T = U S V^T, where (M^T M)^(-1/2) M^T = U V^T. With consistent data that is a
+    rotation; grossly inconsistent data (outliers, a wrong mount) can make it a reflection, and then the
+    nearest rotation U diag(1, 1, -1) V^T (the Kabsch/Wahba correction) is returned so that outlier rejection
+    can still start from it.
+    """
     M = beta.T @ alpha  # sum_k beta_k alpha_k^T
-    # (M^T M)^(-1/2) through the eigen-decomposition of the symmetric M^T M.
-    w, V = np.linalg.eigh(M.T @ M)
-    if w.min() <= 1e-12 * max(w.max(), 1e-300):
+    U, S, Vt = np.linalg.svd(M.T)
+    if S[1] <= 1e-9 * max(S[0], 1e-300):
         raise DegenerateSetError("rotation axes parallel: M^T M is singular, the rotation of X is not determined")
-    R = V @ np.diag(w**-0.5) @ V.T @ M.T
-    if np.linalg.det(R) < 0:
-        raise InconsistentSamplesError(
-            "the camera motions do not match the robot motions (best fit is a reflection); check the mount and "
-            "that each T_cam_board belongs to the T_base_flange of the same pose")
-    return R
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def solve_rotation(A: Sequence[np.ndarray], B: Sequence[np.ndarray]) -> np.ndarray:
+    """Rotation of X from motion pairs (see :func:`rotation_from_logs`)."""
+    return rotation_from_logs(log_rotations(A), log_rotations(B))
 
 
 def solve_translation(A: Sequence[np.ndarray], B: Sequence[np.ndarray], R_X: np.ndarray) -> np.ndarray:

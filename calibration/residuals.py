@@ -9,17 +9,22 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import combinations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from kitchenbot.calibration.park_martin import (
+    MIN_ROTATION_DEG,
     DegenerateSetError,
     X_NAME,
     as_transforms,
     check_mount,
+    log_rotations,
     motion_pairs,
+    rotation_from_logs,
     solve_motions,
+    solve_translation,
 )
 from kitchenbot.transforms import inv
 
@@ -29,12 +34,14 @@ MAD_SCALE = 1.4826
 
 def pair_residuals(X: np.ndarray, A: Sequence[np.ndarray], B: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Per pair: rotation residual (deg) = angle of (A X)^-1 (X B); translation residual (mm) = |t(AX) - t(XB)|."""
-    rot, tr = [], []
-    for a, b in zip(A, B):
-        L, R = a @ X, X @ b
-        rot.append(np.rad2deg(np.linalg.norm(Rotation.from_matrix(L[:3, :3].T @ R[:3, :3]).as_rotvec())))
-        tr.append(1000.0 * np.linalg.norm(L[:3, 3] - R[:3, 3]))
-    return np.array(rot), np.array(tr)
+    if len(A) == 0:
+        return np.zeros(0), np.zeros(0)
+    L = np.asarray(A) @ X
+    R = X @ np.asarray(B)
+    rel = np.transpose(L[:, :3, :3], (0, 2, 1)) @ R[:, :3, :3]
+    rot = np.rad2deg(np.linalg.norm(Rotation.from_matrix(rel).as_rotvec(), axis=1))
+    tr = 1000.0 * np.linalg.norm(L[:, :3, 3] - R[:, :3, 3], axis=1)
+    return rot, tr
 
 
 def fixed_frame_poses(
@@ -144,6 +151,46 @@ class HandEyeResult:
         }
 
 
+# A rotation error of X moves the board like a translation error at roughly this lever arm (mm/rad); it puts the
+# two residuals on one scale for the least-median start.
+LEVER_MM = 300.0
+
+
+def _lmeds_start(A: list, B: list, pairs: list[tuple[int, int]], n: int, X_all: np.ndarray,
+                 trials: int = 300, seed: int = 0) -> np.ndarray:
+    """Least-median-of-squares start: X from random 3-sample subsets (3 pairs each) and from all pairs; keep the
+    one whose median pair residual is smallest. Gross outliers (a flipped board pose) drag the all-pairs
+    solution far enough that median/MAD alone may not find them; a clean minimal subset does not."""
+    index = {p: k for k, p in enumerate(pairs)}
+    rng = np.random.default_rng(seed)
+    alpha, beta = log_rotations(A), log_rotations(B)
+    min_angle = np.deg2rad(MIN_ROTATION_DEG)
+
+    def score(X: np.ndarray) -> float:
+        rot, tr = pair_residuals(X, A, B)
+        return float(np.median(tr + LEVER_MM * np.deg2rad(rot)))
+
+    best, best_score = X_all, score(X_all)
+    subsets = list(combinations(range(n), 3))
+    if len(subsets) > trials:
+        subsets = [subsets[k] for k in rng.choice(len(subsets), trials, replace=False)]
+    for i, j, k in subsets:
+        sel = [index[(i, j)], index[(i, k)], index[(j, k)]]
+        if np.count_nonzero(np.linalg.norm(alpha[sel], axis=1) > min_angle) < 2:
+            continue
+        try:
+            R = rotation_from_logs(alpha[sel], beta[sel])
+        except DegenerateSetError:
+            continue
+        X = np.eye(4)
+        X[:3, :3] = R
+        X[:3, 3] = solve_translation([A[m] for m in sel], [B[m] for m in sel], R)
+        sc = score(X)
+        if sc < best_score:
+            best, best_score = X, sc
+    return best
+
+
 def solve_robust(
     T_base_flange: Sequence[np.ndarray],
     T_cam_board: Sequence[np.ndarray],
@@ -152,8 +199,10 @@ def solve_robust(
     max_rounds: int = 3,
     reject: bool = True,
 ) -> HandEyeResult:
-    """Park–Martin on all pairs, then drop pairs whose rotation or translation residual is a robust
-    outlier (z > `z_max` on median/MAD) and re-solve on the retained pairs; repeat until nothing changes."""
+    """Park–Martin with outlier rejection: start from the least-median solution over minimal sample subsets,
+    drop pairs whose rotation or translation residual is a robust outlier (z > `z_max` on median/MAD), re-solve
+    on the retained pairs; repeat until the retained set stops changing. `reject=False` (or < 4 samples): plain
+    Park–Martin on all pairs."""
     check_mount(mount)
     F = as_transforms(T_base_flange, "T_base_flange")
     C = as_transforms(T_cam_board, "T_cam_board")
@@ -164,20 +213,24 @@ def solve_robust(
             "relative rotation axes"
         )
     A_all, B_all, pairs_all = motion_pairs(F, C, mount)
+    X = solve_motions(A_all, B_all, n_samples=n)  # also checks the whole set for degeneracy
     keep = np.ones(len(pairs_all), bool)
-    X = solve_motions(A_all, B_all, n_samples=n)
-    for _ in range(max_rounds if reject else 0):
-        rot, tr = pair_residuals(X, A_all, B_all)
-        new_keep = (robust_z(rot) <= z_max) & (robust_z(tr) <= z_max)
-        if np.array_equal(new_keep, keep):
-            break
-        idx = np.flatnonzero(new_keep)
-        try:
-            X_new = solve_motions([A_all[k] for k in idx], [B_all[k] for k in idx],
-                                  n_samples=len({s for k in idx for s in pairs_all[k]}))
-        except DegenerateSetError:
-            break  # rejection would leave a degenerate set: keep the previous solution
-        keep, X = new_keep, X_new
+    if reject and n >= 4:
+        X_start = _lmeds_start(A_all, B_all, pairs_all, n, X)
+        prev = None
+        for _ in range(max_rounds):
+            rot, tr = pair_residuals(X_start, A_all, B_all)
+            new_keep = (robust_z(rot) <= z_max) & (robust_z(tr) <= z_max)
+            if prev is not None and np.array_equal(new_keep, prev):
+                break
+            idx = np.flatnonzero(new_keep)
+            try:
+                X_start = solve_motions([A_all[k] for k in idx], [B_all[k] for k in idx],
+                                        n_samples=len({s for k in idx for s in pairs_all[k]}))
+            except DegenerateSetError:
+                break  # rejecting more would leave a degenerate set: keep the last good solution
+            prev = new_keep
+            X, keep = X_start, new_keep
     idx = np.flatnonzero(keep)
     rot, tr = pair_residuals(X, [A_all[k] for k in idx], [B_all[k] for k in idx])
     used = [pairs_all[k] for k in idx]

@@ -1,20 +1,14 @@
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 import yaml
 
+from kitchenbot.calibration import synthetic as synth
 from kitchenbot.calibration.files import CalibrationFileError, load_hand_eye, load_samples, save_samples
 from kitchenbot.executive.cli import main
 from kitchenbot.executive.config import load_config
 from kitchenbot.transforms import pose_error
-
-_spec = importlib.util.spec_from_file_location("calib_synth_cli", Path(__file__).with_name("synth.py"))
-synth = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(synth)
 
 
 @pytest.mark.parametrize("mount,key", [("eye_in_hand", "T_flange_cam"), ("eye_to_hand", "T_base_cam")])
