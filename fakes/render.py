@@ -79,13 +79,15 @@ def render(world, K: np.ndarray, T_base_cam: np.ndarray, width: int, height: int
     col = albedo[gidx]
 
     # Textured planes: look the colour up from the image.
-    pts = (rays.numpy()[..., :3] + dirs * np.where(hit, t, 0)[..., None])
+    pts = None
     for g, (kind, key) in enumerate(labelled.kinds):
         if kind != "plane":
             continue
         sel = gidx == g
         if not np.any(sel):
             continue
+        if pts is None:
+            pts = rays.numpy()[..., :3] + dirs * np.where(hit, t, 0)[..., None]
         p = world.planes[key]
         local = (pts[sel] - p.T_base_plane[:3, 3]) @ p.T_base_plane[:3, :3]
         H, W = p.image.shape[:2]
