@@ -161,23 +161,7 @@ class DynamixelGripper(Gripper):
     # ---- connection -------------------------------------------------------------------------------
     def connect(self) -> None:
         where = f"{self.port_name} ({self.baudrate} baud, id {self.servo_id})"
-        if not os.path.exists(self.port_name):
-            raise DeviceNotConnectedError(
-                f"Dynamixel gripper: serial port {self.port_name} does not exist. Is the U2D2/USB adapter plugged "
-                f"in and powered? Check `ls /dev/ttyUSB* /dev/serial/by-id/` and drivers.gripper.port in the config."
-            )
-        port = PortHandler(self.port_name)
-        try:
-            port.openPort()
-        except (SerialException, OSError) as e:
-            hint = " (add your user to the 'dialout' group)" if "ermission" in str(e) else ""
-            raise DeviceNotConnectedError(
-                f"Dynamixel gripper: cannot open serial port {self.port_name}: {e}{hint}"
-            ) from None
-        if not port.setBaudRate(self.baudrate):
-            port.closePort()
-            raise ValueError(f"drivers.gripper.baudrate {self.baudrate}: not a baud rate the Dynamixel SDK supports")
-        self._port = port
+        self._open_port()
         try:
             model = self._ping()
             if model not in XM430_MODELS:
@@ -197,6 +181,50 @@ class DynamixelGripper(Gripper):
         except BaseException:
             self.disconnect()
             raise
+
+    def _open_port(self) -> None:
+        if not os.path.exists(self.port_name):
+            raise DeviceNotConnectedError(
+                f"Dynamixel gripper: serial port {self.port_name} does not exist. Is the U2D2/USB adapter plugged "
+                f"in and powered? Check `ls /dev/ttyUSB* /dev/serial/by-id/` and drivers.gripper.port in the config."
+            )
+        port = PortHandler(self.port_name)
+        try:
+            port.openPort()
+        except (SerialException, OSError) as e:
+            hint = " (add your user to the 'dialout' group)" if "ermission" in str(e) else ""
+            raise DeviceNotConnectedError(
+                f"Dynamixel gripper: cannot open serial port {self.port_name}: {e}{hint}"
+            ) from None
+        if not port.setBaudRate(self.baudrate):
+            port.closePort()
+            raise ValueError(f"drivers.gripper.baudrate {self.baudrate}: not a baud rate the Dynamixel SDK supports")
+        self._port = port
+
+    def probe(self) -> dict:
+        """Read-only health check (for `kitchenbot doctor`): open the port, PING, read model, firmware, hardware
+        error, temperature, voltage, torque and mode; write nothing; close. Raises like connect()."""
+        was_connected = self.is_connected
+        if not was_connected:
+            self._open_port()
+        try:
+            model = self._ping()
+            hw = self._read(ADDR_HARDWARE_ERROR, 1)
+            p = self._present()
+            return {
+                "model": XM430_MODELS.get(model, f"model {model}"),
+                "model_number": model,
+                "firmware": self._read(ADDR_FIRMWARE_VERSION, 1),
+                "hardware_error": decode_hardware_error(hw),
+                "torque": bool(self._read(ADDR_TORQUE_ENABLE, 1)),
+                "operating_mode": self._read(ADDR_OPERATING_MODE, 1),
+                "opening_m": self.ticks_to_opening(p.position),
+                "temperature_c": p.temperature_c,
+                "voltage_v": p.voltage_v,
+            }
+        finally:
+            if not was_connected:
+                self.disconnect()
 
     def _configure(self) -> None:
         """EEPROM settings need torque off: operating mode and current limit (only written when different)."""

@@ -101,6 +101,52 @@ def _default_dashboard(host: str) -> Any:
     return d
 
 
+def probe(
+    host: str,
+    frequency: float = 500.0,
+    watch: float = 0.2,
+    receive_factory: Callable[[str, float], Any] = _default_receive,
+    dashboard_factory: Callable[[str], Any] = _default_dashboard,
+) -> dict:
+    """Read-only health check (for `kitchenbot doctor`): no control script is uploaded, nothing moves.
+    Opens the receive interface, checks that its timestamp advances over `watch` seconds, reads the safety
+    state, then asks the dashboard server for model/version/modes. Raises DeviceNotConnectedError."""
+    try:
+        r = receive_factory(host, frequency)
+    except RuntimeError as e:
+        raise DeviceNotConnectedError(
+            f"UR arm at {host}: cannot open the RTDE receive interface (TCP port 30004): {e}"
+        ) from None
+    try:
+        t0 = float(r.getTimestamp())
+        time.sleep(watch)
+        t1 = float(r.getTimestamp())
+        info = {
+            "streaming": t1 > t0,
+            "safety": safety_from_bits(r.getSafetyStatusBits()).value,
+            "q": np.round(np.asarray(r.getActualQ(), float), 3).tolist(),
+        }
+    finally:
+        URArm._close_quietly(r)
+    try:
+        d = dashboard_factory(host)
+    except RuntimeError as e:
+        info["dashboard"] = f"unreachable ({e})"
+        return info
+    try:
+        info.update(
+            model=str(d.getRobotModel()),
+            polyscope=str(d.polyscopeVersion()),
+            robot_mode=str(d.robotmode()),
+            remote_control=bool(d.isInRemoteControl()),
+        )
+    except RuntimeError as e:
+        info["dashboard"] = f"error ({e})"
+    finally:
+        URArm._close_quietly(d)
+    return info
+
+
 class URArm(Arm):
     """UR e-Series over RTDE. Units: radians, metres, seconds."""
 

@@ -101,6 +101,9 @@ class DynamixelGripperConfig(_Strict):
     baudrate: int = Field(57600, gt=0)
     servo_id: int = Field(1, ge=0, le=252)
     current_limit_ma: float = Field(600.0, gt=0, le=3200.0)
+    closed_ticks: int = Field(2048, description="servo position where the finger pads touch (linear calibration)")
+    open_ticks: int = Field(3072, description="servo position where the pads are max_opening apart")
+    max_opening: float = Field(0.085, gt=0, le=0.3, description="m between the pads at open_ticks")
 
 
 class FakeCameraConfig(_Strict):

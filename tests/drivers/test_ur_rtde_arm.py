@@ -398,3 +398,34 @@ def test_watchdog_thread_stops_on_disconnect():
     assert any(t.name == "ur-rtde-watchdog" for t in threading.enumerate())
     r.arm.disconnect()
     assert not any(t.name == "ur-rtde-watchdog" and t.is_alive() for t in threading.enumerate())
+
+
+# ---- read-only probe (doctor) ------------------------------------------------------------------------
+class ProbeDashboard(FakeDashboard):
+    def getRobotModel(self):
+        return "UR5"
+
+    def polyscopeVersion(self):
+        return "URSoftware 5.15.0"
+
+    def robotmode(self):
+        return "Robotmode: RUNNING"
+
+    def isInRemoteControl(self):
+        return True
+
+
+def test_probe_reads_state_without_a_control_interface():
+    from kitchenbot.drivers.ur_rtde_arm import probe
+
+    rec = FakeReceive()
+    info = probe("10.0.0.7", watch=0.02, receive_factory=lambda h, f: rec,
+                 dashboard_factory=lambda h: ProbeDashboard(lambda: rec))
+    assert info["streaming"] and info["safety"] == "normal" and info["model"] == "UR5"
+    assert rec.disconnected
+    stalled = FakeReceive()
+    stalled.freeze()
+    stalled.safety_bits = 1 << 2
+    info = probe("10.0.0.7", watch=0.02, receive_factory=lambda h, f: stalled,
+                 dashboard_factory=lambda h: ProbeDashboard(lambda: stalled))
+    assert not info["streaming"] and info["safety"] == "protective_stop"
