@@ -1,9 +1,24 @@
-"""Shared pytest fixtures."""
+"""Shared pytest fixtures and the hardware-in-the-loop switch.
+
+Tests marked ``@pytest.mark.hil`` talk to real devices named in the config given by
+``KITCHENBOT_HIL_CONFIG``; they run only when ``KITCHENBOT_HIL=1`` (never in CI).
+"""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
+
+
+def pytest_collection_modifyitems(config, items):
+    if os.environ.get("KITCHENBOT_HIL") == "1":
+        return
+    skip = pytest.mark.skip(reason="hardware-in-the-loop test: set KITCHENBOT_HIL=1 and KITCHENBOT_HIL_CONFIG")
+    for item in items:
+        if "hil" in item.keywords:
+            item.add_marker(skip)
 
 
 @pytest.fixture
