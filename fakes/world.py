@@ -88,6 +88,7 @@ class SimWorld:
     planes: dict[str, TexturedPlane] = field(default_factory=dict)
     held_uid: int | None = None
     T_tcp_held: np.ndarray | None = None
+    gripper_opening: float = 0.10  # m between the finger pads; FakeGripper keeps it current (collision model)
     version: int = 0  # bumped on every geometric change (render/collision caches key on it)
 
     def __post_init__(self) -> None:

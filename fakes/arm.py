@@ -1,0 +1,508 @@
+"""FakeArm: a UR5e-like arm on the SimWorld. Honest about time, limits and contact; no dynamics.
+
+- Motions take simulated time (``world.clock``): joint moves follow a synchronised trapezoidal velocity
+  profile (the joint with the longest travel runs at `speed`/`accel`, the others scaled so all arrive
+  together); linear moves interpolate the TCP pose (lerp + slerp) with a trapezoid in arc length and solve
+  the joints along the line by damped least squares on the DH kinematics; timed trajectories are followed
+  with linear interpolation.
+- Motions are asynchronous underneath: a motion is a function of time started at ``t0``; queries evaluate it
+  at ``world.clock.now()`` and move the world's arm there. ``wait`` advances the clock to the end, ``step(dt)``
+  advances it a little (controller loops poll with it), ``stop(decel)`` decelerates along the path.
+- Before a motion starts its whole path is sampled (<= 5 mm of Cartesian travel of any link, gripper or held
+  object point between samples) and checked: joint limits, TCP workspace, collisions (fakes/collision.py),
+  and for linear moves IK failure and joint speed. The first bad sample becomes a protective stop just before
+  it: the arm runs there and stops; ``wait`` raises ProtectiveStopError until ``unlock_protective_stop()``.
+- Faults from ``world.faults``: ``arm_disconnect`` (link down until ``connect()``), ``arm_disconnect_after``
+  (the link drops that many seconds into the next motion; the arm stops there), ``protective_stop`` (next N
+  motions stop halfway), ``slip_probability`` (per motion while holding; the object drops on the way and the
+  gripper closes on nothing).
+- ``log`` records what happened (motions, protective stops, predicted collisions, refused commands, slips,
+  simulated motion time) so tests and the executive can audit a run.
+
+The limit checks on commands themselves live in drivers/safety.py through the Arm base class.
+"""
+
+from __future__ import annotations
+
+import math
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from kitchenbot.drivers.arm import Arm, ArmState, SafetyState
+from kitchenbot.drivers.errors import (
+    DeviceNotConnectedError,
+    DriverError,
+    DriverTimeoutError,
+    LimitViolation,
+    ProtectiveStopError,
+)
+from kitchenbot.drivers.safety import SafetyLimits
+from kitchenbot.drivers.ur_kinematics import URModel, fk_flange, fk_frames
+from kitchenbot.fakes.collision import SimCollision, sample_path
+
+PATH_STEP = 0.005  # m, max Cartesian travel between collision samples
+IK_STEP = 0.002  # m (and IK_STEP / ROT_RADIUS rad) between IK solutions along a linear move
+ROT_RADIUS = 0.2  # m: a linear move's rotation counts as angle * ROT_RADIUS of arc length
+
+
+# ---- profiles ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Trapezoid:
+    """Trapezoidal (or triangular, if too short to cruise) velocity profile over `distance`."""
+
+    distance: float
+    v: float
+    a: float
+
+    @property
+    def t_acc(self) -> float:
+        return min(self.v / self.a, math.sqrt(max(self.distance, 0.0) / self.a))
+
+    @property
+    def duration(self) -> float:
+        if self.distance <= 0:
+            return 0.0
+        if self.distance >= self.v * self.v / self.a:
+            return self.distance / self.v + self.v / self.a
+        return 2.0 * math.sqrt(self.distance / self.a)
+
+    def s(self, t: float) -> float:
+        """Distance covered at time t."""
+        T, ta, a = self.duration, self.t_acc, self.a
+        if t <= 0 or T == 0:
+            return 0.0
+        if t >= T:
+            return self.distance
+        vp = a * ta
+        if t < ta:
+            return 0.5 * a * t * t
+        if t <= T - ta:
+            return 0.5 * a * ta * ta + vp * (t - ta)
+        r = T - t
+        return self.distance - 0.5 * a * r * r
+
+
+# ---- kinematics (the simulator's own; it must not depend on planning/) -----------------------------------
+def _tcp_and_jacobian(model: URModel, q: np.ndarray, T_flange_tcp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    F = fk_frames(model, q)
+    T = F[-1] @ T_flange_tcp
+    p = T[:3, 3]
+    J = np.zeros((6, 6))
+    for i in range(6):
+        z, o = F[i][:3, 2], F[i][:3, 3]
+        J[:3, i] = np.cross(z, p - o)
+        J[3:, i] = z
+    return T, J
+
+
+def ik_dls(model: URModel, T_target: np.ndarray, q_seed: np.ndarray, T_flange_tcp: np.ndarray,
+           tol_p: float = 1e-5, tol_r: float = 1e-4, iters: int = 30, damping: float = 1e-3) -> np.ndarray | None:
+    """Damped least-squares IK from a nearby seed (small steps along a line). None if it does not converge.
+
+    Hand-written on purpose: the simulator keeps its own few-line solver so it is independent of planning/.
+    """
+    q = np.array(q_seed, float)
+    lam2 = damping * damping
+    for _ in range(iters):
+        T, J = _tcp_and_jacobian(model, q, T_flange_tcp)
+        ep = T_target[:3, 3] - T[:3, 3]
+        er = Rotation.from_matrix(T_target[:3, :3] @ T[:3, :3].T).as_rotvec()
+        if np.linalg.norm(ep) < tol_p and np.linalg.norm(er) < tol_r:
+            return q
+        e = np.concatenate([ep, er])
+        q = q + J.T @ np.linalg.solve(J @ J.T + lam2 * np.eye(6), e)
+    return None
+
+
+# ---- records -------------------------------------------------------------------------------------------
+@dataclass
+class ArmEvent:
+    t: float  # simulated seconds
+    kind: str  # motion | done | protective_stop | collision | stopped | refused | slip | disconnected | unlock
+    detail: str = ""
+
+
+@dataclass
+class ArmLog:
+    """What the fake arm did. A correct run has ``collisions == 0``."""
+
+    motions: int = 0
+    completed: int = 0
+    protective_stops: int = 0
+    collisions: int = 0  # motions whose path would have hit something (stopped just before the contact)
+    refused: int = 0  # commands refused by the safety limits (LimitViolation) before anything moved
+    stops: int = 0  # stop() calls that cut a motion short
+    slips: int = 0
+    disconnects: int = 0
+    motion_time: float = 0.0  # simulated seconds spent moving
+    events: list[ArmEvent] = field(default_factory=list)
+
+
+@dataclass
+class _Motion:
+    kind: str
+    t0: float
+    duration: float  # nominal
+    q_of_u: Callable[[float], np.ndarray]
+    end_u: float  # nominal time where the motion ends (duration, or a stop point)
+    outcome: str  # done | protective_stop | disconnected | stopped
+    detail: str = ""
+    slip_u: float | None = None
+    stop_e: float | None = None  # elapsed time at which stop() started decelerating
+    tau: float = 0.0  # deceleration time
+
+    def u(self, e: float) -> float:
+        """Nominal path time reached after `e` seconds of actual time."""
+        if self.stop_e is None or e <= self.stop_e:
+            ub = e
+        else:
+            d = min(e - self.stop_e, self.tau)
+            ub = self.stop_e + d - (d * d / (2 * self.tau) if self.tau > 0 else 0.0)
+        return min(max(ub, 0.0), self.end_u)
+
+    @property
+    def e_end(self) -> float:
+        if self.stop_e is None or self.end_u <= self.stop_e:
+            return self.end_u
+        if self.tau <= 0:
+            return self.stop_e
+        x = min(self.end_u - self.stop_e, self.tau / 2)
+        return self.stop_e + self.tau * (1.0 - math.sqrt(max(0.0, 1.0 - 2.0 * x / self.tau)))
+
+
+class FakeArm(Arm):
+    """Simulated UR arm acting on a SimWorld (see the module docstring)."""
+
+    def __init__(self, world, limits: SafetyLimits, model: URModel | None = None):
+        super().__init__(model or world.robot, limits)
+        if not np.allclose(np.asarray(limits.T_flange_tcp), world.T_flange_tcp, atol=1e-6):
+            raise ValueError(
+                "FakeArm: limits.T_flange_tcp (the configured tool) differs from world.T_flange_tcp (the simulated "
+                "tool); build the world with world_kwargs={'T_flange_tcp': cfg.robot.tool.T_flange_tcp.matrix()}"
+            )
+        self.world = world
+        self.collision = SimCollision(world, self.model)
+        self.log = ArmLog()
+        self._connected = False
+        self._safety = SafetyState.NORMAL
+        self._motion: _Motion | None = None
+        self._pending: DriverError | None = None
+
+    # ---- connection -----------------------------------------------------------------------------------
+    def connect(self) -> None:
+        self.world.faults.arm_disconnect = False
+        self._connected = True
+
+    def disconnect(self) -> None:
+        self._sync()
+        if self._motion is not None:  # a real controller stops the program when the client goes away
+            self._cut(self._now_e(), "stopped", "disconnect() during a motion")
+            self.world.clock.advance(max(self._motion.e_end - self._now_e(), 0.0))
+            self._sync()
+        self._connected = False
+
+    @property
+    def is_connected(self) -> bool:
+        return self._connected and not self.world.faults.arm_disconnect
+
+    def _require_connected(self) -> None:
+        if not self.is_connected:
+            why = "link dropped (fault)" if self._connected else "not connected"
+            raise DeviceNotConnectedError(f"FakeArm: {why}; call connect()")
+
+    # ---- state ----------------------------------------------------------------------------------------
+    def joint_positions(self) -> np.ndarray:
+        self._sync()
+        self._require_connected()
+        return self.world.q.copy()
+
+    def state(self) -> ArmState:
+        self._sync()
+        self._require_connected()
+        q = self.world.q.copy()
+        qd = np.zeros(6)
+        m = self._motion
+        if m is not None:
+            e, h = self._now_e(), 1e-3
+            qd = (m.q_of_u(m.u(e + h)) - m.q_of_u(m.u(max(e - h, 0.0)))) / (e + h - max(e - h, 0.0))
+        return ArmState(q=q, qd=qd, T_base_tcp=fk_flange(self.model, q) @ self.limits.T_flange_tcp,
+                        safety=self._safety, moving=m is not None, stamp=self.world.clock.now())
+
+    def safety_state(self) -> SafetyState:
+        self._sync()
+        self._require_connected()
+        return self._safety
+
+    def is_moving(self) -> bool:
+        self._sync()
+        self._require_connected()
+        return self._motion is not None
+
+    # ---- public commands: count refusals, then the base class validates ---------------------------------
+    def move_joints(self, q, speed: float = 1.0, accel: float = 1.4, asynchronous: bool = False) -> None:
+        with self._counting_refusals():
+            super().move_joints(q, speed, accel, asynchronous)
+
+    def move_linear(self, T_base_tcp, speed: float = 0.1, accel: float = 0.5, asynchronous: bool = False) -> None:
+        with self._counting_refusals():
+            super().move_linear(T_base_tcp, speed, accel, asynchronous)
+
+    def execute_trajectory(self, times, q, asynchronous: bool = False) -> None:
+        with self._counting_refusals():
+            super().execute_trajectory(times, q, asynchronous)
+
+    @contextmanager
+    def _counting_refusals(self):
+        try:
+            yield
+        except LimitViolation as e:
+            self.log.refused += 1
+            self._event("refused", str(e))
+            raise
+
+    # ---- timing -----------------------------------------------------------------------------------------
+    def wait(self, timeout: float | None = None) -> None:
+        self._sync()
+        m = self._motion
+        if m is not None:
+            self._require_connected()
+            remaining = m.e_end - self._now_e()
+            if timeout is not None and remaining > timeout + 1e-12:
+                self.world.clock.advance(max(timeout, 0.0))
+                self._sync()
+                raise DriverTimeoutError(f"FakeArm: motion still running after {timeout} s ({remaining - timeout:.3f} s left)")
+            self.world.clock.advance(max(remaining, 0.0))
+            self._sync()
+        self._raise_pending()
+        self._require_connected()
+
+    def step(self, dt: float) -> bool:
+        """Advance the simulated clock by dt seconds (a controller loop's tick); returns is_moving()."""
+        self.world.clock.advance(dt)
+        return self.is_moving()
+
+    def stop(self, decel: float = 3.0) -> None:
+        """Decelerate along the path at `decel` (fastest joint, rad/s^2) and block until stopped."""
+        if not (np.isfinite(decel) and decel > 0):
+            raise ValueError(f"stop: decel {decel} rad/s^2: expected a positive number")
+        self._sync()
+        self._require_connected()
+        m = self._motion
+        if m is None:
+            return
+        e = self._now_e()
+        h = 1e-3
+        qd = (m.q_of_u(m.u(e) + h) - m.q_of_u(max(m.u(e) - h, 0.0))) / (2 * h) if m.stop_e is None else None
+        if qd is not None:
+            tau = float(np.max(np.abs(qd))) / decel
+            self._cut(e, "stopped", f"stop(decel={decel})", tau)
+        self.world.clock.advance(max(m.e_end - e, 0.0))
+        self._sync()
+
+    def _cut(self, e: float, outcome: str, detail: str, tau: float = 0.0) -> None:
+        """End the running motion after `tau` seconds of linear deceleration from elapsed time `e`
+        (tau = 0: right where it is at `e`)."""
+        m = self._motion
+        if tau > 0 and m.stop_e is None:
+            m.stop_e, m.tau = e, tau
+            new_end = m.u(e) + tau / 2
+        else:
+            new_end = m.u(e)
+        if new_end < m.end_u - 1e-12:
+            m.end_u, m.outcome, m.detail = new_end, outcome, detail
+            if outcome == "stopped":
+                self.log.stops += 1
+
+    # ---- motion hooks -----------------------------------------------------------------------------------
+    def _move_joints(self, q: np.ndarray, speed: float, accel: float, asynchronous: bool) -> None:
+        q0 = self.world.q.copy()
+        dq = q - q0
+        D = float(np.max(np.abs(dq)))
+        prof = Trapezoid(D, speed, accel)
+
+        def q_of_u(u: float) -> np.ndarray:
+            return q0 + dq * (prof.s(u) / D if D > 0 else 1.0)
+
+        self._start("move_joints", prof.duration, q_of_u, None, asynchronous)
+
+    def _move_linear(self, T_base_tcp: np.ndarray, speed: float, accel: float, asynchronous: bool) -> None:
+        q0 = self.world.q.copy()
+        T0 = fk_flange(self.model, q0) @ self.limits.T_flange_tcp
+        p0, p1 = T0[:3, 3], T_base_tcp[:3, 3]
+        rots = Rotation.from_matrix(np.stack([T0[:3, :3], T_base_tcp[:3, :3]]))
+        angle = float((rots[0].inv() * rots[1]).magnitude())
+        dist = float(np.linalg.norm(p1 - p0))
+        L = max(dist, angle * ROT_RADIUS)
+        prof = Trapezoid(L, speed, accel)
+        n = max(2, int(math.ceil(L / IK_STEP)) + 1)
+        s_grid = np.linspace(0.0, 1.0, n)
+        slerp = Slerp([0.0, 1.0], rots)
+        R_grid = slerp(s_grid).as_matrix()
+        qs = [q0]
+        bad: str | None = None
+        lo, hi = self.limits.joint_lower, self.limits.joint_upper
+        dt_cruise = (L / (n - 1)) / speed  # time per IK step at full speed
+        for i in range(1, n):
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = R_grid[i], p0 + (p1 - p0) * s_grid[i]
+            qi = ik_dls(self.model, T, qs[-1], self.limits.T_flange_tcp)
+            if qi is None:
+                bad = f"no joint solution along the line at {s_grid[i] * 100:.0f} % (singularity or out of reach)"
+            elif np.any(qi < lo - 1e-9) or np.any(qi > hi + 1e-9):
+                bad = f"joint limit along the line at {s_grid[i] * 100:.0f} %"
+            elif np.any(np.abs(qi - qs[-1]) / dt_cruise > self.limits.max_joint_speed * 1.05):
+                bad = f"joint speed limit along the line at {s_grid[i] * 100:.0f} % (near a singularity)"
+            if bad:
+                break
+            qs.append(qi)
+        Q = np.asarray(qs)
+        s_ok = s_grid[len(qs) - 1]
+        s_table = s_grid[: len(qs)]
+
+        def q_of_u(u: float) -> np.ndarray:
+            s = prof.s(u) / L if L > 0 else 1.0
+            s = min(s, s_ok)
+            return np.array([np.interp(s, s_table, Q[:, j]) for j in range(6)])
+
+        stop_u = None
+        if bad is not None:  # the path is only defined up to s_ok: find the time it gets there
+            stop_u = _time_at_fraction(prof, s_ok * L)
+        self._start("move_linear", prof.duration, q_of_u, (stop_u, bad) if bad else None, asynchronous)
+
+    def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool) -> None:
+        t = times - times[0]
+
+        def q_of_u(u: float) -> np.ndarray:
+            return np.array([np.interp(u, t, q[:, j]) for j in range(6)])
+
+        self._start("execute_trajectory", float(t[-1]), q_of_u, None, asynchronous)
+
+    def _unlock_protective_stop(self) -> None:
+        self._sync()
+        self._require_connected()
+        if self._motion is not None:
+            raise DriverError("FakeArm: cannot unlock while the arm is still stopping")
+        self._safety = SafetyState.NORMAL
+        self._pending = None
+        self._event("unlock", "protective stop cleared")
+
+    # ---- motion machinery ---------------------------------------------------------------------------------
+    def _start(self, kind: str, duration: float, q_of_u, preset_stop, asynchronous: bool) -> None:
+        if self._motion is not None:
+            raise DriverError(f"FakeArm: {kind} while a motion is running; stop() or wait() first")
+        self._pending = None
+        end_u, outcome, detail = duration, "done", ""
+        if preset_stop is not None:
+            end_u, outcome, detail = preset_stop[0], "protective_stop", preset_stop[1]
+        # Check the path: limits and collisions, sample by sample.
+        opening = float(self.world.gripper_opening)
+        us, qs = sample_path(q_of_u, end_u, lambda qq: self.collision.keypoints(qq, opening), PATH_STEP)
+        k_bad, why = self._first_limit_violation(qs)
+        contact = self.collision.check_path(qs[: k_bad if k_bad is not None else len(qs)], opening)
+        collided = False
+        if contact is not None:
+            k_bad, why, collided = contact.index, f"collision: {contact}", True
+        if k_bad is not None:
+            end_u, outcome, detail = (us[k_bad - 1] if k_bad > 0 else 0.0), "protective_stop", why
+        f = self.world.faults
+        if f.protective_stop > 0:
+            f.protective_stop -= 1
+            if duration / 2 < end_u:
+                end_u, outcome, detail, collided = duration / 2, "protective_stop", "injected protective stop", False
+        if f.arm_disconnect_after is not None:
+            after, f.arm_disconnect_after = float(f.arm_disconnect_after), None
+            if after < end_u:
+                end_u, outcome, detail, collided = after, "disconnected", f"link dropped {after:.3f} s into the motion", False
+        m = _Motion(kind, self.world.clock.now(), duration, q_of_u, end_u, outcome, detail)
+        if self.world.held_uid is not None and f.slip_probability > 0 and self.world.rng.random() < f.slip_probability:
+            m.slip_u = float(self.world.rng.uniform(0.2, 0.8)) * end_u
+        self._motion = m
+        self.log.motions += 1
+        if collided:
+            self.log.collisions += 1
+        self._event("motion", f"{kind}: {duration:.3f} s" + (f"; will stop at {end_u:.3f} s ({detail})" if outcome != "done" else ""))
+        if not asynchronous:
+            self.wait()
+
+    def _first_limit_violation(self, qs: np.ndarray) -> tuple[int | None, str]:
+        lo, hi = self.limits.joint_lower - 1e-6, self.limits.joint_upper + 1e-6
+        ws = self.limits.workspace
+        for k, q in enumerate(qs):
+            if np.any(q < lo) or np.any(q > hi):
+                return k, "joint limit along the path"
+            p = (fk_flange(self.model, q) @ self.limits.T_flange_tcp)[:3, 3]
+            if np.any(p < ws.lower - 1e-6) or np.any(p > ws.upper + 1e-6):
+                return k, f"TCP leaves the workspace along the path at {np.round(p, 3).tolist()}"
+        return None, ""
+
+    def _now_e(self) -> float:
+        return self.world.clock.now() - self._motion.t0 if self._motion is not None else 0.0
+
+    def _sync(self) -> None:
+        """Bring the world's arm to where the running motion is at the current simulated time."""
+        m = self._motion
+        if m is None:
+            return
+        e = self._now_e()
+        if self.world.faults.arm_disconnect and e < m.e_end:  # the link dropped: the arm stops where it is
+            m.end_u = m.u(e)
+            m.outcome, m.detail = "disconnected", "link dropped during the motion"
+        if m.slip_u is not None and m.u(e) >= m.slip_u:
+            self.world.set_joints(m.q_of_u(m.slip_u))
+            self._slip()
+            m.slip_u = None
+        if e >= m.e_end - 1e-12:
+            self.world.set_joints(m.q_of_u(m.end_u))
+            self._finish(m)
+        else:
+            self.world.set_joints(m.q_of_u(m.u(e)))
+
+    def _finish(self, m: _Motion) -> None:
+        self._motion = None
+        self.log.motion_time += m.e_end
+        t = m.t0 + m.e_end
+        if m.outcome == "protective_stop":
+            self._safety = SafetyState.PROTECTIVE_STOP
+            self.log.protective_stops += 1
+            self._pending = ProtectiveStopError(f"FakeArm: protective stop in {m.kind}: {m.detail}")
+            self._event("protective_stop", m.detail, t)
+        elif m.outcome == "disconnected":
+            self.world.faults.arm_disconnect = True
+            self.log.disconnects += 1
+            self._pending = DeviceNotConnectedError(f"FakeArm: {m.detail}; the arm stopped; call connect()")
+            self._event("disconnected", m.detail, t)
+        elif m.outcome == "stopped":
+            self._event("stopped", m.detail, t)
+        else:
+            self.log.completed += 1
+            self._event("done", m.kind, t)
+
+    def _slip(self) -> None:
+        uid = self.world.release()
+        self.world.gripper_opening = 0.0  # the fingers snap shut on nothing
+        self.log.slips += 1
+        self._event("slip", f"object {uid} slipped out of the gripper")
+
+    def _raise_pending(self) -> None:
+        err, self._pending = self._pending, None
+        if err is not None:
+            raise err
+
+    def _event(self, kind: str, detail: str = "", t: float | None = None) -> None:
+        self.log.events.append(ArmEvent(self.world.clock.now() if t is None else t, kind, detail))
+
+
+def _time_at_fraction(prof: Trapezoid, dist: float) -> float:
+    """Inverse of Trapezoid.s by bisection (monotone)."""
+    lo, hi = 0.0, prof.duration
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        if prof.s(mid) < dist:
+            lo = mid
+        else:
+            hi = mid
+    return hi

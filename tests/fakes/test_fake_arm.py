@@ -1,0 +1,239 @@
+"""FakeArm: limits refused before motion, protective stops before contact, trapezoid timing, asynchronous
+motion with stop, faults (disconnect, injected stop, slip), held objects following the TCP."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kitchenbot.drivers import DeviceNotConnectedError, DriverError, LimitViolation, ProtectiveStopError, SafetyState
+from kitchenbot.executive.config import CellConfig
+from kitchenbot.fakes.arm import FakeArm, Trapezoid
+from kitchenbot.fakes.gripper import FakeGripper
+from kitchenbot.fakes.placement import drop_onto
+from kitchenbot.fakes.world import SimWorld
+from kitchenbot.perception.cell import Cell
+from kitchenbot.perception.inventory import Inventory
+from kitchenbot.transforms import inv, trans
+
+CFG = CellConfig()
+HOME = np.array(CFG.robot.home)
+INVENTORY = Inventory.builtin()
+
+
+def make_rig(with_cup: bool = False):
+    limits = CFG.safety_limits()
+    world = SimWorld(Cell(), INVENTORY, T_flange_tcp=limits.T_flange_tcp, q=HOME.copy())
+    uid = None
+    if with_cup:
+        uid = world.add_object(INVENTORY.by_name("cup"), trans(0.35, 0.40, 0.3))
+        world.set_pose(uid, drop_onto(world, uid, world.objects[uid].T_base_obj))
+    arm = FakeArm(world, limits)
+    arm.connect()
+    return world, arm, uid
+
+
+def tcp_down(x: float, y: float, z: float) -> np.ndarray:
+    """TCP pose pointing straight down (like home)."""
+    T = trans(x, y, z)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    return T
+
+
+def test_trapezoid_profile():
+    p = Trapezoid(1.0, 0.5, 1.0)  # cruises: 1/0.5 + 0.5/1
+    assert p.duration == pytest.approx(2.5)
+    assert p.s(0.5) == pytest.approx(0.125) and p.s(2.5) == pytest.approx(1.0)
+    tri = Trapezoid(0.1, 1.0, 1.0)  # too short to reach 1 rad/s
+    assert tri.duration == pytest.approx(2 * np.sqrt(0.1))
+    assert tri.s(tri.duration / 2) == pytest.approx(0.05)
+
+
+def test_refuses_out_of_limit_commands_without_moving():
+    world, arm, _ = make_rig()
+    t0, q0 = world.clock.now(), world.q.copy()
+    bad = HOME.copy()
+    bad[2] = 3.5  # elbow limit is pi
+    with pytest.raises(LimitViolation, match="joint 2"):
+        arm.move_joints(bad)
+    with pytest.raises(LimitViolation, match="joint speed"):
+        arm.move_joints(HOME + 0.1, speed=5.0)
+    with pytest.raises(LimitViolation, match="workspace"):
+        arm.move_linear(tcp_down(1.5, 0.0, 0.2))
+    with pytest.raises(LimitViolation, match="starts"):
+        arm.execute_trajectory(np.array([0.0, 1.0]), np.stack([HOME + 0.2, HOME + 0.3]))
+    assert np.array_equal(world.q, q0) and world.clock.now() == t0
+    assert arm.log.refused == 4 and arm.log.motions == 0
+
+
+def test_joint_move_time_matches_synchronised_trapezoid():
+    world, arm, _ = make_rig()
+    target = HOME.copy()
+    target[0] -= 1.0  # longest travel: 1 rad
+    target[3] += 0.4
+    arm.move_joints(target, speed=0.5, accel=1.0, asynchronous=True)
+    arm.step(1.25)  # half of the 2.5 s: by symmetry every joint is half-way
+    frac = (arm.joint_positions() - HOME)[[0, 3]] / (target - HOME)[[0, 3]]
+    assert frac == pytest.approx([0.5, 0.5], abs=1e-9)
+    arm.wait()
+    assert world.clock.now() == pytest.approx(2.5)
+    assert np.allclose(arm.joint_positions(), target)
+    assert arm.log.motion_time == pytest.approx(2.5) and arm.log.completed == 1
+
+
+def test_linear_move_is_straight_and_timed():
+    world, arm, _ = make_rig()
+    start = arm.tcp_pose()
+    goal = trans(0.0, 0.1, -0.05) @ start  # 0.1118 m
+    arm.move_linear(goal, speed=0.05, accel=0.5, asynchronous=True)
+    L = np.linalg.norm([0.1, 0.05])
+    T = Trapezoid(L, 0.05, 0.5).duration
+    p0, p1 = start[:3, 3], goal[:3, 3]
+    for _ in range(10):
+        arm.step(T / 11)
+        p = arm.tcp_pose()[:3, 3]
+        off_line = np.linalg.norm(np.cross(p - p0, (p1 - p0) / L))
+        assert off_line < 5e-4
+        assert np.allclose(arm.tcp_pose()[:3, :3], start[:3, :3], atol=1e-4)
+    arm.wait()
+    assert world.clock.now() == pytest.approx(T)
+    assert np.allclose(arm.tcp_pose(), goal, atol=1e-4)
+
+
+def test_trajectory_follows_times():
+    world, arm, _ = make_rig()
+    q1 = HOME + np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.2])
+    times = np.array([0.0, 1.0, 2.0])
+    arm.execute_trajectory(times, np.stack([HOME, (HOME + q1) / 2, q1]), asynchronous=True)
+    arm.step(0.5)
+    assert np.allclose(arm.joint_positions(), HOME + (q1 - HOME) * 0.25)
+    assert arm.state().moving and arm.state().qd[0] == pytest.approx(0.15, rel=1e-3)
+    arm.wait()
+    assert world.clock.now() == pytest.approx(2.0) and np.allclose(arm.joint_positions(), q1)
+
+
+def test_protective_stop_before_driving_into_the_counter():
+    world, arm, _ = make_rig()
+    above = tcp_down(0.35, 0.45, 0.10)  # over the counter beside the sink
+    arm.move_linear(above, speed=0.25, accel=1.0)
+    with pytest.raises(ProtectiveStopError, match="counter"):
+        arm.move_linear(tcp_down(0.35, 0.45, -0.03), speed=0.1)
+    assert arm.safety_state() is SafetyState.PROTECTIVE_STOP
+    z_tip = arm.tcp_pose()[2, 3] - arm.collision.gripper.tip_z
+    assert -0.001 < z_tip < 0.008  # stopped within a sample step before touching the counter top (z = 0)
+    assert arm.log.collisions == 1 and arm.log.protective_stops == 1
+    with pytest.raises(ProtectiveStopError):
+        arm.move_linear(above)
+    arm.unlock_protective_stop()
+    assert arm.safety_state() is SafetyState.NORMAL
+    arm.move_linear(above)  # moving away is fine
+    assert np.allclose(arm.tcp_pose(), above, atol=1e-4)
+
+
+def test_protective_stop_before_the_sink_floor():
+    world, arm, _ = make_rig()
+    arm.move_linear(tcp_down(0.45, 0.0, 0.05), speed=0.25, accel=1.0)
+    with pytest.raises(ProtectiveStopError, match="sink_floor"):
+        arm.move_linear(tcp_down(0.45, 0.0, -0.30), speed=0.25)
+    assert arm.tcp_pose()[2, 3] - arm.collision.gripper.tip_z > -0.2 - 1e-3
+
+
+def test_asynchronous_move_and_stop_halts_partway():
+    world, arm, _ = make_rig()
+    target = HOME.copy()
+    target[0] -= 1.0
+    arm.move_joints(target, speed=0.5, accel=1.0, asynchronous=True)
+    while world.clock.now() < 1.0 - 1e-9:
+        assert arm.step(0.05)
+    q_at_stop = arm.joint_positions()[0]
+    assert q_at_stop == pytest.approx(HOME[0] - 0.375)  # s(1.0) = 0.125 (ramp) + 0.5 * 0.5 (cruise)
+    arm.stop(decel=2.0)  # 0.5 rad/s -> 0.25 s and 0.0625 rad more
+    assert not arm.is_moving()
+    assert arm.joint_positions()[0] == pytest.approx(q_at_stop - 0.0625, abs=1e-6)
+    assert world.clock.now() == pytest.approx(1.25)
+    assert arm.safety_state() is SafetyState.NORMAL and arm.log.stops == 1
+    arm.wait()  # nothing running: returns at once
+    arm.move_joints(target)  # and the arm accepts the next motion
+
+
+def test_running_motion_blocks_a_second_one():
+    world, arm, _ = make_rig()
+    arm.move_joints(HOME + 0.2, speed=0.5, accel=1.0, asynchronous=True)
+    with pytest.raises(DriverError, match="while a motion is running"):
+        arm.move_joints(HOME)
+    arm.wait()
+
+
+def test_disconnect_fault_and_reconnect():
+    world, arm, _ = make_rig()
+    world.faults.arm_disconnect = True
+    with pytest.raises(DeviceNotConnectedError):
+        arm.joint_positions()
+    with pytest.raises(DeviceNotConnectedError):
+        arm.move_joints(HOME)
+    arm.connect()
+    assert np.allclose(arm.joint_positions(), HOME)
+
+    target = HOME.copy()
+    target[0] -= 1.0
+    world.faults.arm_disconnect_after = 0.5
+    arm.move_joints(target, speed=0.5, accel=1.0, asynchronous=True)
+    with pytest.raises(DeviceNotConnectedError, match="dropped"):
+        arm.wait()
+    assert world.clock.now() == pytest.approx(0.5)
+    assert not arm.is_connected and arm.log.disconnects == 1
+    arm.connect()
+    assert arm.joint_positions()[0] == pytest.approx(HOME[0] - 0.125)  # stopped where the link dropped
+    arm.move_joints(target, speed=0.5, accel=1.0)
+    assert np.allclose(arm.joint_positions(), target)
+
+
+def test_injected_protective_stop_halfway():
+    world, arm, _ = make_rig()
+    target = HOME.copy()
+    target[0] -= 1.0
+    world.faults.protective_stop = 1
+    with pytest.raises(ProtectiveStopError, match="injected"):
+        arm.move_joints(target, speed=0.5, accel=1.0)
+    assert arm.joint_positions()[0] == pytest.approx(HOME[0] - 0.5)
+    assert world.faults.protective_stop == 0 and arm.log.collisions == 0
+    arm.unlock_protective_stop()
+    arm.move_joints(target, speed=0.5, accel=1.0)
+
+
+def _grasp_cup(world, arm, uid):
+    gripper = FakeGripper(world)
+    gripper.connect()
+    g = next(g for g in world.objects[uid].model.grasps if g.name.startswith("rim"))
+    T_grasp = world.objects[uid].T_base_obj @ g.T_obj_tcp
+    arm.move_linear(T_grasp @ trans(0, 0, -0.08), speed=0.25, accel=1.0)
+    gripper.open(g.opening)
+    arm.move_linear(T_grasp, speed=0.05)  # the pads straddle the rim: allowed contact
+    assert gripper.grasp(0.6).holding
+    return gripper, T_grasp
+
+
+def test_held_object_moves_with_the_tcp():
+    world, arm, uid = make_rig(with_cup=True)
+    gripper, T_grasp = _grasp_cup(world, arm, uid)
+    T_tcp_obj = inv(arm.tcp_pose()) @ world.objects[uid].T_base_obj
+    arm.move_linear(trans(0, 0, 0.15) @ T_grasp, speed=0.1)  # lift off the counter (start contact allowed)
+    arm.move_joints(HOME)
+    assert np.allclose(inv(arm.tcp_pose()) @ world.objects[uid].T_base_obj, T_tcp_obj, atol=1e-6)
+    assert world.objects[uid].T_base_obj[2, 3] > 0.15
+    assert arm.log.collisions == 0 and gripper.status().holding
+
+
+def test_slip_drops_the_object_during_a_move():
+    world, arm, uid = make_rig(with_cup=True)
+    gripper, T_grasp = _grasp_cup(world, arm, uid)
+    arm.move_linear(trans(0, 0, 0.15) @ T_grasp, speed=0.1)
+    world.faults.slip_probability = 1.0
+    target = HOME.copy()
+    target[0] -= 0.8  # swing over the sink
+    arm.move_joints(target, speed=0.5, accel=1.0)
+    assert arm.log.slips == 1 and world.held_uid is None
+    st = gripper.status()
+    assert not st.holding and st.opening < 1e-3
+    z_bottom = np.asarray(world.object_mesh(uid).vertices)[:, 2].min()
+    assert z_bottom < 0.01  # it fell onto the counter or into the sink
