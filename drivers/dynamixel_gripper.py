@@ -82,6 +82,22 @@ def _signed(value: int, size: int) -> int:
     return value - (1 << bits) if value & (1 << (bits - 1)) else value
 
 
+class _PortHandler(PortHandler):
+    """The SDK's PortHandler with a floor on the status-packet timeout. The SDK waits 2 x 16 ms (the FTDI
+    latency timer) + transfer time; a loaded host or a slow USB hub can need more before declaring a timeout."""
+
+    def __init__(self, port_name: str, min_timeout_ms: float = 0.0):
+        super().__init__(port_name)
+        self.min_timeout_ms = min_timeout_ms
+
+    def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK method name
+        super().setPacketTimeout(packet_length)
+        self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
+
+    def setPacketTimeoutMillis(self, msec):  # noqa: N802
+        super().setPacketTimeoutMillis(max(msec, self.min_timeout_ms))
+
+
 @dataclass
 class _Present:
     moving: bool
@@ -113,11 +129,14 @@ class DynamixelGripper(Gripper):
         retries: int = 3,
         poll_interval: float = 0.01,
         temperature_warn_c: float = 70.0,
+        min_packet_timeout_ms: float = 0.0,
     ):
         """`closed_ticks`/`open_ticks`/`max_opening`: the linear calibration above. `current_limit_ma` is
         written to Current Limit (@38) at connect and bounds every grasp. `closing_overshoot_ticks`: a grasp
         aims this far past closed so the pads press together when there is nothing between them.
-        `min_holding_opening` (m): below it a stall counts as fully closed (not holding)."""
+        `min_holding_opening` (m): below it a stall counts as fully closed (not holding).
+        `retries`: attempts per transaction on timeouts/corrupt packets; `min_packet_timeout_ms`: a floor on the
+        SDK's status-packet timeout (0 keeps the SDK's ~34 ms)."""
         if closed_ticks == open_ticks:
             raise ValueError("closed_ticks and open_ticks must differ (the calibration would divide by zero)")
         if max_opening <= 0:
@@ -137,6 +156,7 @@ class DynamixelGripper(Gripper):
         self.retries = max(1, int(retries))
         self.poll_interval = float(poll_interval)
         self.temperature_warn_c = float(temperature_warn_c)
+        self.min_packet_timeout_ms = float(min_packet_timeout_ms)
         self.model_number: int | None = None
         self.firmware_version: int | None = None
         self._port: PortHandler | None = None
@@ -188,7 +208,7 @@ class DynamixelGripper(Gripper):
                 f"Dynamixel gripper: serial port {self.port_name} does not exist. Is the U2D2/USB adapter plugged "
                 f"in and powered? Check `ls /dev/ttyUSB* /dev/serial/by-id/` and drivers.gripper.port in the config."
             )
-        port = PortHandler(self.port_name)
+        port = _PortHandler(self.port_name, self.min_packet_timeout_ms)
         try:
             port.openPort()
         except (SerialException, OSError) as e:
