@@ -11,6 +11,7 @@ import importlib
 
 BENCH_MODULES = [
     "kitchenbot.fakes.bench",  # render, scenes
+    "kitchenbot.fakes.dynamixel_bench",  # dynamixel
     "kitchenbot.perception.bench",
     "kitchenbot.planning.bench",  # planning
     "kitchenbot.executive.bench",  # tasks
