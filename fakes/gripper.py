@@ -6,7 +6,8 @@
   objects whose mesh lies in the pad region (TCP frame: |x| <= 1 cm, |y| <= opening/2, z over the pad
   length ending at the finger tips, see fakes/collision.GripperGeometry) are probed with rays along the
   closing axis from each pad inwards, as perception.inventory.pad_span does; each pad stops at the first
-  surface it meets. Stalled on an object: holding, opening = the object's span, current near the limit, the
+  surface it meets. Fin-Ray pads conform, so the span is taken on lines near the pad centre (+-5 mm), and over
+  the whole pad face only if nothing crosses the centre. Stalled on an object: holding, opening = the object's span, current near the limit, the
   object is attached to the TCP (``world.attach``). Nothing in between: closed (~0), not holding, small current.
 - Faults (``world.faults``): ``gripper_overload`` makes the next grasp end in an overload shutdown (status
   error "overload", HardwareError on every command until ``reboot()``; reboot drops any held object); slip is
@@ -180,31 +181,36 @@ class FakeGripper(Gripper):
             ids.append(uid)
         if not ids:
             return None
-        # rays from each pad inwards, on a grid over the pad face
-        xs = np.linspace(-self.pad_half_x, self.pad_half_x, 5)
-        zs = np.linspace(z0, z1, 8)
+        # Rays from each pad inwards along lines across the gap. The Fin-Ray pads conform to the object, so the
+        # closed opening is the object's span near the pad centre (what perception.inventory.pad_span measures);
+        # the rest of the pad face only counts when nothing lies across the centre lines.
+        core = self._lines(np.array([-0.005, 0.0, 0.005]), np.array([-0.005, 0.0, 0.005]))
+        face = self._lines(np.linspace(-self.pad_half_x, self.pad_half_x, 5), np.linspace(z0, z1, 8))
+        for lines in (core, face):
+            hit = self._widest_line(scene, ids, p + lines @ np.stack([x, z]), y, half, opening)
+            if hit is not None:
+                return hit
+        return None
+
+    @staticmethod
+    def _lines(xs: np.ndarray, zs: np.ndarray) -> np.ndarray:
         X, Z = np.meshgrid(xs, zs)
-        starts = p + X.reshape(-1, 1) * x + Z.reshape(-1, 1) * z
+        return np.column_stack([X.ravel(), Z.ravel()])
+
+    @staticmethod
+    def _widest_line(scene, ids, starts, y, half, opening) -> tuple[float, int] | None:
+        """Max over lines of the span between the first surfaces each pad meets; (width, uid) or None."""
+        n = len(starts)
         rays_pos = np.hstack([starts + half * y, np.broadcast_to(-y, starts.shape)])  # +y pad closing along -y
         rays_neg = np.hstack([starts - half * y, np.broadcast_to(y, starts.shape)])
         ans = scene.cast_rays(o3d.core.Tensor(np.vstack([rays_pos, rays_neg]).astype(np.float32)))
-        t = ans["t_hit"].numpy()
-        gid = ans["geometry_ids"].numpy()
-        n = len(starts)
+        t, gid = ans["t_hit"].numpy(), ans["geometry_ids"].numpy()
         t_pos, t_neg = t[:n], t[n:]
-        ok_pos, ok_neg = np.isfinite(t_pos) & (t_pos <= opening), np.isfinite(t_neg) & (t_neg <= opening)
-        if not ok_pos.any() or not ok_neg.any():
-            # a ray line that crosses an object is hit from both sides, so one-sided hits only happen when a
-            # pad already sits inside a mesh: no clean contact, the fingers close on nothing
+        # a line crossing an object is hit from both sides; one-sided hits mean a pad already sits in a mesh
+        width = np.where(np.isfinite(t_pos) & np.isfinite(t_neg), opening - t_pos - t_neg, -np.inf)
+        i = int(np.argmax(width))
+        if not width[i] > 0:
             return None
-        # each pad stops at the most protruding surface over its face (TCP y coordinates)
-        y_pos = half - float(t_pos[ok_pos].min())
-        y_neg = -half + float(t_neg[ok_neg].min())
-        width = y_pos - y_neg
-        if width <= 0:
-            return None
-        # the object held: the one the +y pad stops on if both pads stop on it, else the nearer pad's
-        i_pos = int(np.argmin(np.where(ok_pos, t_pos, np.inf)))
-        i_neg = int(np.argmin(np.where(ok_neg, t_neg, np.inf)))
-        u_pos, u_neg = ids[int(gid[i_pos])], ids[int(gid[n + i_neg])]
-        return float(width), (u_pos if u_pos == u_neg or t_pos[i_pos] <= t_neg[i_neg] else u_neg)
+        u_pos, u_neg = ids[int(gid[i])], ids[int(gid[n + i])]
+        # two different objects across the gap: the one nearer a pad is the one held
+        return float(width[i]), (u_pos if t_pos[i] <= t_neg[i] else u_neg)

@@ -237,3 +237,15 @@ def test_slip_drops_the_object_during_a_move():
     assert not st.holding and st.opening < 1e-3
     z_bottom = np.asarray(world.object_mesh(uid).vertices)[:, 2].min()
     assert z_bottom < 0.01  # it fell onto the counter or into the sink
+
+
+def test_fingers_may_touch_only_what_is_between_them():
+    world, arm, uid = make_rig(with_cup=True)
+    c = world.objects[uid].T_base_obj[:3, 3]
+    top = float(np.asarray(world.object_mesh(uid).vertices)[:, 2].max())
+    # TCP 9 cm beside the cup along the closing axis (TCP y = -base y): the open +y finger lands on the rim
+    arm.move_linear(tcp_down(c[0], c[1] + 0.09, top + 0.08), speed=0.25, accel=1.0)
+    with pytest.raises(ProtectiveStopError, match=f"finger_pos hits obj:{uid}"):
+        arm.move_linear(tcp_down(c[0], c[1] + 0.09, top - 0.02), speed=0.1)
+    assert arm.log.collisions == 1
+    assert world.objects[uid].T_base_obj[:3, 3] == pytest.approx(c)  # nothing pushed it
