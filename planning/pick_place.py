@@ -4,37 +4,161 @@
 collision objects from what perception returned (object poses + unexplained map points) and returns a plan or
 a typed :class:`~kitchenbot.planning.types.PlanningFailure` (never raises for planning outcomes; bad inputs
 give ``InvalidInput``).
+
+Pick = approach (RRT-Connect to the pre-grasp, gripper open at the grasp's opening) + grasp_in (straight line
+along the approach axis, pads may touch the target) + lift (straight up with the object attached).
+Place = transfer (RRT-Connect with the object attached to the pre-place pose above the target) + lower
+(straight down) + retreat (straight back along the approach axis after opening).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 
 import numpy as np
 
+from kitchenbot.drivers.errors import LimitViolation
+from kitchenbot.drivers.safety import SafetyLimits
+from kitchenbot.drivers.ur_kinematics import ur_model
+from kitchenbot.perception.cell import Cell
+from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.collision import CollisionWorld, Held, Scene, SceneObject
+from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
+from kitchenbot.planning.motion import cartesian_line, plan_joint_path
+from kitchenbot.planning.robot import RobotModel
+from kitchenbot.planning.settings import PlanningSettings
+from kitchenbot.planning.timing import time_parameterise
 from kitchenbot.planning.types import (
+    CartesianPathFailed,
     Grasp,
+    InvalidInput,
     MovePlan,
+    NoFeasiblePlacement,
+    NoFreeSlot,
     PickPlan,
     PlaceTarget,
     PlacePlan,
     PlanningFailure,
+    Trajectory,
 )
+from kitchenbot.transforms import check_rigid, rot_z, trans
+
+
+LIFT_CONTACT_TRAVEL = 0.03  # m of lift during which the held object may still touch what it rested on
+PLACED_ID = 1_000_000  # instance id of the just-released object in the retreat scene
 
 
 class Planner:
     """Plans pick, place and free motions for one cell (robot + tool + fixed geometry + inventory)."""
 
-    def __init__(self, robot, cell, inventory, settings, limits):  # filled in below (issue 5)
-        raise NotImplementedError("planning.pick_place.Planner is being written (issue 5); API is stable")
+    def __init__(
+        self,
+        robot: RobotModel,
+        cell: Cell,
+        inventory: Inventory,
+        settings: PlanningSettings | None = None,
+        T_flange_cam: np.ndarray | None = None,
+    ):
+        self.robot = robot
+        self.cell = cell
+        self.inventory = inventory
+        self.settings = settings or PlanningSettings()
+        s = self.settings
+        self.world = CollisionWorld(
+            robot, cell, T_flange_cam, margin=s.collision_margin, grasp_margin=s.grasp_margin, voxel_size=s.map_voxel_size
+        )
+        # OMPL's check step must stay below twice the margin (see planning.motion); never above it.
+        self.planning_resolution = min(s.planning_resolution, max(2 * s.collision_margin - 0.002, s.validity_resolution))
+
+    @property
+    def limits(self) -> SafetyLimits:
+        return self.robot.limits
 
     @classmethod
-    def from_config(cls, cfg, inventory=None) -> "Planner":
-        """Build from an executive CellConfig (duck-typed: robot.model, robot.tool, safety_limits(), planning,
-        cell); `inventory` defaults to the builtin one."""
-        raise NotImplementedError
+    def from_config(cls, cfg, inventory: Inventory | None = None) -> "Planner":
+        """Build from an executive CellConfig (duck-typed: robot.model, safety_limits(), planning, cell,
+        calibration); `inventory` defaults to the builtin one."""
+        limits = cfg.safety_limits()
+        robot = RobotModel(ur_model(cfg.robot.model), limits.T_flange_tcp, limits)
+        T_fc = cfg.T_flange_cam() if callable(getattr(cfg, "T_flange_cam", None)) else cfg.calibration.T_flange_cam.matrix()
+        return cls(robot, Cell(cfg.cell), inventory or Inventory.builtin(), cfg.planning, T_fc)
 
+    # ---- scene assembly ----------------------------------------------------------------------------------------
+    def _scene_objects(self, objects: Sequence[ObjectPose], exclude: ObjectPose | None = None) -> list[SceneObject]:
+        out = []
+        for k, o in enumerate(objects):
+            if exclude is not None and (o is exclude or (exclude.instance_id >= 0 and o.instance_id == exclude.instance_id)):
+                continue
+            if o.obj_id not in self.inventory.models:
+                continue
+            out.append(SceneObject(object_name(o, k), self.inventory[o.obj_id], np.asarray(o.T_base_obj, float)))
+        return out
+
+    def scene(
+        self,
+        objects: Sequence[ObjectPose] = (),
+        map_points: np.ndarray | None = None,
+        *,
+        exclude: ObjectPose | None = None,
+        held: Grasp | None = None,
+        opening: float | None = None,
+    ) -> Scene:
+        """The collision scene of one query (perceived objects minus `exclude`, unexplained map points, held)."""
+        all_objs = self._scene_objects(objects)
+        voxels = self.world.unexplained_voxels(map_points, all_objs)
+        objs = self._scene_objects(objects, exclude=exclude)
+        h = None
+        if held is not None:
+            h = Held(self.inventory[held.obj.obj_id], held.T_tcp_obj, held.spec.width)
+        kw = {} if opening is None else {"opening": opening}
+        return self.world.scene(objs, voxels, h, **kw)
+
+    # ---- helpers -------------------------------------------------------------------------------------------------
+    def _check_q(self, q, name: str) -> np.ndarray | InvalidInput:
+        q = np.asarray(q, float)
+        if q.shape != (6,) or not np.all(np.isfinite(q)):
+            return InvalidInput(f"{name}: expected 6 finite joint values, got shape {q.shape}")
+        return q
+
+    def _time(self, Q: np.ndarray, name: str, mode: str) -> Trajectory | PlanningFailure:
+        try:
+            return time_parameterise(
+                Q, self.limits, self.robot.ur, velocity_scale=self.settings.velocity_scale,
+                acceleration_scale=self.settings.acceleration_scale, mode=mode, name=name,
+            )
+        except LimitViolation as e:
+            return CartesianPathFailed(f"{name}: {e}")
+
+    def _joint_motion(self, scene: Scene, q0, q1, name: str, timings: dict) -> Trajectory | PlanningFailure:
+        s = self.settings
+        t0 = time.perf_counter()
+        res = plan_joint_path(
+            scene, q0, q1, timeout=s.planner_timeout, simplify_timeout=s.simplify_timeout,
+            planning_resolution=self.planning_resolution, validity_resolution=s.validity_resolution,
+        )
+        timings[f"{name}_plan_ms"] = (time.perf_counter() - t0) * 1e3
+        if isinstance(res, PlanningFailure):
+            res.details.setdefault("segment", name)
+            return res
+        return self._time(res.path, name, "stop_at_vertices")
+
+    def _line(self, scene: Scene, q0, T_goal, name: str, *, check_start: bool = True, start_scene: Scene | None = None,
+              start_travel: float = 0.0) -> tuple[Trajectory, np.ndarray] | PlanningFailure:
+        Q = cartesian_line(self.robot, scene, q0, T_goal, step=self.settings.validity_resolution,
+                           check_step=self.settings.validity_resolution, check_start=check_start,
+                           start_scene=start_scene, start_travel=start_travel)
+        if isinstance(Q, PlanningFailure):
+            Q.message = f"{name}: {Q.message}"
+            Q.details.setdefault("segment", name)
+            return Q
+        traj = self._time(Q, name, "along_path")
+        if isinstance(traj, PlanningFailure):
+            return traj
+        return traj, Q[-1]
+
+    # ---- grasps -------------------------------------------------------------------------------------------------
     def select_grasps(
         self,
         q_current: np.ndarray,
@@ -42,11 +166,25 @@ class Planner:
         *,
         target: ObjectPose | None = None,
         map_points: np.ndarray | None = None,
-        place_target: PlaceTarget | None = None,
+        place_target: PlaceTarget | Sequence[PlaceTarget] | None = None,
+        stats: GraspStats | None = None,
     ) -> list[Grasp] | PlanningFailure:
         """Ranked feasible grasps (best first) over `objects` (or only `target`)."""
-        raise NotImplementedError
+        q = self._check_q(q_current, "q_current")
+        if isinstance(q, PlanningFailure):
+            return q
+        scene = self.scene(objects, map_points)
+        flt = None
+        if place_target is not None:
+            targets = [place_target] if isinstance(place_target, PlaceTarget) else list(place_target)
 
+            def flt(obj, spec, T_base_tcp):
+                return any(self._place_tcp_options(t, spec.T_obj_tcp, q, first_only=True) for t in targets)
+
+        return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
+                             target=target, grasp_filter=flt, stats=stats)
+
+    # ---- pick ------------------------------------------------------------------------------------------------------
     def plan_pick(
         self,
         q_start: np.ndarray,
@@ -54,30 +192,154 @@ class Planner:
         *,
         target: ObjectPose | None = None,
         map_points: np.ndarray | None = None,
-        place_target: PlaceTarget | None = None,
+        place_target: PlaceTarget | Sequence[PlaceTarget] | None = None,
     ) -> PickPlan | PlanningFailure:
         """Pick the best graspable object in `objects` (or `target`): approach, straight grasp-in, lift.
 
         `objects`: every perceived object (all are obstacles, candidates unless `target` is given);
         `map_points`: (N, 3) fused map points in the base frame; those no object or cell surface explains become
-        voxel obstacles; `place_target`: when given, only grasps that can also reach that placement are kept
-        (e.g. cups to be inverted into the upper rack need side grasps).
+        voxel obstacles; `place_target`: when given, only grasps that can also reach that placement (one of
+        them, for a list) are kept (e.g. cups to be inverted into the upper rack need side grasps).
         """
-        raise NotImplementedError
+        q0 = self._check_q(q_start, "q_start")
+        if isinstance(q0, PlanningFailure):
+            return q0
+        timings: dict = {}
+        t0 = time.perf_counter()
+        grasps = self.select_grasps(q0, objects, target=target, map_points=map_points, place_target=place_target)
+        timings["grasp_selection_ms"] = (time.perf_counter() - t0) * 1e3
+        if isinstance(grasps, PlanningFailure):
+            return grasps
+        base_scene = self.scene(objects, map_points)
+        last: PlanningFailure | None = None
+        tried = 0
+        for g in grasps[: self.settings.max_grasp_candidates]:
+            tried += 1
+            res = self._plan_pick_with(q0, g, objects, map_points, base_scene, timings)
+            if not isinstance(res, PlanningFailure):
+                res.candidates_tried = tried
+                timings["total_ms"] = (time.perf_counter() - t0) * 1e3
+                return res
+            last = res
+        assert last is not None
+        last.details["candidates_tried"] = tried
+        return last
+
+    def _plan_pick_with(self, q0, g: Grasp, objects, map_points, base_scene: Scene, timings: dict) -> PickPlan | PlanningFailure:
+        s = self.settings
+        name = None
+        for k, o in enumerate(objects):
+            if o is g.obj:
+                name = object_name(o, k)
+        base_scene.set_opening(g.spec.opening)
+        approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+        if isinstance(approach, PlanningFailure):
+            return approach
+        grasp_scene = base_scene.for_grasp(name)
+        r = self._line(grasp_scene, g.q_pregrasp, g.T_base_tcp, "grasp_in")
+        if isinstance(r, PlanningFailure):
+            return r
+        grasp_in, q_grasp = r
+        g.q = q_grasp
+        # Lift: the held object leaves the contacts it rests in (sink floor, a stack) during the first
+        # LIFT_CONTACT_TRAVEL metres, checked without it (gripper only); above that, everything is checked.
+        lift_scene = self.scene(objects, map_points, exclude=g.obj, held=g).for_release(None)
+        start_scene = self.scene(objects, map_points, exclude=g.obj, opening=g.spec.width).for_release(None)
+        T_lift = trans(0.0, 0.0, s.lift_height) @ g.T_base_tcp
+        r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False, start_scene=start_scene,
+                       start_travel=LIFT_CONTACT_TRAVEL)
+        if isinstance(r, PlanningFailure):
+            return r
+        lift, _ = r
+        return PickPlan(g, approach, grasp_in, lift, timings_ms=timings)
+
+    # ---- place -----------------------------------------------------------------------------------------------------
+    def _place_tcp_options(self, target: PlaceTarget, T_obj_tcp: np.ndarray, q_ref: np.ndarray, first_only: bool = False):
+        """[(T_base_obj, T_base_tcp, q)] reachable release poses for `target` with this grasp, closest first."""
+        T_obj = np.asarray(target.T_base_obj, float)
+        turns = np.linspace(0, 2 * np.pi, 12, endpoint=False) if target.free_yaw else [0.0]
+        out = []
+        for a in turns:
+            To = T_obj @ rot_z(a)  # about the object's own (symmetry) axis
+            T = To @ T_obj_tcp
+            if T[2, 2] > self.settings.max_approach_up:
+                continue
+            q = self.robot.ik_q(T, q_ref)
+            if q is None:
+                continue
+            out.append((To, T, q))
+            if first_only:
+                break
+        out.sort(key=lambda x: float(np.max(np.abs(x[2] - q_ref))))
+        return out
 
     def plan_place(
         self,
         q_start: np.ndarray,
         grasp: Grasp,
-        target: PlaceTarget,
+        target: PlaceTarget | Sequence[PlaceTarget],
         *,
         objects: Sequence[ObjectPose] = (),
         map_points: np.ndarray | None = None,
     ) -> PlacePlan | PlanningFailure:
-        """Carry the object held with `grasp` to `target`: transfer, straight lower, (open), straight retreat.
-        `objects` are the other perceived objects (the held one is excluded by instance id)."""
-        raise NotImplementedError
+        """Carry the object held with `grasp` to `target` (or the first feasible of a list): transfer, straight
+        lower, (open), straight retreat. `objects` are the other perceived objects (the held one is excluded by
+        identity or instance id)."""
+        q0 = self._check_q(q_start, "q_start")
+        if isinstance(q0, PlanningFailure):
+            return q0
+        targets = [target] if isinstance(target, PlaceTarget) else list(target)
+        if not targets:
+            return NoFreeSlot("plan_place: no target given")
+        for t in targets:
+            try:
+                check_rigid(t.T_base_obj, "PlaceTarget.T_base_obj")
+            except ValueError as e:
+                return InvalidInput(str(e))
+        s = self.settings
+        timings: dict = {}
+        t_start = time.perf_counter()
+        held_scene = self.scene(objects, map_points, exclude=grasp.obj, held=grasp)
+        last: PlanningFailure | None = None
+        for tgt in targets:
+            options = self._place_tcp_options(tgt, grasp.T_obj_tcp, q0)
+            if not options:
+                last = NoFeasiblePlacement(f"no reachable release pose for target {tgt.slot or tgt.kind}")
+                continue
+            for T_obj, T_tcp, q_place in options[:4]:
+                up = tgt.approach_distance if tgt.approach_distance is not None else s.approach_distance
+                T_pre = trans(0.0, 0.0, up) @ T_tcp
+                q_pre = self.robot.ik_q(T_pre, q_place, max_seeds=0)
+                if q_pre is None or not held_scene.valid(q_pre):
+                    last = NoFeasiblePlacement("pre-place pose unreachable or in collision")
+                    continue
+                transfer = self._joint_motion(held_scene, q0, q_pre, "transfer", timings)
+                if isinstance(transfer, PlanningFailure):
+                    last = transfer
+                    if transfer.kind in ("start_in_collision",):
+                        return transfer
+                    continue
+                r = self._line(held_scene.for_release(None), q_pre, T_tcp, "lower")
+                if isinstance(r, PlanningFailure):
+                    last = r
+                    continue
+                lower, q_rel = r
+                # after release: the object stays; the open pads back out along the approach axis
+                placed = ObjectPose(grasp.obj.obj_id, grasp.obj.cls, T_obj, 1.0, instance_id=PLACED_ID)
+                after = self.scene([*objects, placed], None, exclude=grasp.obj, opening=grasp.spec.opening)
+                after_scene = after.for_grasp(object_name(placed, 0))
+                T_back = T_tcp @ trans(0.0, 0.0, -up)
+                r = self._line(after_scene, q_rel, T_back, "retreat", check_start=False)
+                if isinstance(r, PlanningFailure):
+                    last = r
+                    continue
+                retreat, _ = r
+                timings["total_ms"] = (time.perf_counter() - t_start) * 1e3
+                return PlacePlan(tgt, T_obj, T_tcp, transfer, lower, retreat, timings_ms=timings)
+        assert last is not None
+        return last
 
+    # ---- free motion -----------------------------------------------------------------------------------------------
     def plan_move(
         self,
         q_start: np.ndarray,
@@ -88,4 +350,15 @@ class Planner:
         map_points: np.ndarray | None = None,
     ) -> MovePlan | PlanningFailure:
         """Collision-free joint motion (e.g. to a scan waypoint or home), with `held` attached if given."""
-        raise NotImplementedError
+        q0 = self._check_q(q_start, "q_start")
+        if isinstance(q0, PlanningFailure):
+            return q0
+        q1 = self._check_q(q_goal, "q_goal")
+        if isinstance(q1, PlanningFailure):
+            return q1
+        timings: dict = {}
+        scene = self.scene(objects, map_points, exclude=held.obj if held is not None else None, held=held)
+        traj = self._joint_motion(scene, q0, q1, "move", timings)
+        if isinstance(traj, PlanningFailure):
+            return traj
+        return MovePlan(traj, timings)

@@ -14,5 +14,15 @@ class PlanningSettings(BaseModel):
     approach_distance: float = Field(0.10, gt=0.0, le=0.3, description="straight approach/retreat, metres")
     lift_height: float = Field(0.15, gt=0.0, le=0.5)
     max_occlusion: float = Field(0.6, ge=0.0, le=1.0, description="skip objects hidden more than this fraction")
+    max_approach_up: float = Field(
+        0.1, ge=-1.0, le=1.0, description="largest upward z component of a grasp's approach direction (-1 = straight down)"
+    )
+    collision_margin: float = Field(0.01, ge=0.0, le=0.05, description="clearance (m) kept by every motion")
+    grasp_margin: float = Field(0.002, ge=0.0, le=0.02, description="gripper clearance (m) in the final approach")
+    planning_resolution: float = Field(
+        0.015, gt=0.0, le=0.05, description="RRT-Connect motion check step (m of point travel); < 2 * collision_margin"
+    )
+    max_grasp_candidates: int = Field(8, ge=1, le=100, description="ranked grasps tried by plan_pick")
+    map_voxel_size: float = Field(0.02, gt=0.002, le=0.1, description="voxels (m) for map points no object explains")
     velocity_scale: float = Field(0.5, gt=0.0, le=1.0)
     acceleration_scale: float = Field(0.5, gt=0.0, le=1.0)

@@ -80,11 +80,18 @@ class Grasp:
     clearance: float = 0.0
 
     @property
+    def T_obj_tcp(self) -> np.ndarray:
+        """The grasp actually used, in the object frame (the spec's, possibly backed off along the approach)."""
+        from kitchenbot.transforms import inv
+
+        return inv(np.asarray(self.obj.T_base_obj, float)) @ self.T_base_tcp
+
+    @property
     def T_tcp_obj(self) -> np.ndarray:
         """The held object's pose in the TCP frame once grasped (rigid attachment)."""
         from kitchenbot.transforms import inv
 
-        return inv(self.spec.T_obj_tcp)
+        return inv(self.T_obj_tcp)
 
     @property
     def approach(self) -> np.ndarray:
@@ -97,8 +104,8 @@ class PlaceTarget:
     """Where the held object should end up: its pose ``T_base_obj`` (object frame as in the inventory).
 
     ``kind``: "slot" (dishwasher rack), "stack" (on a cup of the same type), "drop" (counter drop zone).
-    ``free_yaw``: the object is rotationally symmetric about the vertical, so the planner may turn it about
-    the base z axis through the target origin to find a reachable grasp orientation.
+    ``free_yaw``: the object is rotationally symmetric about its own z axis, so the planner may turn it about
+    that axis (through the target origin) to find a reachable release pose for the grasp used.
     ``slot``: the rack slot name for kind "slot" (SlotBook bookkeeping), else None.
     """
 

@@ -1,0 +1,451 @@
+"""The collision world (coal through Pinocchio's GeometryModel): arm capsules, gripper, camera, cell boxes,
+perceived objects as CAD meshes, unexplained map points as an occupancy octree, the held object.
+
+Built in two layers: :class:`CollisionWorld` holds what never changes (robot links, tool, cell boxes, cached
+mesh BVHs per object model); :meth:`CollisionWorld.scene` adds one planning query's dynamic geometry and returns
+a :class:`Scene` with its own GeometryData, collision pairs and per-pair security margins.
+
+Margins: every pair is checked with ``margin`` (conservative, 1 cm by default: the simulator's FakeArm stops on
+contact with its own geometry, a real cell has calibration error), except the gripper near the grasp: a scene
+variant made with :meth:`Scene.for_grasp` checks the gripper with ``grasp_margin`` and lets the finger pads touch
+the grasped object (the allowed-contact set of that query).
+
+Geometry of the UR links (in Pinocchio joint frames = DH frame i-1 turned by q_i): the real links are offset
+from the DH plane along the shoulder/elbow axes (UR5e: upper arm ~0.138 m, forearm ~0.138-0.131 m; scaled by d4
+for the other models); radii cover the motor housings, not the thinner tubes, so the capsules are conservative.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from kitchenbot.perception.cell import Cell
+from kitchenbot.perception.inventory import GRIPPER_MAX_OPENING, ObjectModel
+from kitchenbot.planning.robot import RobotModel
+from kitchenbot.transforms import inv, make_T
+
+# ---- shapes ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Capsule:
+    name: str
+    joint: int  # 1..6 (0 = base/universe)
+    a: tuple[float, float, float]  # segment ends in the joint frame
+    b: tuple[float, float, float]
+    radius: float
+
+
+@dataclass(frozen=True)
+class ToolBox:
+    """A box fixed to the flange (joint 6) frame: pose T_flange_box, full extents `size`."""
+
+    name: str
+    T_flange_box: np.ndarray
+    size: tuple[float, float, float]
+
+
+def link_capsules(robot: RobotModel) -> list[Capsule]:
+    """Capsules covering the UR links, in joint frames (see module docstring)."""
+    ur = robot.ur
+    d1, a2, a3, d4, d5, d6 = ur.d[0], ur.a[1], ur.a[2], ur.d[3], ur.d[4], ur.d[5]
+    s = d4 / 0.1333  # scale the UR5e offsets to the other models
+    sh = 0.138 * s  # upper-arm axis offset along the shoulder axis
+    fo = (0.138 - 0.131) * s  # forearm axis offset
+    r = ur.link_radius
+    r_sh = max(r[1], 0.065 * s)
+    return [
+        # shoulder: column from just above the counter to the shoulder axis (rotates with q1 about z)
+        Capsule("link1", 1, (0.0, 0.0, r_sh + 0.005), (0.0, 0.0, d1), r_sh),
+        # shoulder housing along the shoulder-lift axis, then the upper arm tube at its offset
+        Capsule("link2_housing", 2, (0.0, 0.0, -0.03 * s), (0.0, 0.0, sh), r_sh),
+        Capsule("link2", 2, (0.0, 0.0, sh), (a2, 0.0, sh), max(r[1], 0.06 * s)),
+        # elbow housing (from the upper arm's offset back to the forearm's) and the forearm
+        Capsule("link3_housing", 3, (0.0, 0.0, fo), (0.0, 0.0, sh), max(r[2], 0.055 * s)),
+        # forearm: real tube ~0.04 m radius at offset fo; widened to also cover drivers.ur_kinematics'
+        # link_segments model (offset 0.3*d4, the simulator's) so the planner is never less conservative; it
+        # stops short of the wrist-1 housing, which link4 covers
+        Capsule("link3", 3, (0.0, 0.0, 0.027 * s), (a3 + 0.045 * s, 0.0, 0.027 * s), max(r[2], 0.062 * s)),
+        # wrist 1 housing: from the forearm end towards the wrist-2 axis (the wrist-2 capsule covers the rest)
+        Capsule("link4", 4, (0.0, 0.0, fo - 0.02), (0.0, 0.0, d4 - 0.045 * s), max(r[3], 0.047 * s)),
+        # wrist 2: along its axis to the wrist-3 axis (d5)
+        Capsule("link5", 5, (0.0, 0.0, -0.045 * s), (0.0, 0.0, d5), max(r[4], 0.047 * s)),
+        # wrist 3: to the flange (d6)
+        Capsule("link6", 6, (0.0, 0.0, -0.045 * s), (0.0, 0.0, d6 - 0.01), max(r[5], 0.047 * s)),
+    ]
+
+
+@dataclass(frozen=True)
+class GripperGeometry:
+    """The Fin-Ray gripper in the TCP frame (z = approach, y = closing axis), metres.
+
+    Palm/body from the flange to the pad roots; two fingers whose inner faces (pads) are at +-opening/2 and
+    whose tips end ``pad_tip`` past the TCP. The pads are the fingers' last PAD_DEPTH (perception.inventory);
+    the tips end 1 cm past the TCP in the simulator's gripper (fakes/collision.py), 2 mm more here.
+    """
+
+    palm_size_xy: tuple[float, float] = (0.075, 0.14)
+    pad_root: float = -0.07  # z of the pad roots (= palm bottom) in the TCP frame
+    pad_tip: float = 0.012
+    pad_width: float = 0.026  # along x
+    pad_thickness: float = 0.016  # along y
+    camera_size: tuple[float, float, float] = (0.11, 0.035, 0.04)  # OAK-D-like housing, cam frame x, y, z
+
+    def palm(self, T_flange_tcp: np.ndarray) -> ToolBox:
+        z_flange = float((inv(T_flange_tcp) @ np.array([0, 0, 0, 1.0]))[2])  # flange origin in TCP z
+        lo, hi = min(z_flange, self.pad_root), self.pad_root
+        T = T_flange_tcp @ make_T(t=(0.0, 0.0, (lo + hi) / 2))
+        return ToolBox("palm", T, (self.palm_size_xy[0], self.palm_size_xy[1], max(hi - lo, 1e-3)))
+
+    def pads(self, T_flange_tcp: np.ndarray, opening: float) -> list[ToolBox]:
+        o = float(np.clip(opening, 0.0, GRIPPER_MAX_OPENING))
+        zc = (self.pad_root + self.pad_tip) / 2
+        size = (self.pad_width, self.pad_thickness, self.pad_tip - self.pad_root)
+        out = []
+        for name, sgn in (("pad_a", 1.0), ("pad_b", -1.0)):
+            T = T_flange_tcp @ make_T(t=(0.0, sgn * (o / 2 + self.pad_thickness / 2), zc))
+            out.append(ToolBox(name, T, size))
+        return out
+
+    def camera(self, T_flange_cam: np.ndarray) -> ToolBox:
+        T = T_flange_cam @ make_T(t=(0.0, 0.0, -self.camera_size[2] / 2))  # housing behind the optical centre
+        return ToolBox("camera", T, self.camera_size)
+
+    def tool_boxes(self, T_flange_tcp: np.ndarray, T_flange_cam: np.ndarray | None, opening: float) -> list[ToolBox]:
+        boxes = [self.palm(T_flange_tcp), *self.pads(T_flange_tcp, opening)]
+        if T_flange_cam is not None:
+            boxes.append(self.camera(T_flange_cam))
+        return boxes
+
+
+def capsule_geometry(c: Capsule) -> tuple[coal.Capsule, np.ndarray]:
+    """coal capsule (axis z, half length) and its placement in the joint frame."""
+    a, b = np.asarray(c.a, float), np.asarray(c.b, float)
+    L = float(np.linalg.norm(b - a))
+    z = (b - a) / L if L > 1e-9 else np.array([0.0, 0.0, 1.0])
+    x = np.cross(z, [1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.cross(z, [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z], axis=1)
+    return coal.Capsule(c.radius, max(L, 1e-6)), make_T(R, (a + b) / 2)
+
+
+def mesh_bvh(vertices: np.ndarray, triangles: np.ndarray) -> coal.BVHModelOBBRSS:
+    bvh = coal.BVHModelOBBRSS()
+    bvh.beginModel(len(triangles), len(vertices))
+    bvh.addVertices(np.asarray(vertices, float))
+    bvh.addTriangles(np.asarray(triangles, np.int64))
+    bvh.endModel()
+    return bvh
+
+
+# ---- the world ---------------------------------------------------------------------------------------------
+
+ROBOT_GROUP = "robot"
+TOOL_PARTS = ("palm", "pad_a", "pad_b", "camera")
+PADS = ("pad_a", "pad_b")
+
+
+@dataclass
+class SceneObject:
+    """A perceived object for the collision world: its model, pose and a name used in allowed-contact sets."""
+
+    name: str
+    model: ObjectModel
+    T_base_obj: np.ndarray
+
+
+@dataclass
+class Held:
+    """The object in the gripper: its model and its pose in the TCP frame."""
+
+    model: ObjectModel
+    T_tcp_obj: np.ndarray
+    width: float  # pad distance while holding it
+
+
+class CollisionWorld:
+    """Static collision geometry of one cell + robot + tool; makes per-query :class:`Scene` objects."""
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        cell: Cell,
+        T_flange_cam: np.ndarray | None = None,
+        *,
+        margin: float = 0.01,
+        grasp_margin: float = 0.002,
+        gripper: GripperGeometry | None = None,
+        voxel_size: float = 0.02,
+    ):
+        self.robot = robot
+        self.cell = cell
+        self.T_flange_cam = None if T_flange_cam is None else np.asarray(T_flange_cam, float)
+        self.margin = float(margin)
+        self.grasp_margin = float(grasp_margin)
+        self.gripper = gripper or GripperGeometry()
+        self.voxel_size = float(voxel_size)
+        self.capsules = link_capsules(robot)
+        self._bvh_cache: dict[int, coal.BVHModelOBBRSS] = {}
+        self._proxy_cache: dict[int, coal.Box] = {}
+
+    def bvh(self, model: ObjectModel) -> coal.BVHModelOBBRSS:
+        key = id(model.mesh)
+        if key not in self._bvh_cache:
+            self._bvh_cache[key] = mesh_bvh(np.asarray(model.mesh.vertices), np.asarray(model.mesh.triangles))
+        return self._bvh_cache[key]
+
+    # ---- unexplained map points -> occupied voxels -----------------------------------------------------------
+    def unexplained_voxels(
+        self, points: np.ndarray | None, objects: Sequence[SceneObject], explain_radius: float = 0.015, min_points: int = 3
+    ) -> np.ndarray:
+        """Centres of voxels holding >= `min_points` map points that neither a perceived object (its mesh
+        bounding box grown by `explain_radius`) nor a cell box (grown likewise) explains."""
+        if points is None or len(points) == 0:
+            return np.zeros((0, 3))
+        P = np.asarray(points, float).reshape(-1, 3)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        keep = np.ones(len(P), bool)
+        for b in self.cell.boxes:
+            keep &= ~np.all((P >= b.lower - explain_radius) & (P <= b.upper + explain_radius), axis=1)
+        for o in objects:
+            Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
+            bb = o.model.mesh.get_axis_aligned_bounding_box()
+            lo, hi = np.asarray(bb.get_min_bound()) - explain_radius, np.asarray(bb.get_max_bound()) + explain_radius
+            keep &= ~np.all((Pl >= lo) & (Pl <= hi), axis=1)
+        P = P[keep]
+        if len(P) == 0:
+            return np.zeros((0, 3))
+        idx = np.floor(P / self.voxel_size).astype(np.int64)
+        uniq, counts = np.unique(idx, axis=0, return_counts=True)
+        return (uniq[counts >= min_points] + 0.5) * self.voxel_size
+
+    # ---- per-query scene -------------------------------------------------------------------------------------
+    def scene(
+        self,
+        objects: Sequence[SceneObject] = (),
+        voxels: np.ndarray | None = None,
+        held: Held | None = None,
+        opening: float = GRIPPER_MAX_OPENING,
+    ) -> "Scene":
+        return Scene(self, list(objects), voxels if voxels is not None else np.zeros((0, 3)), held, opening)
+
+
+class Scene:
+    """One query's collision model. ``valid(q)`` / ``valid_batch(Q)`` are what the planners call."""
+
+    def __init__(self, world: CollisionWorld, objects: list[SceneObject], voxels: np.ndarray, held: Held | None, opening: float):
+        self.world = world
+        self.objects = objects
+        self.voxels = np.asarray(voxels, float).reshape(-1, 3)
+        self.held = held
+        self.opening = float(held.width if held is not None else opening)
+        robot = world.robot
+        self.model = robot.model
+        self.data = robot.model.createData()
+        gm = pin.GeometryModel()
+        self.gm = gm
+        self.group: dict[int, str] = {}  # geometry id -> robot | tool | held | env
+        self.link_index: dict[int, int] = {}  # geometry id -> joint index (robot/tool)
+        self.names: list[str] = []
+
+        def add(name: str, joint: int, T: np.ndarray, geom, group: str) -> int:
+            go = pin.GeometryObject(name, joint, pin.SE3(np.asarray(T, float)), geom)
+            gid = gm.addGeometryObject(go)
+            self.group[gid] = group
+            self.link_index[gid] = joint
+            self.names.append(name)
+            return gid
+
+        for c in world.capsules:
+            geom, T = capsule_geometry(c)
+            add(c.name, c.joint, T, geom, "robot")
+        T_j6_flange = robot.model.frames[robot.flange_id].placement.homogeneous  # joint-6 frame -> flange
+        self._T_j6_flange = T_j6_flange
+        for tb in world.gripper.tool_boxes(robot.T_flange_tcp, world.T_flange_cam, self.opening):
+            add(tb.name, 6, T_j6_flange @ tb.T_flange_box, coal.Box(*tb.size), "tool")
+        if held is not None:
+            add("held", 6, T_j6_flange @ robot.T_flange_tcp @ held.T_tcp_obj, world.bvh(held.model), "held")
+        for b in world.cell.boxes:
+            add(f"cell:{b.name}", 0, make_T(t=b.centre), coal.Box(*b.size), "env")
+        for o in objects:
+            add(f"obj:{o.name}", 0, o.T_base_obj, world.bvh(o.model), "env")
+        if len(self.voxels):
+            tree = coal.makeOctree(self.voxels, world.voxel_size)
+            add("voxels", 0, np.eye(4), tree, "env")
+
+        # Pairs. Self: links two or more joints apart; the tool and the held object vs links 1..4.
+        n = len(self.names)
+        self.pair_margin: list[float] = []
+        for i in range(n):
+            gi, ji = self.group[i], self.link_index[i]
+            for j in range(i + 1, n):
+                gj, jj = self.group[j], self.link_index[j]
+                if gi == "env" and gj == "env":
+                    continue
+                if "env" in (gi, gj):
+                    r = i if gi != "env" else j
+                    if self.names[r] == "link1" or self.names[r] == "link2_housing":
+                        continue  # fixed above the base on the counter; never reaches the cell geometry
+                    gm.addCollisionPair(pin.CollisionPair(i, j))
+                    continue
+                # both on the robot side
+                if {gi, gj} <= {"tool", "held"}:
+                    continue
+                if abs(ji - jj) < 2:
+                    continue
+                if gi == gj == "robot" and {ji, jj} in ({3, 5}, {4, 6}):
+                    # structurally apart: the wrist-2 motor turns in a plane beyond the wrist-1 housing (never meets
+                    # the forearm); wrist 1 and wrist 3 sit side by side d5 apart at most (their capsules come
+                    # within the margin at q5 = 0 without touching)
+                    continue
+                if "tool" in (gi, gj) or "held" in (gi, gj):
+                    other = jj if gi in ("tool", "held") else ji
+                    if other > 4:
+                        continue
+                gm.addCollisionPair(pin.CollisionPair(i, j))
+        self.gd = pin.GeometryData(gm)
+        self._bp = None
+        self._tcp_in_j6 = robot.model.frames[robot.tcp_id].placement.translation.copy()
+        self.pair_names = [(self.names[p.first], self.names[p.second]) for p in gm.collisionPairs]
+        self._set_margins({}, world.margin)
+
+    def set_opening(self, opening: float) -> None:
+        """Move the finger pads to `opening` (shared by this scene's grasp/release variants)."""
+        if abs(opening - self.opening) < 1e-9:
+            return
+        self.opening = float(opening)
+        robot = self.world.robot
+        for tb in self.world.gripper.pads(robot.T_flange_tcp, self.opening):
+            gid = self.names.index(tb.name)
+            self.gm.geometryObjects[gid].placement = pin.SE3(self._T_j6_flange @ tb.T_flange_box)
+
+    # ---- margins and allowed contacts --------------------------------------------------------------------
+    def _set_margins(self, allowed: dict[tuple[str, str], bool], default_margin: float, gripper_margin: float | None = None) -> None:
+        gm, gd = self.gm, self.gd
+        for k, (a, b) in enumerate(self.pair_names):
+            m = default_margin
+            if gripper_margin is not None and (a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held"):
+                m = gripper_margin
+            gd.collisionRequests[k].security_margin = m
+            gd.activateCollisionPair(k) if not allowed.get((a, b), False) else gd.deactivateCollisionPair(k)
+
+    def for_grasp(self, target_name: str | None, *, pads_only: bool = True) -> "Scene":
+        """A copy of this scene for the last centimetres of a grasp/place: gripper margins shrink to
+        ``grasp_margin`` and the pads may touch ``obj:<target_name>`` (and the palm too when not pads_only)."""
+        other = object.__new__(Scene)
+        other.__dict__.update(self.__dict__)
+        other.data = self.model.createData()
+        other.gd = pin.GeometryData(self.gm)
+        other._bp = None
+        allowed: dict[tuple[str, str], bool] = {}
+        if target_name is not None:
+            tgt = f"obj:{target_name}"
+            parts = PADS if pads_only else TOOL_PARTS
+            for a, b in self.pair_names:
+                if (a == tgt and b in parts) or (b == tgt and a in parts):
+                    allowed[(a, b)] = True
+        other._set_margins(allowed, self.world.margin, self.world.grasp_margin)
+        return other
+
+    def for_release(self, target_name: str | None = None) -> "Scene":
+        """Scene for placing: the held object and gripper use ``grasp_margin`` (it must touch its support)."""
+        return self.for_grasp(target_name, pads_only=False)
+
+    # ---- queries -------------------------------------------------------------------------------------------
+    def _broadphase(self):
+        """coal's dynamic AABB tree over this scene (3x fewer narrow-phase tests than all pairs; it uses the
+        pairs' activation and security margins from the GeometryData, cross-checked in the tests)."""
+        if self._bp is None:
+            self._bp = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(self.model, self.gm, self.gd)
+        return self._bp
+
+    def in_collision_exhaustive(self, q: np.ndarray) -> bool:
+        """All-pairs check without the broad phase (reference for tests)."""
+        return bool(pin.computeCollisions(self.model, self.data, self.gm, self.gd, np.asarray(q, float), True))
+
+    def valid(self, q: np.ndarray) -> bool:
+        """True when q is within the joint limits and nothing collides (within the margins)."""
+        q = np.asarray(q, float)
+        if not self.world.robot.within_limits(q):
+            return False
+        if pin.computeCollisions(self.model, self.data, self._broadphase(), q, True):
+            return False
+        # the TCP must stay inside the safety workspace (the Arm refuses trajectories that leave it)
+        p = self.data.oMi[6].act(self._tcp_in_j6)
+        ws = self.world.robot.limits.workspace
+        return bool(np.all(p >= ws.lower) and np.all(p <= ws.upper))
+
+    def valid_batch(self, Q: np.ndarray) -> np.ndarray:
+        """Validity of each row of Q (N, 6)."""
+        return np.array([self.valid(q) for q in np.asarray(Q, float)], bool)
+
+    def first_invalid(self, Q: np.ndarray) -> int:
+        """Index of the first invalid row of Q, or -1 when all are valid."""
+        for k, q in enumerate(np.asarray(Q, float)):
+            if not self.valid(q):
+                return k
+        return -1
+
+    def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
+        pin.computeCollisions(self.model, self.data, self.gm, self.gd, np.asarray(q, float), False)
+        out = []
+        for k, r in enumerate(self.gd.collisionResults):
+            if self.gd.activeCollisionPairs[k] and r.isCollision():
+                out.append(self.pair_names[k])
+        return out
+
+    def min_distance(self, q: np.ndarray, parts: Iterable[str], exclude: Iterable[str] = ()) -> float:
+        """Smallest distance (m) from geometries named in `parts` to environment geometries not in `exclude`."""
+        parts, exclude = set(parts), set(exclude)
+        pin.updateGeometryPlacements(self.model, self.data, self.gm, self.gd, np.asarray(q, float))
+        best = np.inf
+        req = coal.DistanceRequest()
+        for k, (a, b) in enumerate(self.pair_names):
+            if not ((a in parts and b.startswith(("cell:", "obj:", "voxels"))) or (b in parts and a.startswith(("cell:", "obj:", "voxels")))):
+                continue
+            if a in exclude or b in exclude:
+                continue
+            p = self.gm.collisionPairs[k]
+            res = coal.DistanceResult()
+            d = coal.distance(
+                self._proxy(p.first), self.gd.oMg[p.first], self._proxy(p.second), self.gd.oMg[p.second], req, res,
+            )
+            best = min(best, d)
+        return float(best)
+
+    def _proxy(self, gid: int):
+        """Geometry for clearance queries: meshes are replaced by their bounding boxes (fast, never larger
+        clearance than the mesh; the box is centred on the mesh frame origin = BOP bounding-box centre)."""
+        g = self.gm.geometryObjects[gid].geometry
+        if isinstance(g, coal.BVHModelBase):
+            key = id(g)
+            box = self.world._proxy_cache.get(key)
+            if box is None:
+                g.computeLocalAABB()
+                a = g.aabb_local
+                box = coal.Box(*(np.maximum(np.abs(np.asarray(a.min_)), np.abs(np.asarray(a.max_))) * 2))
+                self.world._proxy_cache[key] = box
+            return box
+        return g
+
+    def placements(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """T_base_geometry of every geometry at q (used by the independent checker)."""
+        pin.updateGeometryPlacements(self.model, self.data, self.gm, self.gd, np.asarray(q, float))
+        return {self.names[i]: self.gd.oMg[i].homogeneous.copy() for i in range(len(self.names))}
+
+
+__all__ = [
+    "Capsule",
+    "CollisionWorld",
+    "GripperGeometry",
+    "Held",
+    "Scene",
+    "SceneObject",
+    "ToolBox",
+    "link_capsules",
+]

@@ -1,0 +1,182 @@
+"""Grasp selection (paper sec. III-D): predefined grasps per CAD model, filtered and ranked.
+
+For every perceived object: drop it when it is hidden more than ``settings.max_occlusion``; express each
+predefined grasp of its model in the base frame (``T_base_tcp = T_base_obj @ T_obj_tcp``); keep those that
+approach from above-ish (TCP z, the approach, must not point up by more than ``settings.max_approach_up``),
+that take in no other object between the pads (multi-object grasps), that have IK for the grasp and pre-grasp
+poses, whose gripper at the grasp collides with nothing but the target's pads contact, and whose pre-grasp is
+collision-free. Ranked by gripper clearance at the grasp and motion cost from the current configuration; the
+planner then tries them in order until one is plannable.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import coal
+import numpy as np
+
+from kitchenbot.perception.inventory import Inventory
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.collision import Scene
+from kitchenbot.planning.robot import RobotModel
+from kitchenbot.planning.types import (
+    Grasp,
+    NoCollisionFreeGrasp,
+    NoGraspableObject,
+    NoIK,
+    PlanningFailure,
+)
+from kitchenbot.transforms import make_T, trans
+
+
+def object_name(o: ObjectPose, index: int) -> str:
+    """Name of a perceived object in the collision world (its instance id, else its index)."""
+    return str(o.instance_id if o.instance_id >= 0 else f"i{index}")
+
+
+@dataclass
+class GraspStats:
+    considered: int = 0
+    occluded: int = 0
+    from_below: int = 0
+    multi_object: int = 0
+    no_ik: int = 0
+    in_collision: int = 0
+    feasible: int = 0
+
+
+def _tf(T: np.ndarray) -> coal.Transform3s:
+    T = np.asarray(T, float)
+    return coal.Transform3s(T[:3, :3].copy(), T[:3, 3].copy())
+
+
+def closing_volume(opening: float, pad_width: float, pad_root: float, pad_tip: float) -> tuple[coal.Box, np.ndarray]:
+    """The space the pads sweep while closing, as a box in the TCP frame."""
+    return coal.Box(pad_width, max(opening, 1e-3), pad_tip - pad_root), make_T(t=(0.0, 0.0, (pad_root + pad_tip) / 2))
+
+
+def select_grasps(
+    robot: RobotModel,
+    scene: Scene,
+    inventory: Inventory,
+    objects: Sequence[ObjectPose],
+    q_current: np.ndarray,
+    *,
+    settings,
+    target: ObjectPose | None = None,
+    grasp_filter=None,
+    stats: GraspStats | None = None,
+) -> list[Grasp] | PlanningFailure:
+    """Ranked feasible grasps (best first), or the failure that explains why there are none.
+
+    `scene` holds every perceived object as ``obj:<object_name>``; `grasp_filter(obj, spec, T_base_tcp) -> bool`
+    is an extra predicate (e.g. the placement must be reachable with this grasp).
+    """
+    st = stats or GraspStats()
+    gripper = scene.world.gripper
+    names = [object_name(o, k) for k, o in enumerate(objects)]
+    cands = [(k, o) for k, o in enumerate(objects) if target is None or o is target or
+             (target.instance_id >= 0 and o.instance_id == target.instance_id)]
+    if target is not None and not cands:
+        cands = [(len(objects), target)]
+        names.append(object_name(target, len(objects)))
+    max_hidden = float(settings.max_occlusion)
+    out: list[Grasp] = []
+    any_model = False
+    req = coal.CollisionRequest()
+    ur = robot.ur
+    reach = abs(ur.a[1]) + abs(ur.a[2]) + np.hypot(ur.d[3], ur.d[4]) + 0.02
+    for k, o in cands:
+        if 1.0 - float(o.visible_fraction) > max_hidden:
+            st.occluded += 1
+            continue
+        try:
+            model = inventory[o.obj_id]
+        except KeyError:
+            continue
+        if not model.grasps:
+            continue
+        any_model = True
+        others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
+                  if j != k and objects[j].obj_id in inventory.models]
+        grasp_scene = scene.for_grasp(names[k])
+        for spec in model.grasps:
+            st.considered += 1
+            T = np.asarray(o.T_base_obj, float) @ spec.T_obj_tcp
+            if T[2, 2] > settings.max_approach_up:
+                st.from_below += 1
+                continue
+            if grasp_filter is not None and not grasp_filter(o, spec, T):
+                st.no_ik += 1
+                continue
+            # multi-object grasp: another object inside the closing volume
+            vol, T_tcp_vol = closing_volume(spec.opening, gripper.pad_width, gripper.pad_root, gripper.pad_tip)
+            Tv = T @ T_tcp_vol
+            T_vol = coal.Transform3s(Tv[:3, :3].copy(), Tv[:3, 3].copy())
+            taken_in = False
+            for po, pm in others:
+                if np.linalg.norm(po.T_base_obj[:3, 3] - T[:3, 3]) > pm.diameter / 2 + 0.15:
+                    continue
+                res = coal.CollisionResult()
+                if coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, res):
+                    taken_in = True
+                    break
+            if taken_in:
+                st.multi_object += 1
+                continue
+            # reach: the wrist centre must be within the arm's reach of the shoulder (cheap IK pre-filter)
+            wrist = T[:3, 3] - T[:3, :3] @ robot.T_flange_tcp[:3, 3]
+            if np.linalg.norm(wrist - np.array([0.0, 0.0, robot.ur.d[0]])) > reach:
+                st.no_ik += 1
+                continue
+            grasp_scene.set_opening(spec.opening)
+            ik = None
+            reached = False
+            # A Fin-Ray grasp still holds with a shallower bite: back off along the approach (up to 8 mm)
+            # when the finger tips would touch what the object rests on.
+            q_seed = None
+            for back in (0.0, 0.004, 0.008):
+                Tb = T @ trans(0.0, 0.0, -back)
+                ik = robot.ik(Tb, q_current if q_seed is None else q_seed, max_seeds=6 if q_seed is None else 0,
+                              max_iter=40)
+                if q_seed is None and ik.q is None:
+                    break  # unreachable: backing off 8 mm will not change that
+                q_seed = ik.q
+                if ik.q is None:
+                    continue
+                reached = True
+                if grasp_scene.valid(ik.q):
+                    T = Tb
+                    break
+                ik = None
+            if ik is None or ik.q is None:
+                if reached:
+                    st.in_collision += 1
+                else:
+                    st.no_ik += 1
+                continue
+            T_pre = T @ trans(0.0, 0.0, -settings.approach_distance)
+            ik_pre = robot.ik(T_pre, ik.q, max_seeds=0)
+            if ik_pre.q is None:
+                st.no_ik += 1
+                continue
+            if not scene.valid(ik_pre.q):
+                st.in_collision += 1
+                continue
+            clearance = grasp_scene.min_distance(ik.q, ("palm", "pad_a", "pad_b", "camera"), exclude=(f"obj:{names[k]}",))
+            motion = float(np.max(np.abs(ik_pre.q - q_current)))
+            down = -T[2, 2]  # 1 = straight down
+            score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
+            out.append(Grasp(spec, o, T, ik.q, ik_pre.q, T_pre, float(score), float(clearance)))
+            st.feasible += 1
+    if out:
+        out.sort(key=lambda g: -g.score)
+        return out
+    details = st.__dict__.copy()
+    if not any_model or st.considered == 0:
+        return NoGraspableObject("no candidate object with grasps (occluded, unknown model or no grasps)", details)
+    if st.in_collision + st.multi_object > 0:
+        return NoCollisionFreeGrasp("every reachable grasp collides or takes in another object", details)
+    return NoIK("no grasp pose is reachable", details)

@@ -1,0 +1,262 @@
+"""Joint-space motion planning (OMPL RRT-Connect + simplification), straight Cartesian segments, dense checks.
+
+Checking resolution. Rotating joint j by dq_j moves any robot point by at most r_j * |dq_j|, where r_j bounds
+the distance of every geometry distal to joint j (links, tool, held object) from joint j's origin
+(:func:`reach_bounds`); a joint step moves no point more than ``sum_j r_j |dq_j|`` (:func:`point_step`).
+
+- RRT-Connect checks motions at ``planning_resolution`` of point travel (OMPL's discrete motion validator,
+  resolution set from ``||r||_2``, which bounds ``sum_j r_j |dq_j|`` for an L2 joint step). Because every
+  checked state keeps ``margin`` (1 cm) of clearance and no point moves more than ``planning_resolution``
+  (1.5 cm) between them, every intermediate configuration keeps at least ``margin - resolution / 2`` > 0:
+  the path cannot pass through anything, a 5 mm wall included.
+- Every returned segment is then re-checked densely at ``validity_resolution`` (4 mm of point travel,
+  :func:`check_segment`); a path that fails the dense check is never returned (the query is re-planned at
+  the fine resolution once, then reported as a failure).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from ompl import base as ob
+from ompl import geometric as og
+from ompl import util as ou
+
+from kitchenbot.planning.collision import Scene
+from kitchenbot.planning.robot import RobotModel
+from kitchenbot.planning.types import (
+    CartesianPathFailed,
+    GoalInCollision,
+    InvalidInput,
+    NoIK,
+    PlannerTimeout,
+    PlanningFailure,
+    StartInCollision,
+)
+
+ou.setLogLevel(ou.LogLevel.LOG_WARN)
+try:  # OMPL seeds once per process, before its first sample: plans are reproducible run to run
+    ou.RNG.setSeed(1)
+except Exception:  # noqa: BLE001 - already sampling (another module used OMPL first): keep its seed
+    pass
+
+
+# ---- point-travel bounds ---------------------------------------------------------------------------------------
+def reach_bounds(scene: Scene) -> np.ndarray:
+    """r (6,): metres of travel of the farthest robot point per radian of each joint (upper bounds)."""
+    model = scene.model
+    # chain lengths between joint origins: placement of joint k+1 in joint k
+    L = np.array([np.linalg.norm(model.jointPlacements[k + 1].translation) for k in range(1, 6)] + [0.0])
+    ext: list[tuple[int, float]] = []
+    for go in scene.gm.geometryObjects:
+        j = go.parentJoint
+        if j == 0:
+            continue
+        g = go.geometry
+        p = go.placement
+        c = float(np.linalg.norm(p.translation))
+        if hasattr(g, "halfLength") and hasattr(g, "radius"):
+            e = c + float(g.halfLength) + float(g.radius)
+        elif hasattr(g, "halfSide"):
+            e = c + float(np.linalg.norm(g.halfSide))
+        else:  # mesh: bound by its vertices
+            g.computeLocalAABB()
+            aabb = g.aabb_local
+            e = c + float(np.linalg.norm(np.maximum(np.abs(aabb.min_), np.abs(aabb.max_))))
+        ext.append((j, e))
+    r = np.zeros(6)
+    for j in range(1, 7):
+        best = 0.0
+        for jg, e in ext:
+            if jg >= j:
+                best = max(best, float(np.sum(L[j - 1 : jg - 1])) + e)
+        r[j - 1] = best
+    return r
+
+
+def point_step(r: np.ndarray, dq: np.ndarray) -> float:
+    return float(np.sum(r * np.abs(dq)))
+
+
+def densify(Q: np.ndarray, r: np.ndarray, step: float) -> np.ndarray:
+    """The polyline Q with points inserted so that no point moves more than `step` between rows (vertices kept)."""
+    Q = np.asarray(Q, float)
+    out = [Q[:1]]
+    for k in range(len(Q) - 1):
+        n = max(1, int(np.ceil(point_step(r, Q[k + 1] - Q[k]) / step)))
+        s = np.arange(1, n + 1)[:, None] / n
+        out.append(Q[k] + s * (Q[k + 1] - Q[k]))
+    return np.vstack(out)
+
+
+def check_segment(scene: Scene, Q: np.ndarray, r: np.ndarray, step: float) -> int:
+    """Dense re-check of the polyline Q: index of the first invalid densified state, or -1 when all valid."""
+    return scene.first_invalid(densify(Q, r, step))
+
+
+# ---- RRT-Connect -----------------------------------------------------------------------------------------------
+@dataclass
+class JointPlan:
+    path: np.ndarray  # (K, 6) simplified polyline, start and goal included
+    plan_ms: float
+    simplify_ms: float
+    recheck_ms: float
+
+
+def plan_joint_path(
+    scene: Scene,
+    q_start: np.ndarray,
+    q_goal: np.ndarray,
+    *,
+    timeout: float = 1.0,
+    simplify_timeout: float = 0.2,
+    planning_resolution: float = 0.015,
+    validity_resolution: float = 0.004,
+) -> JointPlan | PlanningFailure:
+    """Collision-free joint polyline from q_start to q_goal (RRT-Connect, simplified, densely re-checked)."""
+    q_start, q_goal = np.asarray(q_start, float), np.asarray(q_goal, float)
+    if q_start.shape != (6,) or q_goal.shape != (6,) or not (np.all(np.isfinite(q_start)) and np.all(np.isfinite(q_goal))):
+        return InvalidInput("q_start/q_goal: expected 6 finite joint values each")
+    if not scene.valid(q_start):
+        return StartInCollision("start configuration is in collision or outside the limits",
+                                {"pairs": scene.colliding_pairs(q_start), "q": q_start.tolist()})
+    if not scene.valid(q_goal):
+        return GoalInCollision("goal configuration is in collision or outside the limits",
+                               {"pairs": scene.colliding_pairs(q_goal), "q": q_goal.tolist()})
+    r = reach_bounds(scene)
+    t0 = time.perf_counter()
+    # Straight line first: most short motions in an uncluttered cell need no search.
+    if check_segment(scene, np.vstack([q_start, q_goal]), r, planning_resolution) < 0:
+        t1 = time.perf_counter()
+        if check_segment(scene, np.vstack([q_start, q_goal]), r, validity_resolution) < 0:
+            t2 = time.perf_counter()
+            return JointPlan(np.vstack([q_start, q_goal]), (t1 - t0) * 1e3, 0.0, (t2 - t1) * 1e3)
+    for resolution in (planning_resolution, validity_resolution):
+        res = _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolution)
+        if isinstance(res, PlanningFailure):
+            return res
+        path, plan_ms, simp_ms = res
+        t1 = time.perf_counter()
+        bad = check_segment(scene, path, r, validity_resolution)
+        recheck_ms = (time.perf_counter() - t1) * 1e3
+        if bad < 0:
+            return JointPlan(path, plan_ms, simp_ms, recheck_ms)
+    return PlannerTimeout("no path passed the dense re-check", {"resolution": validity_resolution})
+
+
+def _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolution):
+    robot = scene.world.robot
+    space = ob.RealVectorStateSpace(6)
+    bounds = ob.RealVectorBounds(6)
+    # Search box: the joint limits, narrowed to a turn around start and goal (no multi-turn detours).
+    lo = np.maximum(robot.lower, np.minimum(q_start, q_goal) - np.pi)
+    hi = np.minimum(robot.upper, np.maximum(q_start, q_goal) + np.pi)
+    for i in range(6):
+        bounds.setLow(i, float(lo[i]))
+        bounds.setHigh(i, float(hi[i]))
+    space.setBounds(bounds)
+    ss = og.SimpleSetup(space)
+    valid = scene.valid
+
+    def checker(s) -> bool:
+        return valid(np.array([s[0], s[1], s[2], s[3], s[4], s[5]]))
+
+    ss.setStateValidityChecker(checker)
+    si = ss.getSpaceInformation()
+    step_l2 = resolution / float(np.linalg.norm(r))
+    si.setStateValidityCheckingResolution(step_l2 / space.getMaximumExtent())
+    planner = og.RRTConnect(si)
+    planner.setRange(0.8)
+    ss.setPlanner(planner)
+    start, goal = space.allocState(), space.allocState()
+    for i in range(6):
+        start[i] = float(q_start[i])
+        goal[i] = float(q_goal[i])
+    ss.setStartAndGoalStates(start, goal)
+    t0 = time.perf_counter()
+    solved = ss.solve(float(timeout))
+    t1 = time.perf_counter()
+    if not solved or not ss.haveExactSolutionPath():
+        return PlannerTimeout(f"RRT-Connect found no path in {timeout:.2f} s", {"resolution": resolution})
+    if simplify_timeout > 0:
+        ss.simplifySolution(float(simplify_timeout))
+    t2 = time.perf_counter()
+    p = ss.getSolutionPath()
+    path = np.array([[p.getState(k)[i] for i in range(6)] for k in range(p.getStateCount())])
+    path[0], path[-1] = q_start, q_goal
+    return path, (t1 - t0) * 1e3, (t2 - t1) * 1e3
+
+
+# ---- straight Cartesian segments ----------------------------------------------------------------------------------
+def cartesian_line(
+    robot: RobotModel,
+    scene: Scene,
+    q_start: np.ndarray,
+    T_goal: np.ndarray,
+    *,
+    step: float = 0.004,
+    check_step: float = 0.004,
+    check_start: bool = True,
+    start_scene: Scene | None = None,
+    start_travel: float = 0.0,
+) -> np.ndarray | PlanningFailure:
+    """Joint polyline moving the TCP on a straight line (orientation interpolated) from FK(q_start) to T_goal.
+
+    IK at every `step` metres along the line, seeded with the previous solution (no branch switches: a joint
+    jump larger than the line step can explain is a failure), each segment densely checked in `scene`.
+    """
+    from scipy.spatial.transform import Rotation, Slerp
+
+    q_start = np.asarray(q_start, float)
+    T0 = robot.fk_tcp(q_start)
+    p0, p1 = T0[:3, 3], np.asarray(T_goal, float)[:3, 3]
+    rots = Rotation.from_matrix(np.stack([T0[:3, :3], np.asarray(T_goal)[:3, :3]]))
+    ang = float(np.linalg.norm((rots[0].inv() * rots[1]).as_rotvec()))
+    dist = float(np.linalg.norm(p1 - p0))
+    n = max(1, int(np.ceil(max(dist / step, ang * 0.2 / step))))
+    slerp = Slerp([0.0, 1.0], rots)
+    r = reach_bounds(scene)
+    Q = [q_start]
+    q = q_start
+    for k in range(1, n + 1):
+        s = k / n
+        T = np.eye(4)
+        T[:3, :3] = slerp([s]).as_matrix()[0]
+        T[:3, 3] = p0 + s * (p1 - p0)
+        res = robot.ik(T, q, max_seeds=0)
+        if res.q is None:
+            return NoIK(f"straight line: no IK at {s * 100:.0f} % of the segment", {"T": T.tolist()})
+        # the TCP moved <= step; the rest of the arm must not swing (IK branch flip)
+        if point_step(r, res.q - q) > 10 * step + 0.02:
+            return CartesianPathFailed("straight line: the IK solution jumps (singularity or branch change)",
+                                       {"at": s})
+        q = res.q
+        Q.append(q)
+    Q = np.asarray(Q)
+    if start_scene is not None and start_travel > 0:
+        # the first `start_travel` metres are checked in `start_scene` (e.g. without the held object, which
+        # leaves the contacts it rests in), the rest in `scene`
+        m = int(np.searchsorted(np.linalg.norm(np.array([robot.fk_tcp(q)[:3, 3] for q in Q]) - p0, axis=1), start_travel))
+        m = min(max(m, 1), len(Q) - 1)
+        bad = check_segment(start_scene, Q[: m + 1], r, check_step)
+        if bad >= 0:
+            dense = densify(Q[: m + 1], r, check_step)
+            return CartesianPathFailed("straight line collides", {"pairs": start_scene.colliding_pairs(dense[bad])})
+        bad = check_segment(scene, Q[m:], r, check_step)
+        if bad >= 0:
+            dense = densify(Q[m:], r, check_step)
+            return CartesianPathFailed("straight line collides", {"pairs": scene.colliding_pairs(dense[bad])})
+        return Q
+    if not check_start:
+        # the first state may touch (e.g. the release pose); check from the first step on
+        bad = check_segment(scene, Q[1:], r, check_step) if len(Q) > 2 else -1
+        bad = -1 if bad < 0 else bad + 1
+    else:
+        bad = check_segment(scene, Q, r, check_step)
+    if bad >= 0:
+        dense = densify(Q, r, check_step)
+        return CartesianPathFailed("straight line collides", {"pairs": scene.colliding_pairs(dense[bad])})
+    return Q
+

@@ -1,0 +1,232 @@
+"""The arm as a Pinocchio model built from the official UR DH table, with FK and damped-least-squares IK.
+
+The kinematic tree is written in code from ``drivers.ur_kinematics`` (one source of the geometry): joint i is a
+revolute-z joint placed at ``Tz(d) Tx(a) Rx(alpha)`` of the previous DH row, the ``flange`` frame follows the
+last row and ``tcp`` adds the configured tool transform. No URDF is needed (the example-robot-data wheel is
+414 MB); ``tests/planning/test_robot.py`` cross-checks FK against the numpy DH code, and against a UR URDF when
+one is installed.
+
+IK: Pinocchio's frame Jacobian + ``log6`` in a damped least-squares loop (the standard Pinocchio recipe),
+started from the current configuration first and then from a fixed spread of seeds; each converged solution is
+wrapped joint by joint to the 2*pi-equivalent closest to the current configuration that the limits allow
+(so +-pi where limits allow it, never a needless full turn), and the closest one is returned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from kitchenbot.drivers.safety import SafetyLimits
+from kitchenbot.drivers.ur_kinematics import URModel, ur_model
+
+JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+LINK_NAMES = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
+
+
+def _dh_fixed(d: float, a: float, alpha: float) -> pin.SE3:
+    """The constant part Tz(d) Tx(a) Rx(alpha) of a standard DH row."""
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    R = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
+    return pin.SE3(R, np.array([a, 0.0, d]))
+
+
+def build_pinocchio_model(model: URModel, T_flange_tcp: np.ndarray, limits: SafetyLimits | None = None) -> pin.Model:
+    """A 6-joint Pinocchio model with frames ``flange`` and ``tcp``."""
+    m = pin.Model()
+    m.name = model.name
+    parent = 0
+    placement = pin.SE3.Identity()
+    lo = np.asarray(limits.joint_lower if limits is not None else model.joint_lower, float)
+    hi = np.asarray(limits.joint_upper if limits is not None else model.joint_upper, float)
+    vmax = np.asarray(limits.max_joint_speed if limits is not None else model.max_joint_speed, float)
+    for i in range(6):
+        jid = m.addJoint(
+            parent,
+            pin.JointModelRZ(),
+            placement,
+            JOINT_NAMES[i],
+            np.array([100.0]),  # effort: unused by planning
+            np.array([vmax[i]]),
+            np.array([lo[i]]),
+            np.array([hi[i]]),
+        )
+        m.appendBodyToJoint(jid, pin.Inertia.Random(), pin.SE3.Identity())
+        m.addBodyFrame(LINK_NAMES[i], jid, pin.SE3.Identity(), len(m.frames) - 1)
+        parent = jid
+        placement = _dh_fixed(model.d[i], model.a[i], model.alpha[i])
+    flange = m.addFrame(pin.Frame("flange", parent, placement, pin.FrameType.OP_FRAME))
+    T_tcp = pin.SE3(np.asarray(T_flange_tcp, float))
+    m.addFrame(pin.Frame("tcp", parent, placement * T_tcp, pin.FrameType.OP_FRAME))
+    assert flange > 0
+    return m
+
+
+@dataclass
+class IKResult:
+    q: np.ndarray | None  # None: no solution
+    iterations: int
+    seeds_tried: int
+    error: float  # final twist error norm of the best attempt
+
+
+class RobotModel:
+    """FK/IK for one arm + tool. ``q`` are 6 joint angles in radians; poses are 4x4 ``T_base_*``."""
+
+    def __init__(self, ur: URModel, T_flange_tcp: np.ndarray, limits: SafetyLimits):
+        self.ur = ur
+        self.limits = limits
+        self.T_flange_tcp = np.asarray(T_flange_tcp, float)
+        self.model = build_pinocchio_model(ur, self.T_flange_tcp, limits)
+        self.data = self.model.createData()
+        self.lower = np.asarray(limits.joint_lower, float).copy()
+        self.upper = np.asarray(limits.joint_upper, float).copy()
+        self.max_speed = np.asarray(limits.max_joint_speed, float).copy()
+        self.max_accel = np.asarray(limits.max_joint_accel, float).copy()
+        self.flange_id = self.model.getFrameId("flange")
+        self.tcp_id = self.model.getFrameId("tcp")
+        self.joint_ids = list(range(1, 7))
+        # IK seeds beyond the current configuration: typical elbow-up, wrist-down postures over the
+        # workspace (the cell is in front of the robot, x > 0), plus a few spread ones. Fixed: deterministic.
+        base = [
+            [0.0, -1.6, 1.6, -1.57, -1.57, 0.0],
+            [0.0, -1.2, 1.9, -2.3, -1.57, 0.0],
+            [-0.9, -1.3, 1.8, -2.1, -1.57, 0.0],
+            [0.9, -1.3, 1.8, -2.1, -1.57, 0.0],
+            [-1.5, -1.4, 1.6, -1.8, -1.57, 0.0],
+            [1.5, -1.4, 1.6, -1.8, -1.57, 0.0],
+            [0.0, -2.0, 2.4, -2.0, -1.57, 1.57],
+            [0.0, -1.0, 1.2, -1.8, 1.57, 0.0],
+        ]
+        rng = np.random.default_rng(7)
+        spread = rng.uniform(-np.pi, np.pi, size=(8, 6))
+        self.seeds = np.clip(np.vstack([np.array(base), spread]), self.lower, self.upper)
+
+    @classmethod
+    def from_config(cls, cfg) -> "RobotModel":
+        """From an executive CellConfig (duck-typed: robot.model, safety_limits())."""
+        limits = cfg.safety_limits()
+        return cls(ur_model(cfg.robot.model), limits.T_flange_tcp, limits)
+
+    # ---- forward kinematics ----------------------------------------------------------------------------------
+    def fk(self, q: np.ndarray, frame: str = "tcp") -> np.ndarray:
+        """T_base_<frame> for frame in {tcp, flange} or a link name."""
+        fid = self.model.getFrameId(frame)
+        if fid >= len(self.model.frames):
+            raise ValueError(f"fk: unknown frame {frame!r}")
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, float))
+        return self.data.oMf[fid].homogeneous.copy()
+
+    def fk_tcp(self, q: np.ndarray) -> np.ndarray:
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, float))
+        return self.data.oMf[self.tcp_id].homogeneous.copy()
+
+    def joint_placements(self, q: np.ndarray) -> list[np.ndarray]:
+        """T_base_joint_i (i = 1..6) as 4x4 arrays."""
+        pin.forwardKinematics(self.model, self.data, np.asarray(q, float))
+        return [self.data.oMi[j].homogeneous.copy() for j in self.joint_ids]
+
+    def within_limits(self, q: np.ndarray) -> bool:
+        return bool(np.all(q >= self.lower - 1e-9) and np.all(q <= self.upper + 1e-9))
+
+    # ---- inverse kinematics ----------------------------------------------------------------------------------
+    def wrap_near(self, q: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
+        """Each joint moved by multiples of 2*pi to the value closest to `ref` inside the limits (None if none)."""
+        out = np.empty(6)
+        for j in range(6):
+            k = np.round((ref[j] - q[j]) / (2 * np.pi))
+            best = None
+            for kk in (k, k - 1, k + 1, k - 2, k + 2):
+                v = q[j] + 2 * np.pi * kk
+                if self.lower[j] - 1e-9 <= v <= self.upper[j] + 1e-9 and (best is None or abs(v - ref[j]) < abs(best - ref[j])):
+                    best = v
+            if best is None:
+                return None
+            out[j] = min(max(best, self.lower[j]), self.upper[j])
+        return out
+
+    def _dls(self, T_target: pin.SE3, q0: np.ndarray, max_iter: int, tol: float, damping: float) -> tuple[np.ndarray, float, int]:
+        model, data, fid = self.model, self.data, self.tcp_id
+        q = q0.copy()
+        err = np.inf
+        prev = np.inf
+        stall = 0
+        damp = damping * np.eye(6)
+        for it in range(max_iter):
+            pin.computeJointJacobians(model, data, q)  # forward kinematics + joint Jacobians
+            oMf = pin.updateFramePlacement(model, data, fid)
+            dM = oMf.actInv(T_target)
+            e = pin.log6(dM).vector
+            err = float(np.linalg.norm(e))
+            if err < tol:
+                return q, err, it
+            # unreachable targets converge to a non-zero error: stop once progress stalls
+            stall = stall + 1 if err > 0.9 * prev else 0
+            if stall >= 4 and err > 1e-3:
+                return q, err, it
+            prev = err
+            J = pin.getFrameJacobian(model, data, fid, pin.LOCAL)
+            Jl = pin.Jlog6(dM) @ J
+            dq = Jl.T @ np.linalg.solve(Jl @ Jl.T + damp, e)
+            n = np.abs(dq).max()
+            if n > 0.6:  # trust region: big steps jump between IK branches erratically
+                dq *= 0.6 / n
+            q = q + dq
+        return q, err, max_iter
+
+    def ik(
+        self,
+        T_base_tcp: np.ndarray,
+        q_current: np.ndarray,
+        *,
+        max_seeds: int | None = None,
+        extra_solutions: int = 1,
+        tol: float = 1e-5,
+        max_iter: int = 60,
+        damping: float = 1e-6,
+    ) -> IKResult:
+        """Joint angles reaching `T_base_tcp`, closest (max-abs joint distance) to `q_current`.
+
+        Tries the current configuration first, then the seed spread, until `extra_solutions` solutions beyond the
+        first have been found (more solutions = better choice of the closest, more time).
+        """
+        T_target = pin.SE3(np.asarray(T_base_tcp, float))
+        q_current = np.asarray(q_current, float)
+        seeds = [q_current] + list(self.seeds[: max_seeds if max_seeds is not None else len(self.seeds)])
+        best_q, best_d, best_err = None, np.inf, np.inf
+        found = 0
+        iters = 0
+        tried = 0
+        for s in seeds:
+            tried += 1
+            q, err, it = self._dls(T_target, np.asarray(s, float), max_iter, tol, damping)
+            iters += it
+            best_err = min(best_err, err)
+            if err >= tol:
+                continue
+            qw = self.wrap_near(q, q_current)
+            if qw is None:
+                continue
+            d = float(np.max(np.abs(qw - q_current)))
+            if d < best_d:
+                best_q, best_d = qw, d
+            found += 1
+            if found > extra_solutions or d < 0.3:  # close to current: nothing will beat it by much
+                break
+        return IKResult(best_q, iters, tried, best_err)
+
+    def ik_q(self, T_base_tcp: np.ndarray, q_current: np.ndarray, **kw) -> np.ndarray | None:
+        return self.ik(T_base_tcp, q_current, **kw).q
+
+
+def make_robot(model_name: str, T_flange_tcp: np.ndarray, limits: SafetyLimits) -> RobotModel:
+    return RobotModel(ur_model(model_name), T_flange_tcp, limits)

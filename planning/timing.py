@@ -1,0 +1,145 @@
+"""Time parameterisation of joint paths within velocity and acceleration limits.
+
+Two profiles, both written here because they are a few lines each and keep the executed path exactly on the
+collision-checked polyline (a blended/smoothed profile such as TOPP-RA on a spline would cut corners that were
+never checked; toppra is also not installed and would be one more compiled dependency):
+
+- ``stop_at_vertices``: each polyline segment gets a synchronised trapezoidal profile (all joints start and
+  stop together, the slowest joint sets the pace) and the arm comes to rest at every vertex. Used for the few
+  vertices of a simplified RRT-Connect path.
+- ``along_path``: one trapezoid in the path parameter over a dense polyline (straight Cartesian approach,
+  retreat and lift segments whose joint path is smooth), slowed until the finite-difference check passes.
+
+Samples are uniform in time (``dt``); in the stop-at-vertices profile each segment lasts a whole number of
+samples, so every vertex is a sample and linear interpolation between samples never leaves the polyline.
+The result is verified with ``SafetyLimits.check_trajectory`` (the same check the Arm applies) before it is
+returned.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kitchenbot.drivers.errors import LimitViolation
+from kitchenbot.drivers.safety import SafetyLimits
+from kitchenbot.drivers.ur_kinematics import URModel
+from kitchenbot.planning.types import Trajectory
+
+DT = 0.008  # s between samples (125 Hz: the Arm streams or resamples; dense enough for finite differences)
+
+
+def _trapezoid_s(T: float, v: float, a: float, t: np.ndarray) -> np.ndarray:
+    """Normalised trapezoid s(t) in [0, 1] with peak speed v and acceleration a lasting T (T = 1/v + v/a)."""
+    ta = v / a
+    s = np.empty_like(t)
+    m1 = t < ta
+    m3 = t > T - ta
+    m2 = ~(m1 | m3)
+    s[m1] = 0.5 * a * t[m1] ** 2
+    s[m2] = 0.5 * a * ta**2 + v * (t[m2] - ta)
+    tr = T - t[m3]
+    s[m3] = 1.0 - 0.5 * a * tr**2
+    return np.clip(s, 0.0, 1.0)
+
+
+def _segment_profile(dq: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float) -> tuple[int, float, float]:
+    """(number of samples n, peak s-speed v, s-acceleration a) of the synchronised trapezoid over dq,
+    stretched so that its duration is exactly n * dt."""
+    ad = np.abs(dq)
+    nz = ad > 1e-12
+    if not np.any(nz):
+        return 0, 0.0, 0.0
+    v = float(np.min(vmax[nz] / ad[nz]))
+    a = float(np.min(amax[nz] / ad[nz]))
+    if v * v / a > 1.0:  # triangle: never reaches v
+        v = float(np.sqrt(a))
+    T = 1.0 / v + v / a
+    n = max(2, int(np.ceil(T / dt - 1e-9)))
+    Tn = n * dt
+    # lower peak speed so that 1/v + v/a = Tn: v^2 - a Tn v + a = 0 (smaller root); Tn >= 2/sqrt(a) holds
+    disc = max(a * a * Tn * Tn - 4.0 * a, 0.0)
+    v = (a * Tn - np.sqrt(disc)) / 2.0
+    return n, float(v), a
+
+
+def stop_at_vertices(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
+    """Rest-to-rest synchronised trapezoids between consecutive rows of Q. Returns (times, q)."""
+    Q = np.asarray(Q, float)
+    times = [0.0]
+    qs = [Q[0]]
+    t0 = 0.0
+    for k in range(len(Q) - 1):
+        dq = Q[k + 1] - Q[k]
+        n, v, a = _segment_profile(dq, vmax, amax, dt)
+        if n == 0:
+            continue
+        t = np.arange(1, n + 1) * dt
+        s = _trapezoid_s(n * dt, v, a, t)
+        s[-1] = 1.0
+        qs.extend(Q[k] + s[:, None] * dq)
+        times.extend(t0 + t)
+        t0 += n * dt
+    if len(qs) == 1:  # no motion: a 2-sample hold so the trajectory is well formed
+        qs.append(Q[0])
+        times.append(dt)
+    return np.asarray(times), np.asarray(qs)
+
+
+def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
+    """One trapezoid in the polyline parameter u (vertex k at u = k) over a dense, smooth joint path."""
+    Q = np.asarray(Q, float)
+    if len(Q) < 2:
+        return stop_at_vertices(np.vstack([Q, Q]), vmax, amax, dt)
+    D = np.abs(np.diff(Q, axis=0))  # (N-1, 6) joint change per unit u
+    Dm = np.maximum(D.max(axis=0), 1e-12)
+    L = float(len(Q) - 1)
+    v = float(np.min(vmax / Dm))
+    a = float(np.min(amax / Dm)) * 0.5  # half: leaves room for the path's own curvature
+    if v * v / a > L:
+        v = float(np.sqrt(a * L))
+    T = L / v + v / a
+    n = max(2, int(np.ceil(T / dt)))
+    t = np.arange(n + 1) * (T / n)
+    ta = v / a
+    u = np.where(t < ta, 0.5 * a * t**2, np.where(t > T - ta, L - 0.5 * a * (T - t) ** 2, 0.5 * a * ta**2 + v * (t - ta)))
+    u = np.clip(u, 0.0, L)
+    u[-1] = L
+    k = np.minimum(np.floor(u).astype(int), len(Q) - 2)
+    f = (u - k)[:, None]
+    q = Q[k] * (1 - f) + Q[k + 1] * f
+    return t, q
+
+
+def time_parameterise(
+    Q: np.ndarray,
+    limits: SafetyLimits,
+    ur: URModel,
+    *,
+    velocity_scale: float = 1.0,
+    acceleration_scale: float = 1.0,
+    mode: str = "stop_at_vertices",
+    name: str = "",
+    dt: float = DT,
+) -> Trajectory:
+    """A Trajectory through the joint polyline Q that passes ``limits.check_trajectory``.
+
+    Scales are fractions of the configured limits (PlanningSettings.velocity_scale / acceleration_scale).
+    Raises LimitViolation only if a waypoint itself is outside the joint limits or workspace.
+    """
+    vmax = np.asarray(limits.max_joint_speed, float) * velocity_scale
+    amax = np.asarray(limits.max_joint_accel, float) * acceleration_scale
+    fn = stop_at_vertices if mode == "stop_at_vertices" else along_path
+    slow = 1.0
+    last: LimitViolation | None = None
+    for _ in range(12):
+        times, q = fn(Q, vmax / slow, amax / slow**2, dt)
+        try:
+            limits.check_trajectory(ur, times, q)
+            return Trajectory(times, q, name)
+        except LimitViolation as e:
+            msg = str(e)
+            if "speed" not in msg and "acceleration" not in msg:
+                raise
+            last = e
+            slow *= 1.3
+    raise last if last is not None else LimitViolation(f"trajectory {name!r}: could not be timed within limits")
