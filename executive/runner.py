@@ -1,0 +1,828 @@
+"""The task runner: drives the state machine (executive/machine.py) over a RobotCell, a task, a perceiver and a
+planner; journals before acting; records; reports.
+
+    report = run_task(load_config(), "sink-to-dishwasher", seed=3, report_path="out/report.json")
+
+One visit of a state = one handler call (``_do_<state>``) that returns the trigger to fire next. Driver errors
+and planning failures become a :class:`Failure` and the ``fault`` trigger; ``recover`` applies the recovery
+rules (docs/executive.md) and fires ``rescan``, ``retry`` or ``give_up``. Motions are asynchronous and polled,
+so ``request_stop`` acts at once and ``request_pause`` takes effect at the next safe point (a state boundary
+with nothing in the gripper).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from kitchenbot.drivers.errors import (
+    DeviceNotConnectedError,
+    DriverError,
+    DriverTimeoutError,
+    EmergencyStopError,
+    HardwareError,
+    LimitViolation,
+    ProtectiveStopError,
+)
+from kitchenbot.executive import machine as M
+from kitchenbot.executive.journal import Journal
+from kitchenbot.executive.verify import target_presence
+from kitchenbot.perception.types import ObjectPose, View
+from kitchenbot.planning.types import NoFreeSlot, PlanningFailure, Trajectory
+from kitchenbot.transforms import inv
+
+Listener = Callable[[dict], None]
+
+
+# ---- errors and failures ----------------------------------------------------------------------------------------
+class Stopped(Exception):
+    """A stop was requested; unwinds the current state at once."""
+
+
+class StateTimeout(Exception):
+    """A state visit took longer than its table timeout."""
+
+
+class StepFailed(Exception):
+    """A step did not achieve its goal (grasp missed, object slipped, verify failed, planning failed)."""
+
+    def __init__(self, kind: str, message: str, **details: Any):
+        super().__init__(message)
+        self.kind, self.details = kind, details
+
+
+@dataclass
+class Failure:
+    kind: str  # camera_timeout | bad_depth | arm_disconnected | protective_stop | estop | gripper_hardware |
+    #            grasp_missed | slip | planning | verify_failed | limit_violation | timeout | no_target | error
+    message: str
+    state: str
+    details: dict = field(default_factory=dict)
+
+
+def classify(exc: BaseException, state: str) -> Failure:
+    """Map an exception to a failure kind the recovery rules branch on."""
+    if isinstance(exc, StepFailed):
+        return Failure(exc.kind, str(exc), state, exc.details)
+    if isinstance(exc, StateTimeout):
+        return Failure("timeout", str(exc), state)
+    if isinstance(exc, EmergencyStopError):
+        return Failure("estop", str(exc), state)
+    if isinstance(exc, ProtectiveStopError):
+        return Failure("protective_stop", str(exc), state)
+    if isinstance(exc, DeviceNotConnectedError):
+        return Failure("arm_disconnected" if "arm" in str(exc).lower() else "device_disconnected", str(exc), state)
+    if isinstance(exc, LimitViolation):
+        return Failure("limit_violation", str(exc), state)
+    if isinstance(exc, HardwareError):
+        return Failure("gripper_hardware", str(exc), state)
+    if isinstance(exc, DriverTimeoutError):
+        return Failure("camera_timeout" if state in ("scan", "verify") else "timeout", str(exc), state)
+    if isinstance(exc, DriverError):
+        return Failure("driver", str(exc), state)
+    return Failure("error", f"{type(exc).__name__}: {exc}", state)
+
+
+# ---- options and report --------------------------------------------------------------------------------------------
+@dataclass
+class RunOptions:
+    poll_period: float = 0.01  # s between motion polls (simulated seconds in simulation)
+    grasp_current: float = 0.5  # A current limit when closing on an object
+    scan_speed: float = 1.0  # rad/s for direct scan moves when planning is unavailable
+    capture_retries: int = 2  # extra captures at a waypoint after a dropped frame / bad depth
+    min_valid_depth: float = 0.3  # fraction of pixels with depth for a usable view
+    gone_radius: float = 0.02  # m: a same-class object this close to the picked one means it is still there
+    max_reconnects: int = 3
+    verify_target_view: bool = True  # capture at the retreat pose and check the object at its target
+
+
+@dataclass
+class RunReport:
+    task: str
+    status: str = "running"  # succeeded | failed | stopped
+    objects_total: int = 0
+    objects_done: int = 0
+    attempts: int = 0
+    recoveries: int = 0
+    state_time_s: dict = field(default_factory=dict)  # wall seconds per state
+    state_sim_time_s: dict = field(default_factory=dict)  # simulated seconds per state (simulation only)
+    transitions: list = field(default_factory=list)
+    failures: list = field(default_factory=list)
+    collisions: int | None = None  # counted by the fake arm
+    limit_violations: int | None = None  # commands the safety limits refused
+    protective_stops: int | None = None
+    slips: int | None = None
+    cycles: list = field(default_factory=list)  # per placement: compute_s, motion_s, object
+    compute_time_s: float = 0.0  # wall seconds of everything but waiting for motions
+    wall_time_s: float = 0.0
+    sim_time_s: float | None = None
+    seed: int | None = None
+    run_id: int | None = None
+    perception: str = "pipeline"  # pipeline | oracle (ground truth from the simulator)
+    truth: dict | None = None  # simulation: what really happened
+    message: str = ""
+    safe: bool = True  # ended with the arm at a known safe pose
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(self.as_dict(), indent=2, default=_jsonable))
+
+
+def _jsonable(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    return str(o)
+
+
+@dataclass
+class _Tried:
+    cls: str
+    pos: np.ndarray
+    count: int = 0
+    reasons: list = field(default_factory=list)
+
+
+@dataclass
+class _Pending:
+    """A placement executed but not yet verified."""
+
+    obj: ObjectPose
+    target: Any
+    T_base_obj: np.ndarray
+    target_view: View | None
+    presence: float | None = None
+
+
+# ---- the runner --------------------------------------------------------------------------------------------------------
+class TaskRunner:
+    def __init__(self, robot, task, perceiver, planner, *, journal: Journal | None = None, recorder=None,
+                 dataset=None, listeners: list[Listener] | None = None, advance: Callable[[float], None] | None = None,
+                 sim_clock: Callable[[], float] | None = None, fault_hook: Callable[[list], list] | None = None,
+                 options: RunOptions | None = None, seed: int | None = None, perception_label: str = "pipeline",
+                 truth: Callable[[str], dict] | None = None):
+        self.robot = robot
+        self.arm, self.gripper, self.camera = robot.arm, robot.gripper, robot.camera
+        self.task = task
+        self.perceiver = perceiver
+        self.planner = planner
+        self.journal = journal
+        self.recorder = recorder
+        self.dataset = dataset
+        self.listeners = list(listeners or [])
+        self.advance = advance or time.sleep  # simulation: the fake arm's clock tick
+        self.sim_clock = sim_clock
+        self.fault_hook = fault_hook
+        self.opt = options or RunOptions()
+        self.truth = truth
+        self.report = RunReport(task.name, seed=seed, perception=perception_label)
+        self.machine_model = M.MachineModel()
+        self.machine = M.build_machine(self.machine_model)
+        self.run_id: int | None = None
+        self._stop = threading.Event()
+        self._pause = threading.Event()
+        self._resume = threading.Event()
+        self._arm_lock = threading.RLock()
+        # per-run memory
+        self.views: list[View] = []
+        self.poses: list[ObjectPose] = []
+        self.map_points: np.ndarray | None = None
+        self.current: ObjectPose | None = None
+        self.targets: list = []
+        self.pick = None
+        self.place = None
+        self.pending: _Pending | None = None
+        self.failure: Failure | None = None
+        self.tried: list[_Tried] = []
+        self.scan_failures = 0
+        self.consecutive_recoveries = 0
+        self.empty_scans = 0
+        self.reconnects = 0
+        self.scan_count = 0
+        self.latest_images: dict[str, np.ndarray] = {}
+        self._state_t0 = time.perf_counter()
+        self._state_sim0 = self._sim_now()
+        self._motion_wall = 0.0
+        self._cycle_t0 = (time.perf_counter(), 0.0, self._sim_now())
+        self._first_total: int | None = None
+
+    # ---- control from other threads --------------------------------------------------------------------------------
+    @property
+    def state(self) -> str:
+        return self.machine_model.state
+
+    def request_stop(self) -> None:
+        """Stop now: the arm decelerates immediately; the run ends in `stopped`."""
+        self._stop.set()
+        self._resume.set()
+        with self._arm_lock:
+            try:
+                self.arm.stop()
+            except DriverError:
+                pass
+
+    def request_pause(self) -> None:
+        self._resume.clear()
+        self._pause.set()
+
+    def request_resume(self) -> None:
+        self._pause.clear()
+        self._resume.set()
+
+    # ---- journal / events --------------------------------------------------------------------------------------
+    def _emit(self, ev: dict) -> None:
+        for fn in self.listeners:
+            try:
+                fn(ev)
+            except Exception:  # noqa: BLE001 - a broken listener must not stop the robot's task
+                pass
+
+    def _log(self, kind: str, name: str, /, **payload) -> None:
+        if self.journal is not None:
+            self.journal.event(self.run_id, kind, name, self.state, **payload)
+
+    def _cmd(self, name: str, /, **payload) -> None:
+        """Journal a device command BEFORE sending it."""
+        self._log("command", name, **payload)
+
+    def _fire(self, trigger: str) -> None:
+        src = self.state
+        dest = next(d for t, s, d in M.TRANSITIONS if t == trigger and (s == src or (not isinstance(s, str) and src in s)))
+        now = time.perf_counter()
+        sim = self._sim_now()
+        rt = self.report
+        rt.state_time_s[src] = rt.state_time_s.get(src, 0.0) + now - self._state_t0
+        if sim is not None:
+            rt.state_sim_time_s[src] = rt.state_sim_time_s.get(src, 0.0) + sim - self._state_sim0
+        rec = {"trigger": trigger, "source": src, "dest": dest, "t": round(now - self._t_start, 4)}
+        if sim is not None:
+            rec["sim_t"] = round(sim, 3)
+        self._log("transition", trigger, source=src, dest=dest)  # journaled before it happens
+        getattr(self.machine_model, trigger)()
+        rt.transitions.append(rec)
+        self._state_t0, self._state_sim0 = now, sim
+        self._deadline = self._timeout_deadline(dest)
+        if self.recorder is not None:
+            self.recorder.state(src, dest, trigger, sim)
+        self._emit({"type": "transition", **rec, "objects_done": rt.objects_done, "objects_total": rt.objects_total})
+
+    def _sim_now(self) -> float | None:
+        return self.sim_clock() if self.sim_clock is not None else None
+
+    def _timeout_deadline(self, state: str) -> float | None:
+        t = M.timeout_of(state)
+        return None if t is None else t
+
+    def _check_deadline(self) -> None:
+        if self._stop.is_set():
+            raise Stopped()
+        limit = self._deadline
+        if limit is None:
+            return
+        elapsed = time.perf_counter() - self._state_t0
+        if self._state_sim0 is not None:
+            elapsed += self._sim_now() - self._state_sim0
+        if elapsed > limit:
+            raise StateTimeout(f"state {self.state} exceeded its {limit:g} s timeout")
+
+    # ---- the loop -----------------------------------------------------------------------------------------------
+    def run(self) -> RunReport:
+        self._t_start = time.perf_counter()
+        self._deadline = None
+        sim0 = self._sim_now()
+        if self.journal is not None:
+            self.run_id = self.journal.begin_run(self.task.name, self.report.seed)  # raises HomingRequired
+            self._log("note", "task", **self.task.describe())
+        self.report.run_id = self.run_id
+        if self.truth is not None:
+            self._truth_start = self.truth("start")
+        try:
+            for dev in (self.arm, self.gripper, self.camera):
+                if not dev.is_connected:
+                    self._cmd(f"{type(dev).__name__}.connect")
+                    dev.connect()
+            self._fire("start")
+            self._loop()
+        except Exception as e:  # noqa: BLE001 - anything unexpected: journal it, make safe, fail
+            self._log("fault", "unhandled", error=f"{type(e).__name__}: {e}")
+            self.report.message = f"unhandled {type(e).__name__}: {e}"
+            if self.state not in M.TERMINAL:
+                self.report.safe = self._make_safe()
+                if self.state in M.WORKING:
+                    self._fire("give_up")
+        finally:
+            self._finish(sim0)
+        return self.report
+
+    def _loop(self) -> None:
+        while self.state not in M.TERMINAL:
+            if self._stop.is_set():
+                self._fire("stop")
+                break
+            if self._pause.is_set() and self.state in M.WORKING and not self._holding():
+                self._fire("pause")
+                self._emit({"type": "paused"})
+                self._resume.wait()
+                if self._stop.is_set():
+                    self._fire("stop")
+                    break
+                self._fire("resume")
+                continue
+            state = self.state
+            try:
+                trigger = getattr(self, f"_do_{state}")()
+            except Stopped:
+                self._fire("stop")
+                break
+            except Exception as e:  # noqa: BLE001 - every failure goes through the recovery rules
+                self.failure = classify(e, state)
+                self.report.failures.append(asdict(self.failure))
+                self._log("fault", self.failure.kind, message=self.failure.message, details=self.failure.details)
+                self._emit({"type": "fault", "kind": self.failure.kind, "message": self.failure.message})
+                if state == "recover":
+                    self.report.safe = self._make_safe()
+                    trigger = "give_up"
+                else:
+                    trigger = "fault"
+            self._fire(trigger)
+
+    def _finish(self, sim0) -> None:
+        rt = self.report
+        st = self.state
+        rt.status = {"done": "succeeded", "stopped": "stopped"}.get(st, "failed")
+        if st == "stopped":
+            rt.message = rt.message or "stopped on request"
+        now = time.perf_counter()
+        rt.state_time_s[st] = rt.state_time_s.get(st, 0.0) + now - self._state_t0
+        rt.wall_time_s = now - self._t_start
+        rt.compute_time_s = rt.wall_time_s - self._motion_wall
+        if sim0 is not None:
+            rt.sim_time_s = self._sim_now() - sim0
+        log = getattr(self.arm, "log", None)  # the fake arm's audit counters (simulation only)
+        if log is not None:
+            rt.collisions, rt.limit_violations = log.collisions, log.refused
+            rt.protective_stops, rt.slips = log.protective_stops, log.slips
+        remaining = len(self.task.remaining(self.poses)) if self.poses or rt.objects_done else 0
+        rt.objects_total = max(rt.objects_total, rt.objects_done + remaining)
+        if self.truth is not None:
+            rt.truth = {"start": self._truth_start, "end": self.truth("end")}
+        rt.state_time_s = {k: round(v, 4) for k, v in rt.state_time_s.items()}
+        rt.state_sim_time_s = {k: round(v, 4) for k, v in rt.state_sim_time_s.items()}
+        if self.journal is not None and self.run_id is not None:
+            self.journal.end_run(self.run_id, rt.status, rt.as_dict() | {"transitions": rt.transitions}, safe=rt.safe)
+        if self.recorder is not None:
+            self.recorder.close()
+        self._emit({"type": "finished", "status": rt.status, "objects_done": rt.objects_done,
+                    "objects_total": rt.objects_total})
+
+    # ---- motion primitives (asynchronous + polled) ---------------------------------------------------------------
+    def _wait_motion(self, what: str, expected_s: float) -> None:
+        t0 = time.perf_counter()
+        s0 = self._sim_now()
+        limit = 2.0 * expected_s + 5.0  # driver seconds
+        while True:
+            if self._stop.is_set():
+                raise Stopped()
+            with self._arm_lock:
+                moving = self.arm.is_moving()
+            if not moving:
+                break
+            self.advance(self.opt.poll_period)
+            el = (self._sim_now() - s0) if s0 is not None else (time.perf_counter() - t0)
+            if el > limit:
+                with self._arm_lock:
+                    self.arm.stop()
+                raise StateTimeout(f"{what}: still moving after {el:.1f} s (expected {expected_s:.1f} s)")
+        with self._arm_lock:
+            self.arm.wait(0.0)  # raises ProtectiveStopError / DeviceNotConnectedError if it ended badly
+        self._motion_wall += time.perf_counter() - t0
+        self._check_deadline()
+
+    def _run_trajectory(self, traj: Trajectory) -> None:
+        self._check_deadline()
+        self._cmd("arm.execute_trajectory", name=traj.name, n=len(traj), duration=traj.duration,
+                  q_start=traj.q[0], q_end=traj.q[-1])
+        with self._arm_lock:
+            self.arm.execute_trajectory(traj.times, traj.q, asynchronous=True)
+        self._wait_motion(f"trajectory {traj.name}", traj.duration)
+        self._log("result", "arm.execute_trajectory", name=traj.name, q=self.arm.joint_positions())
+
+    def _move_joints(self, q: np.ndarray, what: str) -> None:
+        """A collision-free planned joint motion when the planner finds one, else a direct joint move."""
+        q_now = self.arm.joint_positions()
+        if np.max(np.abs(q_now - q)) < 1e-3:
+            return
+        plan = self.planner.plan_move(q_now, q, objects=self.poses + self.task.obstacles(),
+                                      map_points=self.map_points) if self.planner is not None else None
+        if plan is not None and plan.ok:
+            self._run_trajectory(plan.trajectory)
+            return
+        if plan is not None:
+            self._log("note", "plan_move failed; direct joint move", what=what, reason=str(plan))
+        self._cmd("arm.move_joints", q=q, speed=self.opt.scan_speed, what=what)
+        with self._arm_lock:
+            self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
+        dist = float(np.max(np.abs(q - q_now)))
+        self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
+
+    def _holding(self) -> bool:
+        try:
+            return bool(self.gripper.is_holding())
+        except DriverError:
+            return False
+
+    # ---- capture ---------------------------------------------------------------------------------------------
+    def _capture_view(self, where: str) -> View:
+        """Capture with bounded retries on dropped frames and unusable depth; View with its camera pose."""
+        last: Exception | None = None
+        for k in range(1 + self.opt.capture_retries):
+            self._check_deadline()
+            self._cmd("camera.capture", where=where, attempt=k)
+            try:
+                f = self.camera.capture()
+            except DriverTimeoutError as e:
+                last = e
+                self._log("fault", "camera_timeout", where=where, message=str(e))
+                continue
+            valid = np.isfinite(f.depth) & (f.depth > 0)
+            if valid.mean() < self.opt.min_valid_depth:
+                last = StepFailed("bad_depth", f"{where}: only {valid.mean():.0%} of the depth image is valid")
+                self._log("fault", "bad_depth", where=where, valid=float(valid.mean()))
+                continue
+            T_base_cam = self.arm.flange_pose() @ self.robot.T_flange_cam
+            self.latest_images[where] = f.rgb
+            return View(f.rgb, f.depth, f.K, T_base_cam, f.stamp)
+        assert last is not None
+        raise last
+
+    # ---- states ----------------------------------------------------------------------------------------------------
+    def _scan(self) -> list[View]:
+        views = []
+        for k, q in enumerate(self.robot.config.scan_waypoints):
+            self._move_joints(np.asarray(q, float), f"scan waypoint {k}")
+            views.append(self._capture_view(f"scan{self.scan_count}_wp{k}"))
+        self.scan_count += 1
+        if self.dataset is not None:
+            self.dataset.write_scan(views)
+        if self.recorder is not None:
+            self.recorder.views(views, self._sim_now())
+        return views
+
+    def _perceive(self) -> None:
+        self._cmd("perceive", views=len(self.views))
+        res = self.perceiver.perceive(self.views)
+        poses = list(res.poses)
+        if self.fault_hook is not None:
+            poses = self.fault_hook(poses)
+        self.poses = poses
+        self.map_points = getattr(res, "map_points", None)
+        self._log("result", "perceive", objects=[{"obj_id": p.obj_id, "cls": p.cls, "xyz": p.T_base_obj[:3, 3],
+                                                  "score": p.score} for p in poses])
+        if self.recorder is not None:
+            self.recorder.perception(res, poses, self._sim_now())
+        if self._first_total is None:
+            self._first_total = len(self.task.remaining(poses))
+            self.report.objects_total = self._first_total
+        self._emit({"type": "progress", "objects_done": self.report.objects_done,
+                    "objects_total": max(self.report.objects_total,
+                                         self.report.objects_done + len(self.task.remaining(poses)))})
+
+    def _do_scan(self) -> str:
+        self.views = self._scan()
+        self.scan_failures = 0
+        return "scanned"
+
+    def _do_perceive(self) -> str:
+        self._perceive()
+        return "perceived"
+
+    def _tried_for(self, p: ObjectPose, create: bool = False) -> _Tried | None:
+        for t in self.tried:
+            if t.cls == p.cls and np.linalg.norm(t.pos - p.T_base_obj[:3, 3]) < 0.04:
+                return t
+        if create:
+            t = _Tried(p.cls, p.T_base_obj[:3, 3].copy())
+            self.tried.append(t)
+            return t
+        return None
+
+    def _candidates(self) -> list[ObjectPose]:
+        out = []
+        for p in self.task.remaining(self.poses):
+            t = self._tried_for(p)
+            if t is None or t.count < M.MAX_ATTEMPTS_PER_OBJECT:
+                out.append(p)
+        return out
+
+    def _do_select_grasp(self) -> str:
+        self.pick = self.place = None
+        for obj in self._candidates():
+            targets = self.task.targets(obj)
+            if isinstance(targets, NoFreeSlot):
+                t = self._tried_for(obj, create=True)
+                t.count = M.MAX_ATTEMPTS_PER_OBJECT
+                t.reasons.append(str(targets))
+                self._log("note", "no_target", cls=obj.cls, reason=str(targets))
+                continue
+            self.current, self.targets = obj, targets
+            self._log("note", "selected", obj_id=obj.obj_id, cls=obj.cls, xyz=obj.T_base_obj[:3, 3],
+                      targets=[t.T_base_obj[:3, 3] for t in targets])
+            self._emit({"type": "progress", "object": obj.cls, "objects_done": self.report.objects_done,
+                        "objects_total": self.report.objects_total})
+            return "selected"
+        return "nothing_left"
+
+    def _do_plan(self) -> str:
+        obj = self.current
+        q = self.arm.joint_positions()
+        scene_objs = self.poses + self.task.obstacles()
+        last: PlanningFailure | None = None
+        for target in self.targets:
+            self._check_deadline()
+            self._cmd("plan_pick", cls=obj.cls, target=target.T_base_obj[:3, 3])
+            pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points, place_target=target)
+            if not pick.ok:
+                last = pick
+                if pick.kind in ("no_graspable_object", "invalid_input", "start_in_collision"):
+                    break
+                continue
+            others = [p for p in scene_objs if p is not obj]
+            self._cmd("plan_place", target=target.T_base_obj[:3, 3])
+            place = self.planner.plan_place(pick.end, pick.grasp, target, objects=others, map_points=self.map_points)
+            if place.ok:
+                self.pick, self.place = pick, place
+                self._log("result", "planned", grasp=pick.grasp.spec.name, target=place.T_base_obj[:3, 3],
+                          duration=sum(t.duration for t in pick.trajectories + place.trajectories))
+                if self.recorder is not None:
+                    self.recorder.plan(pick.trajectories + place.trajectories, self._sim_now())
+                return "planned"
+            last = place
+        raise StepFailed("planning", f"no plan for the {obj.cls}: {last}", planning_kind=getattr(last, "kind", "?"))
+
+    def _do_execute(self) -> str:
+        pick, place, obj = self.pick, self.place, self.current
+        self.report.attempts += 1
+        self._tried_for(obj, create=True).count += 1
+        self._cmd("gripper.open", opening=pick.grasp.spec.opening)
+        self.gripper.open(pick.grasp.spec.opening)
+        self._run_trajectory(pick.approach)
+        self._run_trajectory(pick.grasp_in)
+        self._cmd("gripper.grasp", current_limit=self.opt.grasp_current)
+        res = self.gripper.grasp(min(self.opt.grasp_current, self.gripper.max_current))
+        self._log("result", "gripper.grasp", holding=res.holding, opening=res.opening, current=res.current)
+        if not res.holding:  # verify with the gripper: is it holding?
+            raise StepFailed("grasp_missed", f"the gripper closed on nothing grasping the {obj.cls}",
+                             opening=res.opening)
+        self._run_trajectory(pick.lift)
+        self._run_trajectory(place.transfer)
+        if not self._holding():
+            raise StepFailed("slip", f"the {obj.cls} slipped out during transport")
+        self._run_trajectory(place.lower)
+        self._cmd("gripper.open", opening=pick.grasp.spec.opening, release=True)
+        self.gripper.open(pick.grasp.spec.opening)
+        self._run_trajectory(place.retreat)
+        view = None
+        if self.opt.verify_target_view:
+            try:
+                view = self._capture_view(f"target{self.report.attempts}")
+            except (DriverTimeoutError, StepFailed) as e:  # the re-scan still verifies the sink side
+                self._log("note", "no target view", reason=str(e))
+        self.pending = _Pending(obj, place.target, place.T_base_obj, view)
+        return "executed"
+
+    def _do_verify(self) -> str:
+        """Re-scan; a pending placement is verified (gone from the sink, present at its target)."""
+        self.views = self._scan()
+        self._perceive()
+        p = self.pending
+        if p is not None:
+            self.pending = None
+            still = [q for q in self.poses if q.cls == p.obj.cls and
+                     np.linalg.norm(q.T_base_obj[:3, 3] - p.obj.T_base_obj[:3, 3]) < self.opt.gone_radius]
+            presence = None
+            if p.target_view is not None:
+                presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
+            self._log("result", "verify", still_in_sink=len(still), presence=presence)
+            if still:
+                raise StepFailed("verify_failed", f"the {p.obj.cls} is still in the sink")
+            if presence is not None and presence.decided and not presence.present:
+                raise StepFailed("verify_failed", f"the {p.obj.cls} was not seen at its target "
+                                 f"({presence.agree:.0%} of {presence.pixels} px agree)")
+            self.task.record_placed(p.obj, p.target, p.T_base_obj)
+            self.report.objects_done += 1
+            self.consecutive_recoveries = 0
+            w0, m0, s0 = self._cycle_t0
+            wall, sim = time.perf_counter(), self._sim_now()
+            self.report.cycles.append({"object": p.obj.cls, "wall_s": round(wall - w0, 3),
+                                       "compute_s": round((wall - w0) - (self._motion_wall - m0), 3),
+                                       "motion_sim_s": round(sim - s0, 3) if sim is not None else None})
+            self._cycle_t0 = (wall, self._motion_wall, sim)
+            self._emit({"type": "placed", "object": p.obj.cls, "objects_done": self.report.objects_done,
+                        "objects_total": self.report.objects_total})
+        cands = self._candidates()
+        if cands:
+            self.empty_scans = 0
+            return "next_object"
+        left = self.task.remaining(self.poses)
+        if left:
+            self.report.message = f"{len(left)} object(s) left after {M.MAX_ATTEMPTS_PER_OBJECT} attempts each: " + \
+                ", ".join(sorted(p.cls for p in left))
+            self.report.safe = self._make_safe()
+            return "give_up"
+        self.empty_scans += 1
+        return "complete" if self.empty_scans >= M.CONFIRM_EMPTY_SCANS else "next_object"
+
+    def _do_recover(self) -> str:
+        f = self.failure
+        self.report.recoveries += 1
+        self.consecutive_recoveries += 1
+        self._log("note", "recover", kind=f.kind, state=f.state)
+        if f.kind == "estop" or self.consecutive_recoveries > M.MAX_CONSECUTIVE_RECOVERIES:
+            self.report.message = f"gave up after {f.kind}: {f.message}"
+            self.report.safe = f.kind != "estop" and self._make_safe()
+            return "give_up"
+        self._restore_devices(f)
+        if f.kind in ("camera_timeout", "bad_depth"):
+            self.scan_failures += 1
+            if self.scan_failures >= M.MAX_SCAN_RETRIES:
+                self.report.message = f"camera keeps failing: {f.message}"
+                self.report.safe = self._make_safe()
+                return "give_up"
+        if f.state in ("plan", "select_grasp") and self.current is not None:
+            t = self._tried_for(self.current, create=True)  # counts towards skipping this object
+            t.count += 1
+            t.reasons.append(f.kind)
+        if f.kind == "planning" and f.state == "plan":
+            return "retry"  # the next object (or this one again) with the same perception
+        if self._holding():
+            self._put_down_held()
+        self._back_out()
+        return "rescan"
+
+    def _do_paused(self) -> str:  # never called: the loop waits in place
+        return "resume"
+
+    # ---- recovery actions --------------------------------------------------------------------------------------------
+    def _restore_devices(self, f: Failure) -> None:
+        """Bring the devices back to a commandable state (bounded reconnects, unlock, gripper reboot)."""
+        if not self.arm.is_connected:
+            if self.reconnects >= self.opt.max_reconnects:
+                raise DeviceNotConnectedError(f"arm: still disconnected after {self.reconnects} reconnects")
+            self.reconnects += 1
+            self._cmd("arm.connect", attempt=self.reconnects)
+            self.arm.connect()
+        from kitchenbot.drivers.arm import SafetyState
+
+        if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
+            self._cmd("arm.unlock_protective_stop", reason=f.kind)
+            self.arm.unlock_protective_stop()
+        if self.gripper.error() is not None:
+            self._cmd("gripper.reboot", error=self.gripper.error())
+            self.gripper.reboot()
+            self._cmd("gripper.open")
+            self.gripper.open()
+        if self.arm.is_moving():
+            self.arm.stop()
+
+    def _back_out(self) -> None:
+        """After a failed grasp the gripper may be around an object in the sink: open, then straight back out."""
+        if self.pick is None or self.failure is None or self.failure.state != "execute":
+            return
+        q = self.arm.joint_positions()
+        gi = self.pick.grasp_in
+        if not self._holding():
+            self._cmd("gripper.open", opening=self.pick.grasp.spec.opening)
+            self.gripper.open(self.pick.grasp.spec.opening)
+        d = np.max(np.abs(gi.q - q), axis=1)
+        k = int(np.argmin(d))
+        if d[k] < 0.01 and k > 0:  # on the grasp-in line: retrace it
+            self._run_trajectory(Trajectory(gi.times[k] - gi.times[k::-1], gi.q[k::-1].copy(), "back_out"))
+        elif self.arm.tcp_pose()[2, 3] < 0.05:  # deep in the sink elsewhere: straight up a little
+            T = self.arm.tcp_pose()
+            T[2, 3] += 0.08
+            self._cmd("arm.move_linear", up=0.08)
+            try:
+                with self._arm_lock:
+                    self.arm.move_linear(T, speed=0.05, accel=0.3, asynchronous=True)
+                self._wait_motion("back out up", 2.5)
+            except (LimitViolation, ProtectiveStopError) as e:
+                self._log("note", "back out refused", reason=str(e))
+                from kitchenbot.drivers.arm import SafetyState
+
+                if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
+                    self.arm.unlock_protective_stop()
+
+    def _put_down_held(self) -> bool:
+        """Something is in the gripper after a fault: place it at its target, else the fallback spot, else
+        open where it is (the scan will find it)."""
+        grasp = self.pick.grasp if self.pick is not None else None
+        q = self.arm.joint_positions()
+        targets = []
+        if self.place is not None:
+            targets.append(self.place.target)
+        if self.current is not None:
+            fb = self.task.fallback_target(self.current)
+            if not isinstance(fb, NoFreeSlot):
+                targets.append(fb)
+        if grasp is not None:
+            for tgt in targets:
+                plan = self.planner.plan_place(q, grasp, tgt, objects=self.poses + self.task.obstacles())
+                if plan.ok:
+                    self._log("note", "putting down the held object", target=tgt.T_base_obj[:3, 3])
+                    self._run_trajectory(plan.transfer)
+                    self._run_trajectory(plan.lower)
+                    self._cmd("gripper.open", release=True)
+                    self.gripper.open(grasp.spec.opening)
+                    self._run_trajectory(plan.retreat)
+                    return True
+        self._log("note", "no place to put the held object; opening where it is")
+        self._cmd("gripper.open", release=True)
+        self.gripper.open()
+        return False
+
+    def _make_safe(self) -> bool:
+        """Give up safely: anything held put down, the arm at home, the gripper open. True if achieved."""
+        try:
+            self._restore_devices(self.failure or Failure("give_up", "", self.state))
+            if self._holding():
+                self._put_down_held()
+            self._back_out()
+            self._move_joints(np.asarray(self.robot.config.robot.home, float), "home (safe pose)")
+            self._cmd("gripper.open")
+            self.gripper.open()
+            self._log("result", "safe", q=self.arm.joint_positions())
+            return True
+        except Stopped:
+            return False
+        except Exception as e:  # noqa: BLE001 - record why the arm could not be made safe
+            self._log("fault", "make_safe_failed", error=f"{type(e).__name__}: {e}")
+            return False
+
+
+# ---- the entry point used by the CLI, the demo and the daemon ------------------------------------------------------
+def home_arm(robot, planner, journal: Journal | None, advance=None) -> None:
+    """The explicit home action: a planned (else direct) joint move to the configured home, gripper open;
+    clears the journal's homing requirement."""
+    arm = robot.arm
+    for dev in (robot.arm, robot.gripper):
+        if not dev.is_connected:
+            dev.connect()
+    from kitchenbot.drivers.arm import SafetyState
+
+    if arm.safety_state() is SafetyState.PROTECTIVE_STOP:
+        arm.unlock_protective_stop()
+    home = np.asarray(robot.config.robot.home, float)
+    if journal is not None:
+        journal.event(None, "command", "home", q=home)
+    q = arm.joint_positions()
+    plan = planner.plan_move(q, home) if planner is not None else None
+    if plan is not None and plan.ok:
+        arm.execute_trajectory(plan.trajectory.times, plan.trajectory.q, asynchronous=True)
+    else:
+        arm.move_joints(home, speed=0.5, accel=1.0, asynchronous=True)
+    tick = advance or time.sleep
+    while arm.is_moving():
+        tick(0.02)
+    arm.wait(0.0)
+    if robot.gripper.error() is not None:
+        robot.gripper.reboot()
+    robot.gripper.open()
+    if journal is not None:
+        journal.mark_homed()
+
+
+def run_task(config, task_name: str, seed: int | None = None, report_path=None, record_path=None,
+             progress: bool = True, *, oracle_perception: bool = False, journal_path=None, dataset_dir=None,
+             listeners: list[Listener] | None = None, robot=None, options: RunOptions | None = None,
+             runner_hook: Callable[[TaskRunner], None] | None = None) -> RunReport:
+    """Assemble the cell from `config` (fake drivers over a simulated kitchen where configured), run `task_name`,
+    write the report JSON / rerun recording when asked, and return the report."""
+    from kitchenbot.executive.session import build_runner
+
+    runner = build_runner(config, task_name, seed, record_path=record_path, oracle_perception=oracle_perception,
+                          journal_path=journal_path, dataset_dir=dataset_dir, listeners=listeners, robot=robot,
+                          options=options)
+    if runner_hook is not None:
+        runner_hook(runner)
+    if progress:
+        from kitchenbot.executive.progress import LiveProgress
+
+        with LiveProgress(runner) as live:
+            runner.listeners.append(live.on_event)
+            report = runner.run()
+    else:
+        report = runner.run()
+    if report_path is not None:
+        report.save(report_path)
+    return report

@@ -1,0 +1,189 @@
+"""What every task names: which objects it picks, in what order, where each goes, and when it is done.
+
+A task is pure bookkeeping over perception results and the cell geometry: it never moves the robot. The
+executive asks it for the next object and its place target, tells it when a placement was verified, and asks
+whether the work is complete. Place targets are :class:`kitchenbot.planning.types.PlaceTarget` (object pose at
+release); the planner turns them into motions.
+
+Footprints on the target areas are tracked here as discs/boxes in the base xy plane (what the rack, the
+stacking area or the drop zone already holds), because the scan only looks into the sink.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from kitchenbot.perception.cell import AreaSpec, Cell
+from kitchenbot.perception.inventory import Inventory, ObjectModel
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
+from kitchenbot.transforms import make_T, rot_x, rot_y
+
+CLEARANCE = 0.01  # m between neighbouring placed items
+DROP_HEIGHT = 0.01  # m above the support at release (the object settles)
+
+
+@dataclass
+class Placed:
+    """A verified placement (kept so later targets avoid it and the planner can collide against it)."""
+
+    obj_id: int
+    cls: str
+    T_base_obj: np.ndarray
+    lo: np.ndarray  # xy footprint box
+    hi: np.ndarray
+    top_z: float
+    target: PlaceTarget
+
+
+def upright(model: ObjectModel, xy, support_z: float) -> np.ndarray:
+    """Standing on its base (object z up) with its bottom at support_z."""
+    return make_T(np.eye(3), (xy[0], xy[1], support_z + model.extents[2] / 2 + DROP_HEIGHT))
+
+
+def inverted(model: ObjectModel, xy, support_z: float) -> np.ndarray:
+    """Upside down (rim on the support)."""
+    return make_T(rot_x(np.pi)[:3, :3], (xy[0], xy[1], support_z + model.extents[2] / 2 + DROP_HEIGHT))
+
+
+def on_edge(model: ObjectModel, xy, support_z: float) -> np.ndarray:
+    """A plate standing on its rim, its face normal along base x (between dishwasher tines)."""
+    r = max(model.extents[0], model.extents[1]) / 2
+    return make_T(rot_y(np.pi / 2)[:3, :3], (xy[0], xy[1], support_z + r + DROP_HEIGHT))
+
+
+def footprint(model: ObjectModel, T_base_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """xy box and top height of the model at that pose (from its bounding-box corners)."""
+    e = model.extents / 2
+    corners = np.array([[sx * e[0], sy * e[1], sz * e[2]] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    P = corners @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
+    return P[:, :2].min(0), P[:, :2].max(0), float(P[:, 2].max())
+
+
+def _overlaps(lo, hi, placed: list[Placed]) -> bool:
+    return any(np.all(lo < p.hi + CLEARANCE) and np.all(hi > p.lo - CLEARANCE) for p in placed)
+
+
+@dataclass
+class Task:
+    """Base class: subclasses set `name`, `description`, `wants()` and `targets()`."""
+
+    inventory: Inventory
+    cell: Cell
+    placed: list[Placed] = field(default_factory=list)
+
+    name = "task"
+    description = ""
+    success_criteria = ""
+
+    # ---- what to pick ------------------------------------------------------------------------------------------
+    def wants(self, obj: ObjectPose) -> bool:
+        return True
+
+    def in_sink(self, obj: ObjectPose) -> bool:
+        return bool(self.cell.in_sink(obj.T_base_obj[:3, 3], margin=0.02)[0])
+
+    def remaining(self, poses: list[ObjectPose]) -> list[ObjectPose]:
+        """Objects still to do, in pick order: the topmost first (stacked/nested items come off the top)."""
+        todo = [p for p in poses if self.in_sink(p) and self.wants(p)]
+        return sorted(todo, key=lambda p: -p.T_base_obj[2, 3])
+
+    # ---- where it goes --------------------------------------------------------------------------------------------
+    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+        """Candidate place targets for `obj`, best first (the executive plans them in order)."""
+        raise NotImplementedError
+
+    def fallback_target(self, obj: ObjectPose) -> PlaceTarget | NoFreeSlot:
+        """Where to put a held object down when giving up: the counter drop zone."""
+        return _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, self.placed, 1) or \
+            NoFreeSlot("drop zone is full")
+
+    # ---- bookkeeping --------------------------------------------------------------------------------------------
+    def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> None:
+        model = self.inventory[obj.obj_id]
+        lo, hi, top = footprint(model, T_base_obj)
+        self.placed.append(Placed(obj.obj_id, obj.cls, np.array(T_base_obj), lo, hi, top, target))
+
+    def obstacles(self) -> list[ObjectPose]:
+        """Placed items as object poses (for the planner's collision world)."""
+        return [ObjectPose(p.obj_id, p.cls, p.T_base_obj, 1.0, instance_id=10_000 + k)
+                for k, p in enumerate(self.placed)]
+
+    def complete(self, poses: list[ObjectPose]) -> bool:
+        """Success criterion: nothing this task wants is left in the sink."""
+        return not self.remaining(poses)
+
+    def target_areas(self, cls: str) -> list[tuple[np.ndarray, np.ndarray]]:
+        """xy boxes where an object of `cls` counts as delivered (used to audit simulated runs)."""
+        z = self.cell.spec.drop_zone
+        return [(np.array(z.origin_xy), np.array(z.origin_xy) + np.array(z.size_xy))]
+
+    def at_target(self, cls: str, T_base_obj: np.ndarray, margin: float = 0.05) -> bool:
+        p = T_base_obj[:2, 3]
+        return any(np.all(p >= lo - margin) and np.all(p <= hi + margin) for lo, hi in self.target_areas(cls))
+
+    def describe(self) -> dict:
+        return {"name": self.name, "description": self.description, "success": self.success_criteria}
+
+
+def area_spots(model: ObjectModel, lo_xy, hi_xy, z: float, placed: list[Placed], pose=upright, limit: int = 3,
+               preferred: list | None = None, step: float = 0.02, centre_inside: bool = False) -> list[np.ndarray]:
+    """Free poses for `model` in the xy box [lo_xy, hi_xy] resting at height z: the `preferred` xy first
+    (e.g. rack slots), then a `step` grid. The footprint must stay inside the box (or only the centre when
+    `centre_inside`, for items larger than the area) and clear of everything placed."""
+    lo_xy, hi_xy = np.asarray(lo_xy, float), np.asarray(hi_xy, float)
+    grid = [(x, y) for x in np.arange(lo_xy[0], hi_xy[0] + 1e-9, step) for y in np.arange(lo_xy[1], hi_xy[1] + 1e-9, step)]
+    out: list[np.ndarray] = []
+    centre = [tuple((lo_xy + hi_xy) / 2)]
+    # Nearest the robot first: rack/area corners far from the base are often out of reach with a tool.
+    cands = sorted(list(preferred or []) + centre, key=lambda xy: float(np.hypot(*xy))) + \
+        sorted(grid, key=lambda xy: float(np.hypot(*xy)))
+    for xy in cands:
+        T = pose(model, xy, z)
+        lo, hi, _ = footprint(model, T)
+        # Items larger than the area may overhang it evenly (e.g. a dinner plate on a small drop zone).
+        over = np.maximum(0.0, ((hi - lo) - (hi_xy - lo_xy)) / 2) if centre_inside else 0.0
+        inside = np.all(lo >= lo_xy - over + CLEARANCE / 2 - 1e-9) and np.all(hi <= hi_xy + over - CLEARANCE / 2 + 1e-9)
+        taken = placed + [Placed(model.obj_id, model.cls, t, *footprint(model, t), None) for t in out]
+        if not inside or _overlaps(lo, hi, taken):
+            continue
+        out.append(T)
+        if len(out) >= limit:
+            break
+    return out
+
+
+def on_top_of_same(model: ObjectModel, placed: list[Placed], offset: float, max_height: float = 0.4) -> np.ndarray | None:
+    """The pose resting on the highest placed item of the same model (nested by `offset`), if any."""
+    same = [p for p in placed if p.obj_id == model.obj_id]
+    if not same:
+        return None
+    top = max(same, key=lambda p: p.T_base_obj[2, 3])
+    T = top.T_base_obj.copy()
+    T[2, 3] += offset + DROP_HEIGHT
+    return T if T[2, 3] < max_height else None
+
+
+def _drop_zone_targets(model: ObjectModel, zone: AreaSpec, placed: list[Placed], limit: int) -> list[PlaceTarget]:
+    """Free upright spots in an area (the centre inside it); when it is full, on top of the same model."""
+    lo = np.array(zone.origin_xy)
+    spots = area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, placed, upright, limit, centre_inside=True)
+    out = [PlaceTarget(T, "drop", free_yaw=True, support="counter") for T in spots]
+    if not out:
+        from kitchenbot.tasks.cup_stacking import nest_offset_of
+
+        T = on_top_of_same(model, placed, nest_offset_of(model))
+        if T is not None:
+            out.append(PlaceTarget(T, "drop", free_yaw=True, support=f"a {model.name} in the drop zone"))
+    if not out:
+        # Full: stand it on the widest placed item it fits on (a cup on a plate), as a person would.
+        r = max(model.extents[:2]) / 2
+        bases = sorted((p for p in placed if np.all(p.hi - p.lo >= 2 * r) and abs(p.T_base_obj[2, 2]) > 0.9),
+                       key=lambda p: p.top_z)
+        if bases:
+            b = bases[0]
+            T = upright(model, (b.lo + b.hi) / 2, b.top_z)
+            out.append(PlaceTarget(T, "drop", free_yaw=True, support=f"a {b.cls} in the drop zone"))
+    return out

@@ -1,0 +1,53 @@
+"""sink-to-dishwasher: plates upright (on edge) in the lower rack, cups/glasses/bowls/mugs inverted in the upper.
+
+Targets: the cell's rack slots (perception.cell.Slot) of the matching rack kind, skipping slots whose footprint
+would overlap an item already placed or leave the rack. Plates stand on their rim with the face normal along
+base x (the lower rack's narrow x pitch); vessels go rim down. Success: nothing left in the sink and each
+placement verified at its slot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
+from kitchenbot.tasks.base import Task, area_spots, inverted, on_edge
+
+VESSELS = ("cup", "glass", "bowl", "mug")
+
+
+class SinkToDishwasher(Task):
+    name = "sink-to-dishwasher"
+    description = "plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack"
+    success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in an upper-rack slot"
+
+    def wants(self, obj: ObjectPose) -> bool:
+        return obj.cls == "plate" or obj.cls in VESSELS
+
+    def target_areas(self, cls: str) -> list[tuple[np.ndarray, np.ndarray]]:
+        spec = self.cell.spec.dishwasher.lower if cls == "plate" else self.cell.spec.dishwasher.upper
+        lo = np.array(spec.origin_xy)
+        return [(lo, lo + np.array(spec.size_xy))]
+
+    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+        model = self.inventory[obj.obj_id]
+        rack = "lower" if obj.cls == "plate" else "upper"
+        spec = self.cell.spec.dishwasher.lower if rack == "lower" else self.cell.spec.dishwasher.upper
+        lo = np.array(spec.origin_xy)
+        hi = lo + np.array(spec.size_xy)
+        slots = [s.T_base_slot[:2, 3] for s in self.cell.slots if s.rack == rack]
+        if obj.cls == "plate":
+            # Plates span the rack in y: try each slot's x at the rack's centre line first.
+            xs = sorted({round(float(xy[0]), 4) for xy in slots})
+            preferred = [(x, (lo[1] + hi[1]) / 2) for x in xs] + slots
+            poses = area_spots(model, lo, hi, spec.floor_z, self.placed, on_edge, 3, preferred, step=0.015)
+        else:
+            poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, slots)
+        names = {tuple(np.round(xy, 4)): s.name for xy, s in
+                 zip(slots, [s for s in self.cell.slots if s.rack == rack])}
+        # Plates on edge keep their face normal along x (tines); mugs have a handle: no free yaw for either.
+        free_yaw = obj.cls not in ("plate", "mug")
+        out = [PlaceTarget(T, "slot", slot=names.get(tuple(np.round(T[:2, 3], 4)), f"{rack}@{T[0, 3]:.3f},{T[1, 3]:.3f}"),
+                           free_yaw=free_yaw, support=f"rack_{rack}") for T in poses]
+        return out or NoFreeSlot(f"{rack} rack has no free slot for a {obj.cls}")
