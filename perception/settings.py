@@ -15,6 +15,8 @@ class PerceptionSettings(BaseModel):
     segmenter: Literal["geometric", "sam2"] = "geometric"
     image_encoder: Literal["none", "colour", "dinov2", "beit", "clip"] = "colour"
     point_encoder: str = Field("fpfh", description="'fpfh' or the name of a registered plug-in")
+    fusion: bool = Field(True, description="fuse image patch features into the registration features (paper Alg. 1); "
+                         "False: image class tokens for the candidate proposal only")
     prompt: str = "dishware"
     weights_dir: str = Field("~/.cache/kitchenbot/weights", description="local folder with model weights")
     voxel_size: float = Field(0.010, gt=0.0005, le=0.05, description="metres")
