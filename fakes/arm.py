@@ -177,8 +177,13 @@ class _Motion:
 class FakeArm(Arm):
     """Simulated UR arm acting on a SimWorld (see the module docstring)."""
 
-    def __init__(self, world, limits: SafetyLimits, model: URModel | None = None):
+    def __init__(self, world, limits: SafetyLimits, model: URModel | None = None, poll_dt: float = 0.0):
+        """`poll_dt` > 0: every is_moving() that finds a motion running lets that many simulated seconds pass,
+        so a polling loop written for a real arm (poll, sleep, poll) makes progress in simulation."""
         super().__init__(model or world.robot, limits)
+        if not (np.isfinite(poll_dt) and poll_dt >= 0):
+            raise ValueError(f"FakeArm: poll_dt {poll_dt} s: expected a finite number >= 0")
+        self.poll_dt = float(poll_dt)
         if not np.allclose(np.asarray(limits.T_flange_tcp), world.T_flange_tcp, atol=1e-6):
             raise ValueError(
                 "FakeArm: limits.T_flange_tcp (the configured tool) differs from world.T_flange_tcp (the simulated "
@@ -240,6 +245,9 @@ class FakeArm(Arm):
     def is_moving(self) -> bool:
         self._sync()
         self._require_connected()
+        if self._motion is not None and self.poll_dt > 0:
+            self.world.clock.advance(self.poll_dt)
+            self._sync()
         return self._motion is not None
 
     # ---- public commands: count refusals, then the base class validates ---------------------------------

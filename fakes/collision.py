@@ -6,7 +6,7 @@ protective stop just before the contact, like a real UR detecting the impact. Ge
 - arm links: the capsules of :func:`drivers.ur_kinematics.link_segments` (the base column is fixed to the
   counter and is only used for self-collision);
 - the gripper (:class:`GripperGeometry`, TCP frame): a palm box from the flange and two finger boxes whose
-  inner faces (the pads) sit at +-opening/2 along y;
+  inner faces (the pads) sit at +-opening/2 along y; the wrist camera's housing at ``world.T_flange_cam``;
 - the held object: its mesh (BVH) at ``T_base_tcp @ T_tcp_held``;
 - the world: the cell's boxes and every other object's mesh.
 
@@ -15,7 +15,8 @@ Allowed contacts (so that grasping and lifting are possible; documented choice, 
   surface: the pads close around what they are about to grasp, or open away from what they just released;
 - the fingers and the held object may stay in the contacts they already had at the start of a motion for the
   first ``start_contact_travel`` (3 cm) of their travel (lifting an object off the one it rests on);
-- self-collision is checked between non-adjacent links only; the gripper is adjacent to the last two links.
+- self-collision is checked between non-adjacent links only; the gripper and camera (rigid with the flange)
+  are checked against the links up to wrist 1 (wrist 2 and 3 carry them).
 
 Why hand-written: FCL does the geometry; what it does not do is the robot-specific bookkeeping (which part is
 what, adjacency, the contact rules above, path sampling at a bounded Cartesian step).
@@ -114,8 +115,12 @@ class SimCollision:
     """Collision queries on a SimWorld for arm configurations and paths."""
 
     def __init__(self, world, model: URModel | None = None, gripper: GripperGeometry | None = None,
-                 grasp_contact_radius: float = 0.03, start_contact_travel: float = 0.03):
+                 grasp_contact_radius: float = 0.03, start_contact_travel: float = 0.03,
+                 camera_size: tuple[float, float, float] | None = (0.091, 0.028, 0.025)):
+        """`camera_size`: the wrist camera's housing (x along the stereo baseline, z along the view), placed
+        at ``world.T_flange_cam`` behind the optical centre; None leaves the camera out."""
         self.world = world
+        self.camera_size = None if camera_size is None else np.asarray(camera_size, float)
         self.model = model or world.robot
         self.gripper = gripper or GripperGeometry()
         self.grasp_contact_radius = float(grasp_contact_radius)
@@ -155,6 +160,20 @@ class SimCollision:
             env.append(_Env(f"obj:{uid}", co, lo, hi, uid))
         return env
 
+    def tool_boxes(self, opening: float) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """(name, T_tcp_box (box centre), size) of the bodies rigid with the TCP: palm, fingers, camera."""
+        out = []
+        for name, lo, hi in self.gripper.boxes(opening):
+            T = np.eye(4)
+            T[:3, 3] = (lo + hi) / 2
+            out.append((name, T, hi - lo))
+        if self.camera_size is not None:
+            T = np.linalg.inv(self.world.T_flange_tcp) @ self.world.T_flange_cam
+            T = T.copy()
+            T[:3, 3] -= T[:3, 2] * self.camera_size[2] / 2
+            out.append(("camera", T, self.camera_size))
+        return out
+
     def _tcp(self, frames: list[np.ndarray]) -> np.ndarray:
         return frames[-1] @ self.world.T_flange_tcp
 
@@ -163,8 +182,9 @@ class SimCollision:
         frames = fk_frames(self.model, q)
         pts = [p for s in link_segments(self.model, q) for p in s[:2]]
         T = self._tcp(frames)
-        for _, lo, hi in self.gripper.boxes(opening):
-            pts.extend(_box_corners(lo, hi) @ T[:3, :3].T + T[:3, 3])
+        for _, Tb, size in self.tool_boxes(opening):
+            Tw = T @ Tb
+            pts.extend(_box_corners(-size / 2, size / 2) @ Tw[:3, :3].T + Tw[:3, 3])
         w = self.world
         if held and w.held_uid is not None:
             Th = T @ w.T_tcp_held
@@ -187,8 +207,8 @@ class SimCollision:
             hm = w.objects[held].model
             held_co = fcl.CollisionObject(self._mesh_bvh(hm), fcl.Transform())
             held_corners = self._local_corners(hm)
-        g_boxes = self.gripper.boxes(opening)
-        g_objs = [fcl.CollisionObject(fcl.Box(*(hi - lo)), fcl.Transform()) for _, lo, hi in g_boxes]
+        g_boxes = self.tool_boxes(opening)
+        g_objs = [fcl.CollisionObject(fcl.Box(*size), fcl.Transform()) for _, _, size in g_boxes]
         segs0 = link_segments(self.model, qs[0])
         caps = [fcl.CollisionObject(fcl.Capsule(r, float(np.linalg.norm(b - a))), fcl.Transform()) for a, b, r in segs0]
 
@@ -205,10 +225,10 @@ class SimCollision:
                 lo, hi = _aabb_of_points(np.stack([a, b]), r)
                 parts.append((LINK_NAMES[i], caps[i], lo, hi))
             # gripper boxes
-            for (name, lo, hi), co in zip(g_boxes, g_objs):
-                c = T_tcp[:3, :3] @ ((lo + hi) / 2) + T_tcp[:3, 3]
-                co.setTransform(fcl.Transform(T_tcp[:3, :3], c))
-                P = _box_corners(lo, hi) @ T_tcp[:3, :3].T + T_tcp[:3, 3]
+            for (name, Tb, size), co in zip(g_boxes, g_objs):
+                Tw = T_tcp @ Tb
+                co.setTransform(fcl.Transform(Tw[:3, :3], Tw[:3, 3]))
+                P = _box_corners(-size / 2, size / 2) @ Tw[:3, :3].T + Tw[:3, 3]
                 parts.append((name, co, *_aabb_of_points(P)))
             if held_co is not None:
                 Th = T_tcp @ w.T_tcp_held
@@ -251,7 +271,7 @@ class SimCollision:
         if getattr(self, "_pairs_key", None) != key:
             idx = [by_name[n] for n in LINK_NAMES]
             pairs = [(idx[i], idx[j]) for i in range(7) for j in range(i + 2, 7)]
-            for g in ("palm", "finger_pos", "finger_neg", "held"):
+            for g in ("palm", "finger_pos", "finger_neg", "camera", "held"):
                 if g in by_name:
                     pairs.extend((by_name[g], idx[i]) for i in range(5))
             self._pairs_key, self._pairs = key, pairs

@@ -249,3 +249,18 @@ def test_fingers_may_touch_only_what_is_between_them():
         arm.move_linear(tcp_down(c[0], c[1] + 0.09, top - 0.02), speed=0.1)
     assert arm.log.collisions == 1
     assert world.objects[uid].T_base_obj[:3, 3] == pytest.approx(c)  # nothing pushed it
+
+
+def test_polling_loop_progresses_with_poll_dt():
+    limits = CFG.safety_limits()
+    world = SimWorld(Cell(), INVENTORY, T_flange_tcp=limits.T_flange_tcp, q=HOME.copy())
+    arm = FakeArm(world, limits, poll_dt=0.01)
+    arm.connect()
+    target = HOME.copy()
+    target[0] -= 1.0
+    arm.move_joints(target, speed=0.5, accel=1.0, asynchronous=True)
+    polls = 0
+    while arm.is_moving():  # a real-arm style loop; each poll lets 10 ms of simulated time pass
+        polls += 1
+    assert polls == pytest.approx(250, abs=1) and world.clock.now() == pytest.approx(2.5, abs=0.011)
+    assert np.allclose(arm.joint_positions(), target)
