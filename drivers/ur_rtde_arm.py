@@ -190,7 +190,8 @@ class URArm(Arm):
         self._dashboard: Any = None
         self._last_ts: float | None = None
         self._last_change = 0.0
-        self._stalls_in_row = 0
+        self._rebuild_times: list[float] = []  # monotonic times of recent rebuilds (bounded per window)
+        self.rebuild_window = 10.0  # s: more than `reconnect_attempts` rebuilds in this window = link lost
         self._link_lost: str | None = None
         self.receive_rebuilds = 0  # how often the watchdog rebuilt the receive interface
         self._watchdog: threading.Thread | None = None
@@ -215,9 +216,11 @@ class URArm(Arm):
             raise self._unreachable("receive", 30004, e) from None
 
     def connect(self) -> None:
+        if self.is_connected:
+            return
+        if self._rtde_r is not None or self._rtde_c is not None or self._watchdog is not None:
+            self.disconnect()  # after a lost link: drop the dead interfaces and the old watchdog first
         with self._lock:
-            if self.is_connected:
-                return
             self._link_lost = None
             self._rtde_r = self._make_receive()
             try:
@@ -226,10 +229,13 @@ class URArm(Arm):
                 self._close_quietly(self._rtde_r)
                 self._rtde_r = None
                 raise self._unreachable("control", 30004, e) from None
-            self._last_ts = None
-            self._last_change = time.monotonic()
-            self._stalls_in_row = 0
-            self._apply_tool()
+            self._mark_fresh()
+            self._rebuild_times = []
+            try:
+                self._apply_tool()
+            except (DriverError, RuntimeError):
+                self.disconnect()
+                raise
         if self.use_watchdog:
             self._stop_watchdog.clear()
             self._watchdog = threading.Thread(target=self._watchdog_loop, name="ur-rtde-watchdog", daemon=True)
@@ -292,8 +298,6 @@ class URArm(Arm):
         except RuntimeError as e:
             return self._rebuild_receive(f"reading the timestamp failed ({e})")
         if ts != self._last_ts:
-            if self._last_ts is not None:  # really advanced (not just the first read of a rebuilt interface)
-                self._stalls_in_row = 0
             self._last_ts, self._last_change = ts, now
             return self._rtde_r
         if now - self._last_change > self.receive_timeout:
@@ -304,9 +308,14 @@ class URArm(Arm):
 
     def _rebuild_receive(self, reason: str) -> Any:
         """Replace a stalled/dead receive interface; bounded attempts with exponential backoff."""
-        self._stalls_in_row += 1
-        if self._stalls_in_row > self.reconnect_attempts:
-            return self._lose_link(f"receive link keeps stalling ({reason}) after {self.reconnect_attempts} rebuilds")
+        now = time.monotonic()
+        self._rebuild_times = [t for t in self._rebuild_times if now - t < self.rebuild_window]
+        if len(self._rebuild_times) >= self.reconnect_attempts:
+            return self._lose_link(
+                f"receive link keeps stalling ({reason}) after {len(self._rebuild_times)} rebuilds "
+                f"in {self.rebuild_window:.0f} s"
+            )
+        self._rebuild_times.append(now)
         log.warning("UR arm at %s: %s; rebuilding the RTDE receive interface", self.host, reason)
         self._close_quietly(self._rtde_r)
         self._rtde_r = None
@@ -321,8 +330,17 @@ class URArm(Arm):
         if self._rtde_r is None:
             return self._lose_link(f"{reason}; rebuilding the receive interface failed {self.reconnect_attempts} times ({last})")
         self.receive_rebuilds += 1
-        self._last_ts, self._last_change = None, time.monotonic()
+        self._mark_fresh()
         return self._rtde_r
+
+    def _mark_fresh(self) -> None:
+        """Start the stall clock at the interface's current timestamp: one that never advances is caught
+        `receive_timeout` after it was built."""
+        try:
+            self._last_ts = float(self._rtde_r.getTimestamp())
+        except RuntimeError:
+            self._last_ts = None
+        self._last_change = time.monotonic()
 
     def _lose_link(self, why: str) -> Any:
         self._link_lost = why

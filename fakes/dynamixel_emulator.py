@@ -752,7 +752,10 @@ class DynamixelEmulator:
         self.stop()
 
     def __del__(self) -> None:
-        self.stop()
+        try:
+            self.stop()
+        except Exception:  # noqa: BLE001 - interpreter shutdown; the child exits on stdin EOF anyway
+            pass
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -429,3 +429,18 @@ def test_probe_reads_state_without_a_control_interface():
     info = probe("10.0.0.7", watch=0.02, receive_factory=lambda h, f: stalled,
                  dashboard_factory=lambda h: ProbeDashboard(lambda: stalled))
     assert not info["streaming"] and info["safety"] == "protective_stop"
+
+
+def test_connect_again_after_a_lost_link():
+    r = Rig(receive_fails_after=1, watchdog=False)
+    r.arm.connect()
+    r.receives[0].freeze()
+    time.sleep(0.15)
+    with pytest.raises(DeviceNotConnectedError, match="link lost"):
+        r.arm.joint_positions()
+    r.receive_fails_after = None  # the controller is back
+    r.arm.connect()
+    assert r.arm.is_connected
+    assert r.receives[0].disconnected and len(r.receives) == 2
+    np.testing.assert_allclose(r.arm.joint_positions(), HOME)
+    r.arm.disconnect()
