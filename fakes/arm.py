@@ -45,7 +45,7 @@ from kitchenbot.drivers.ur_kinematics import URModel, fk_flange, fk_frames
 from kitchenbot.fakes.collision import SimCollision, sample_path
 
 PATH_STEP = 0.005  # m, max Cartesian travel between collision samples
-IK_STEP = 0.002  # m (and IK_STEP / ROT_RADIUS rad) between IK solutions along a linear move
+IK_STEP = 0.004  # m (and IK_STEP / ROT_RADIUS rad) between IK solutions along a linear move
 ROT_RADIUS = 0.2  # m: a linear move's rotation counts as angle * ROT_RADIUS of arc length
 
 
@@ -90,13 +90,25 @@ class Trapezoid:
 def _tcp_and_jacobian(model: URModel, q: np.ndarray, T_flange_tcp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     F = fk_frames(model, q)
     T = F[-1] @ T_flange_tcp
-    p = T[:3, 3]
-    J = np.zeros((6, 6))
-    for i in range(6):
-        z, o = F[i][:3, 2], F[i][:3, 3]
-        J[:3, i] = np.cross(z, p - o)
-        J[3:, i] = z
+    Z = np.array([f[:3, 2] for f in F[:6]])
+    O = np.array([f[:3, 3] for f in F[:6]])
+    J = np.empty((6, 6))
+    J[:3] = np.cross(Z, T[:3, 3] - O).T
+    J[3:] = Z.T
     return T, J
+
+
+def _rotation_error(R_target: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Rotation vector of R_target R^T (world frame)."""
+    E = R_target @ R.T
+    w = 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
+    c = np.clip((np.trace(E) - 1.0) / 2.0, -1.0, 1.0)
+    angle = math.acos(c)
+    if angle < 1e-9:
+        return w
+    if angle > 3.0:  # near pi the skew part vanishes: let scipy handle it
+        return Rotation.from_matrix(E).as_rotvec()
+    return w * (angle / math.sin(angle))
 
 
 def ik_dls(model: URModel, T_target: np.ndarray, q_seed: np.ndarray, T_flange_tcp: np.ndarray,
@@ -110,7 +122,7 @@ def ik_dls(model: URModel, T_target: np.ndarray, q_seed: np.ndarray, T_flange_tc
     for _ in range(iters):
         T, J = _tcp_and_jacobian(model, q, T_flange_tcp)
         ep = T_target[:3, 3] - T[:3, 3]
-        er = Rotation.from_matrix(T_target[:3, :3] @ T[:3, :3].T).as_rotvec()
+        er = _rotation_error(T_target[:3, :3], T[:3, :3])
         if np.linalg.norm(ep) < tol_p and np.linalg.norm(er) < tol_r:
             return q
         e = np.concatenate([ep, er])

@@ -12,6 +12,7 @@ import importlib
 BENCH_MODULES = [
     "kitchenbot.fakes.bench",  # render, scenes
     "kitchenbot.fakes.dynamixel_bench",  # dynamixel
+    "kitchenbot.fakes.arm_bench",  # fakearm
     "kitchenbot.perception.bench",
     "kitchenbot.planning.bench",  # planning
     "kitchenbot.executive.bench",  # tasks
