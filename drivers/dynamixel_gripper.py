@@ -38,6 +38,7 @@ ADDR_TEMPERATURE_LIMIT = 31  # 1 (EEPROM)
 ADDR_MAX_VOLTAGE_LIMIT = 32  # 2 (EEPROM, 0.1 V)
 ADDR_MIN_VOLTAGE_LIMIT = 34  # 2 (EEPROM, 0.1 V)
 ADDR_CURRENT_LIMIT = 38  # 2 (EEPROM)
+ADDR_SHUTDOWN = 63  # 1 (EEPROM): which hardware errors turn torque off
 ADDR_TORQUE_ENABLE = 64  # 1
 ADDR_HARDWARE_ERROR = 70  # 1
 ADDR_GOAL_CURRENT = 102  # 2
@@ -164,6 +165,7 @@ class DynamixelGripper(Gripper):
         self._goal_current_units = self.current_limit_units
         self._grasping = False
         self._temperature_limit_c = 80.0
+        self._shutdown_mask = 0x34  # XM430 default: overheating, electrical shock, overload
         self._voltage_range = (9.5, 16.0)
 
     # ---- calibration ------------------------------------------------------------------------------
@@ -192,6 +194,7 @@ class DynamixelGripper(Gripper):
             self.model_number = model
             self.firmware_version = self._read(ADDR_FIRMWARE_VERSION, 1)
             self._temperature_limit_c = float(self._read(ADDR_TEMPERATURE_LIMIT, 1))
+            self._shutdown_mask = self._read(ADDR_SHUTDOWN, 1)
             self._voltage_range = (self._read(ADDR_MIN_VOLTAGE_LIMIT, 2) / 10.0, self._read(ADDR_MAX_VOLTAGE_LIMIT, 2) / 10.0)
             hw = self._read(ADDR_HARDWARE_ERROR, 1)
             if hw:
@@ -363,11 +366,13 @@ class DynamixelGripper(Gripper):
         p = p or self._present()
         if p.alert:
             hw = self._read(ADDR_HARDWARE_ERROR, 1)
-            if hw:
+            if hw & self._shutdown_mask:
                 raise HardwareError(
                     f"Dynamixel gripper: {decode_hardware_error(hw)} (Hardware Error Status 0x{hw:02x}); "
-                    "call reboot() to clear it"
+                    "the servo shut down, call reboot() to clear it"
                 )
+            if hw:  # an alarm that does not stop the servo (e.g. input voltage): report, keep working
+                log.warning("gripper servo alarm: %s", decode_hardware_error(hw))
         if p.temperature_c >= self.temperature_warn_c:
             raise HardwareError(
                 f"Dynamixel gripper: servo at {p.temperature_c:.0f} degC, near its {self._temperature_limit_c:.0f} "
@@ -449,15 +454,14 @@ class DynamixelGripper(Gripper):
 
     def status(self) -> GripperStatus:
         p = self._present()
-        error = None
-        if p.alert:
-            error = decode_hardware_error(self._read(ADDR_HARDWARE_ERROR, 1))
+        hw = self._read(ADDR_HARDWARE_ERROR, 1) if p.alert else 0
+        shut_down = bool(hw & self._shutdown_mask)
         return GripperStatus(
             opening=self.ticks_to_opening(p.position),
             current=p.current_units * self._closing_sign * CURRENT_UNIT_A,
-            holding=self._grasping and error is None and self._holding(p, self._goal_current_units),
+            holding=self._grasping and not shut_down and self._holding(p, self._goal_current_units),
             moving=p.moving,
-            error=error,
+            error=decode_hardware_error(hw),
             temperature_c=p.temperature_c,
             voltage_v=p.voltage_v,
         )

@@ -234,3 +234,37 @@ def test_reversed_calibration_grasps_too():
             assert r.current > 0  # + closing, whatever the servo's direction
         finally:
             g.disconnect()
+
+
+def test_low_voltage_is_an_alarm_not_a_shutdown(emu, gripper):
+    gripper.open()
+    emu.set_voltage(8.0)  # below Min Voltage Limit (9.5 V)
+    st = gripper.status()
+    assert st.voltage_v == pytest.approx(8.0)
+    assert st.error == "input voltage out of range"
+    emu.set_object(0.03)
+    assert gripper.grasp(current_limit=0.4).holding  # the servo keeps working under this alarm
+    assert gripper.status().holding
+
+
+def test_sync_and_bulk_instructions(emu):
+    from dynamixel_sdk import GroupBulkRead, GroupSyncRead, GroupSyncWrite
+
+    port = PortHandler(emu.port)
+    assert port.openPort() and port.setBaudRate(57600)
+    ph = PacketHandler(2.0)
+    try:
+        sw = GroupSyncWrite(port, ph, 102, 2)  # Goal Current
+        assert sw.addParam(1, [0x2C, 0x01])  # 300
+        assert sw.txPacket() == 0
+        assert emu.state()["goal_current"] == 300
+        sr = GroupSyncRead(port, ph, 102, 2)
+        assert sr.addParam(1)
+        assert sr.txRxPacket() == 0
+        assert sr.getData(1, 102, 2) == 300
+        br = GroupBulkRead(port, ph)
+        assert br.addParam(1, 0, 2)  # Model Number
+        assert br.txRxPacket() == 0
+        assert br.getData(1, 0, 2) == 1020
+    finally:
+        port.closePort()
