@@ -303,7 +303,9 @@ class FakeArm(Arm):
     def step(self, dt: float) -> bool:
         """Advance the simulated clock by dt seconds (a controller loop's tick); returns is_moving()."""
         self.world.clock.advance(dt)
-        return self.is_moving()
+        self._sync()
+        self._require_connected()
+        return self._motion is not None
 
     def stop(self, decel: float = 3.0) -> None:
         """Decelerate along the path at `decel` (fastest joint, rad/s^2) and block until stopped."""
@@ -315,11 +317,11 @@ class FakeArm(Arm):
         if m is None:
             return
         e = self._now_e()
-        h = 1e-3
-        qd = (m.q_of_u(m.u(e) + h) - m.q_of_u(max(m.u(e) - h, 0.0))) / (2 * h) if m.stop_e is None else None
-        if qd is not None:
-            tau = float(np.max(np.abs(qd))) / decel
-            self._cut(e, "stopped", f"stop(decel={decel})", tau)
+        if m.stop_e is None:  # not already stopping
+            u, h = m.u(e), 1e-3
+            u0, u1 = max(u - h, 0.0), u + h
+            qd = (m.q_of_u(u1) - m.q_of_u(u0)) / (u1 - u0)
+            self._cut(e, "stopped", f"stop(decel={decel})", float(np.max(np.abs(qd))) / decel)
         self.world.clock.advance(max(m.e_end - e, 0.0))
         self._sync()
 

@@ -126,7 +126,7 @@ class SimCollision:
         self.grasp_contact_radius = float(grasp_contact_radius)
         self.start_contact_travel = float(start_contact_travel)
         self._req = fcl.CollisionRequest()
-        self._bvh: dict[int, fcl.BVHModel] = {}
+        self._bvh: dict[int, tuple[object, fcl.BVHModel]] = {}
         self._cell: list[_Env] = []
         for b in world.cell.boxes:
             o = fcl.CollisionObject(fcl.Box(*b.size), fcl.Transform(np.eye(3), b.centre))
@@ -134,15 +134,16 @@ class SimCollision:
 
     # ---- geometry ----------------------------------------------------------------------------------
     def _mesh_bvh(self, model) -> fcl.BVHModel:
-        bvh = self._bvh.get(model.obj_id)
-        if bvh is None:
-            V = np.asarray(model.mesh.vertices, float)
-            F = np.asarray(model.mesh.triangles, np.int32)
-            bvh = fcl.BVHModel()
-            bvh.beginModel(len(V), len(F))
-            bvh.addSubModel(V, F)
-            bvh.endModel()
-            self._bvh[model.obj_id] = bvh
+        hit = self._bvh.get(id(model))
+        if hit is not None:
+            return hit[1]
+        V = np.asarray(model.mesh.vertices, float)
+        F = np.asarray(model.mesh.triangles, np.int32)
+        bvh = fcl.BVHModel()
+        bvh.beginModel(len(V), len(F))
+        bvh.addSubModel(V, F)
+        bvh.endModel()
+        self._bvh[id(model)] = (model, bvh)  # keeps the model alive so its id stays unique
         return bvh
 
     def _local_corners(self, model) -> np.ndarray:
