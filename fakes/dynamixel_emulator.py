@@ -495,26 +495,30 @@ class Bus:
                 return status_packet(sid, s.error_byte(), info)
             if group:
                 return self._group(pkt.instruction, p)
-            if broadcast:
-                return b""  # READ/WRITE/REBOOT to broadcast: acted on below only for WRITE, never answered
-            if pkt.instruction == INST_READ:
-                if len(p) != 4:
-                    raise AccessError(ERR_DATA_LENGTH)
-                addr, length = int.from_bytes(p[0:2], "little"), int.from_bytes(p[2:4], "little")
-                return self._reply(0, s.read(addr, length), instruction=INST_READ)
-            if pkt.instruction == INST_WRITE:
-                if len(p) < 3:
-                    raise AccessError(ERR_DATA_LENGTH)
-                s.write(int.from_bytes(p[0:2], "little"), p[2:])
-                s._publish()
-                return self._reply(0, instruction=INST_WRITE)
-            if pkt.instruction == INST_REBOOT:
-                reply = self._reply(0, instruction=INST_REBOOT)
-                s.reboot(now)
-                return reply  # sent before the servo goes deaf
-            raise AccessError(ERR_INSTRUCTION)
+            reply = self._single(pkt.instruction, p, now)
+            return b"" if broadcast else reply  # broadcast WRITE/REBOOT act but are never answered
         except AccessError as e:
             return self._reply(e.code, instruction=pkt.instruction) if mine else b""
+
+    def _single(self, instruction: int, p: bytes, now: float) -> bytes:
+        """READ / WRITE / REBOOT addressed to this servo (or broadcast); raises AccessError to refuse."""
+        s = self.servo
+        if instruction == INST_READ:
+            if len(p) != 4:
+                raise AccessError(ERR_DATA_LENGTH)
+            addr, length = int.from_bytes(p[0:2], "little"), int.from_bytes(p[2:4], "little")
+            return self._reply(0, s.read(addr, length), instruction=INST_READ)
+        if instruction == INST_WRITE:
+            if len(p) < 3:
+                raise AccessError(ERR_DATA_LENGTH)
+            s.write(int.from_bytes(p[0:2], "little"), p[2:])
+            s._publish()
+            return self._reply(0, instruction=INST_WRITE)
+        if instruction == INST_REBOOT:
+            reply = self._reply(0, instruction=INST_REBOOT)
+            s.reboot(now)
+            return reply  # sent before the servo goes deaf
+        raise AccessError(ERR_INSTRUCTION)
 
     def _group(self, instruction: int, p: bytes) -> bytes:
         s = self.servo
