@@ -6,7 +6,8 @@ A recording is a folder of numbered captures::
     000000_depth.png   16-bit depth in millimetres (0 = invalid), the BOP/OAK-D convention
     000000.json        {"rgb", "depth", "depth_scale_m": 0.001, "K": 3x3, "T_base_cam": 4x4 or null, "stamp", ...}
 
-:class:`CaptureRecorder` writes it, :func:`load_capture` / :func:`list_captures` read it, and
+:class:`CaptureRecorder` writes it (:class:`RecordingCamera` records any camera as it is used),
+:func:`load_capture` / :func:`list_captures` read it, and
 ``drivers.replay_camera.ReplayCamera`` serves it back as a Camera. The depth conversions are pure functions
 shared with the OAK-D driver.
 """
@@ -14,13 +15,14 @@ shared with the OAK-D driver.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from kitchenbot.drivers.camera import Frame
+from kitchenbot.drivers.camera import Camera, Frame
 from kitchenbot.drivers.errors import DriverError
 
 DEPTH_SCALE_M = 0.001  # one PNG unit = 1 mm
@@ -155,3 +157,31 @@ class CaptureRecorder:
         path.write_text(json.dumps(meta, indent=1))  # written last: a capture exists once its JSON does
         self.next_index += 1
         return path
+
+
+class RecordingCamera(Camera):
+    """Wraps any camera: each capture is passed through and also saved, with the camera pose from `pose_fn()`
+    (e.g. ``lambda: arm.flange_pose() @ T_flange_cam``) when given. Replay with ``ReplayCamera(folder)``."""
+
+    def __init__(self, camera: Camera, folder: str | Path, pose_fn: Callable[[], np.ndarray] | None = None):
+        self.camera = camera
+        self.recorder = CaptureRecorder(folder)
+        self.pose_fn = pose_fn
+
+    def connect(self) -> None:
+        self.camera.connect()
+
+    def disconnect(self) -> None:
+        self.camera.disconnect()
+
+    @property
+    def is_connected(self) -> bool:
+        return self.camera.is_connected
+
+    def capture(self, timeout: float = 2.0) -> Frame:
+        frame = self.camera.capture(timeout)
+        self.recorder.save(frame, None if self.pose_fn is None else self.pose_fn())
+        return frame
+
+    def intrinsics(self) -> np.ndarray:
+        return self.camera.intrinsics()

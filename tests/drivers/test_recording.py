@@ -107,3 +107,22 @@ def test_broken_files_are_named(tmp_path, rng):
     cv2.imwrite(str(tmp_path / "000000_depth.png"), np.zeros((48, 64), np.uint8))
     with pytest.raises(RecordingError, match="000000_depth.png: expected a single-channel 16-bit PNG"):
         ReplayCamera(tmp_path).connect()
+
+
+def test_recording_camera_records_what_it_passes_through(tmp_path, rng):
+    from kitchenbot.drivers.recording import RecordingCamera
+
+    src = CaptureRecorder(tmp_path / "src")
+    for i in range(2):
+        src.save(_frame(rng, float(i)))
+    poses = iter([np.eye(4), from_xyz_rpy((0.1, 0, 0), (0, 0, 0))])
+    cam = RecordingCamera(ReplayCamera(tmp_path / "src"), tmp_path / "copy", pose_fn=lambda: next(poses))
+    cam.connect()
+    passed = [cam.capture() for _ in range(2)]
+    replay = ReplayCamera(tmp_path / "copy")
+    replay.connect()
+    for f in passed:
+        got = replay.capture()
+        np.testing.assert_array_equal(got.rgb, f.rgb)
+        np.testing.assert_array_equal(got.depth, f.depth)  # already mm-quantised: exact
+    np.testing.assert_allclose(replay.last_T_base_cam[:3, 3], [0.1, 0, 0])
