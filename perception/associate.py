@@ -12,7 +12,7 @@ import numpy as np
 from scipy.ndimage import binary_dilation
 
 from kitchenbot.perception.detect import Detection
-from kitchenbot.perception.rgbd import backproject, project_pixels
+from kitchenbot.perception.rgbd import point_map, project_pixels
 from kitchenbot.perception.types import View
 
 
@@ -29,10 +29,10 @@ def projected_iou(src: View, src_dets: list[Detection], dst: View, dst_dets: lis
         dst_lab[d.mask & (dst_lab < 0)] = j
     dst_area = np.array([d.mask.sum() for d in dst_dets], float)
     dd = np.nan_to_num(np.asarray(dst.depth, np.float64), nan=0.0)
+    pm = point_map(src, stride)
     for i, d in enumerate(src_dets):
-        sub = np.zeros_like(d.mask)
-        sub[::stride, ::stride] = d.mask[::stride, ::stride]
-        pts, _ = backproject(src, sub)
+        pts = pm[d.mask[::stride, ::stride]]
+        pts = pts[np.all(np.isfinite(pts), axis=1)].astype(np.float64)
         if len(pts) == 0:
             continue
         rc, z, _ = project_pixels(dst, pts)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,11 @@ class ModelEntry:
     view_geo: np.ndarray  # (V, Dp) mean point features of the rendered views
     dense_points: np.ndarray  # (Nd, 3) object frame, for scoring (finer than the voxel grid)
     dense_normals: np.ndarray  # (Nd, 3)
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        """KD-tree over the dense surface points (object frame)."""
+        return cKDTree(self.dense_points)
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray:

@@ -80,9 +80,9 @@ class ColourEncoder:
         cls = f[mask].mean(axis=0) if mask.any() else np.zeros(self.dim, np.float32)
         H, W = mask.shape
         p = self.patch
-        h, w = max(1, H // p), max(1, W // p)
-        f = f[: h * p, : w * p].reshape(h, p, w, p, self.dim).sum(axis=(1, 3))
-        cnt = mask[: h * p, : w * p].reshape(h, p, w, p).sum(axis=(1, 3))[..., None]
+        h, w = -(-H // p), -(-W // p)
+        f = np.pad(f, ((0, h * p - H), (0, w * p - W), (0, 0))).reshape(h, p, w, p, self.dim).sum(axis=(1, 3))
+        cnt = np.pad(mask, ((0, h * p - H), (0, w * p - W))).reshape(h, p, w, p).sum(axis=(1, 3))[..., None]
         return l2n(cls), f / np.maximum(cnt, 1)
 
 

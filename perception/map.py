@@ -15,7 +15,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from kitchenbot.perception.detect import Detection
-from kitchenbot.perception.rgbd import backproject
+from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import View
 from kitchenbot.transforms import pose_error
 
@@ -59,9 +59,9 @@ def align_views(views: list[View], voxel: float = 0.01, max_trans: float = 0.03,
         return list(views), [np.eye(4) for _ in views]
     clouds = []
     for v in views:
-        d = np.where(np.asarray(v.depth) < max_range, v.depth, 0)
-        p, _ = backproject(View(v.rgb, d, v.K, v.T_base_cam), None)
-        clouds.append(_cloud(p, voxel))
+        p = point_map(v, stride=4).reshape(-1, 3)
+        p = p[np.all(np.isfinite(p), axis=1) & (np.linalg.norm(p - v.T_base_cam[:3, 3], axis=1) < max_range)]
+        clouds.append(_cloud(p.astype(np.float64), voxel))
     out, corr = [views[0]], [np.eye(4)]
     target = clouds[0]
     for v, src in zip(views[1:], clouds[1:]):
@@ -95,10 +95,12 @@ def build_map(views: list[View], dets: list[list[Detection]], ids: list[np.ndarr
     """Fuse the masked pixels of all views into one instance map (pixels subsampled by `stride`)."""
     pts, lab, vw, px = [], [], [], []
     for k, (v, ds, iv) in enumerate(zip(views, dets, ids)):
-        grid = np.zeros(v.depth.shape, bool)
-        grid[::stride, ::stride] = True
+        pm = point_map(v, stride)
+        finite = np.all(np.isfinite(pm), axis=2)
         for d, i in zip(ds, iv):
-            p, rc = backproject(v, d.mask & grid)
+            sel = d.mask[::stride, ::stride] & finite
+            p = pm[sel].astype(np.float64)
+            rc = np.argwhere(sel) * stride
             pts.append(p)
             lab.append(np.full(len(p), int(i)))
             vw.append(np.full(len(p), k))
@@ -110,7 +112,8 @@ def build_map(views: list[View], dets: list[list[Detection]], ids: list[np.ndarr
                        np.concatenate(px).astype(np.int64), centres)
 
 
-def consolidate(m: InstanceMap, radius: float = 0.006, min_shared: float = 0.5) -> InstanceMap:
+def consolidate(m: InstanceMap, radius: float = 0.006, min_shared: float = 0.5, max_fragment: int = 400,
+                touch: float = 0.012) -> InstanceMap:
     """Merge instances that are the same surface seen in different views but were not associated
     (e.g. one view saw two touching items as one mask): ids whose points mostly lie on each other's."""
     inst = m.instance_ids
@@ -136,6 +139,23 @@ def consolidate(m: InstanceMap, radius: float = 0.006, min_shared: float = 0.5) 
                 ra, rb = find(a), find(b)
                 if ra != rb:
                     parent[max(ra, rb)] = min(ra, rb)
+    # Small fragments (a mug handle or a rim seen apart from the body) join the instance they touch; if that
+    # over-merges two objects, the pose stage splits them again by re-fitting what one model leaves over.
+    sizes = {i: int((m.ids == i).sum()) for i in inst}
+    for a in sorted(inst, key=lambda i: sizes[i]):
+        if sizes[a] > max_fragment:
+            break
+        pa = m.points[m.ids == a]
+        best, best_d = None, np.inf
+        for b in inst:
+            if find(b) == find(a) or sizes[b] < 3 * sizes[a]:
+                continue
+            d = trees[b].query(pa, distance_upper_bound=touch)[0].min()
+            if d < best_d:
+                best, best_d = b, d
+        if best is not None and np.isfinite(best_d):
+            ra, rb = find(a), find(best)
+            parent[max(ra, rb)] = min(ra, rb)
     new = np.array([find(int(i)) for i in m.ids], np.int64) if len(m.ids) else m.ids
     _, dense = np.unique(new, return_inverse=True)
     return InstanceMap(m.points, dense.astype(np.int64), m.view, m.pixel, m.cam_centres)

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import open3d as o3d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -29,7 +30,8 @@ class GeometricSegmenterConfig:
     wall_margin: float = 0.006  # m: extra clearance from the basin walls
     above_rim: float = 0.30  # m: how far above the counter an item in the sink may reach
     link_distance: float = 0.010  # m: neighbouring pixels farther apart than this (3D) are not connected
-    min_pixels: int = 120
+    min_pixels: int = 120  # at full resolution
+    stride: int = 2  # segment every 2nd row/column (the map samples the same grid), masks at full size
     min_extent: float = 0.012  # m: components smaller than this in every direction are noise
 
 
@@ -79,28 +81,55 @@ def components(pts: np.ndarray, fg: np.ndarray, link: float) -> tuple[np.ndarray
     return out, k
 
 
-class GeometricSegmenter:
-    """Detector and segmenter in one: instance masks of everything in the sink that is not the sink."""
+def plane_foreground(view: View, cfg: GeometricSegmenterConfig, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Without a known cell: pixels above the dominant plane (RANSAC, Open3D), and that plane's normal
+    (base frame, towards the camera)."""
+    ok = np.all(np.isfinite(pts), axis=2)
+    P = pts[ok]
+    if len(P) < 100:
+        return np.zeros_like(ok), None
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P[:: max(1, len(P) // 20000)]))
+    plane, _ = pc.segment_plane(distance_threshold=0.006, ransac_n=3, num_iterations=300)
+    n, d = np.asarray(plane[:3], float), float(plane[3])
+    if n @ view.T_base_cam[:3, 3] + d < 0:
+        n, d = -n, -d
+    with np.errstate(invalid="ignore"):
+        h = pts @ n + d
+        fg = ok & (h > cfg.surface_margin + 0.002) & (h < cfg.above_rim)
+    return fg, n
 
-    def __init__(self, cell: Cell, cfg: GeometricSegmenterConfig | None = None):
+
+class GeometricSegmenter:
+    """Detector and segmenter in one: instance masks of everything in the sink that is not the sink.
+    With `cell=None`, everything standing on the dominant plane of each view instead (generic table tops)."""
+
+    def __init__(self, cell: Cell | None, cfg: GeometricSegmenterConfig | None = None):
         self.cell = cell
         self.cfg = cfg or GeometricSegmenterConfig()
+        self.support_normal: np.ndarray | None = None  # plane mode: 'up' of the last view (base frame)
 
     def detect(self, view: View) -> list[Detection]:
         cfg = self.cfg
-        pts = point_map(view)
-        fg = foreground_mask(view, self.cell, cfg, pts)
+        s = cfg.stride
+        pts = point_map(view, s)
+        if self.cell is None:
+            fg, self.support_normal = plane_foreground(view, cfg, pts)
+        else:
+            fg = foreground_mask(view, self.cell, cfg, pts)
         if not fg.any():
             return []
         lab, k = components(pts, fg, cfg.link_distance)
         counts = np.bincount(lab[fg], minlength=k)
+        h, w = view.depth.shape
         out = []
-        for i in np.nonzero(counts >= cfg.min_pixels)[0]:
+        for i in np.nonzero(counts * s * s >= cfg.min_pixels)[0]:
             m = lab == i
             p = pts[m]
             ext = np.percentile(p, 98, axis=0) - np.percentile(p, 2, axis=0)
             if ext.max() < cfg.min_extent:
                 continue
+            if s > 1:  # back to full resolution: each sample covers its s x s block
+                m = np.repeat(np.repeat(m, s, axis=0), s, axis=1)[:h, :w]
             out.append(Detection(box=box_of(m), score=1.0, mask=m, label="object"))
         return out
 

@@ -1,4 +1,4 @@
-"""Synthetic RGB-D views with a known answer for the perception tests: inventory meshes placed in the cell's
+"""Synthetic RGB-D views with a known answer (perception tests and benchmarks): inventory meshes placed in the cell's
 sink at known poses, rendered with an Open3D RaycastingScene (depth, RGB with Lambert shading, instance labels)."""
 
 from __future__ import annotations

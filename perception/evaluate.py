@@ -1,0 +1,206 @@
+"""Evaluate the pipeline on a BOP dataset: BOP results CSV, a metrics report, overlays, hyperparameter sweeps.
+
+The dataset's own models/ become the inventory. Scenes whose images carry world camera poses (cam_R_w2c,
+cam_t_w2c; world = robot base) are perceived as one multi-view scan; other images one by one. Each
+estimate is written once per image of its scan, in that image's camera frame (BOP convention).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from kitchenbot.perception import bop
+from kitchenbot.perception.cell import Cell
+from kitchenbot.perception.inventory import Inventory
+from kitchenbot.perception.metrics import auc_adds, match_image
+from kitchenbot.perception.pipeline import Perceiver
+from kitchenbot.perception.rgbd import project_pixels
+from kitchenbot.perception.settings import PerceptionSettings
+from kitchenbot.transforms import inv
+
+
+@dataclass
+class Estimate:
+    scene_id: int
+    im_id: int
+    obj_id: int
+    score: float
+    T_cam_obj: np.ndarray
+    time_s: float
+
+
+@dataclass
+class EvalResult:
+    estimates: list[Estimate]
+    report: dict
+    per_scan: list[dict] = field(default_factory=list)
+
+
+def _visible_in(view, T_base_obj: np.ndarray, pts_obj: np.ndarray) -> bool:
+    """Whether the posed model lands (partly) inside the image in front of the camera."""
+    P = pts_obj[:: max(1, len(pts_obj) // 200)] @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
+    _, _, inside = project_pixels(view, P)
+    return bool(inside.mean() > 0.1)
+
+
+def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, cell: Cell | None = None,
+             use_cell: str = "auto", split: str | None = None, scenes: list[int] | None = None,
+             min_visib: float = 0.1, progress: bool = True, keep_results: bool = False,
+             inventory: Inventory | None = None) -> EvalResult:
+    root = Path(dataset)
+    settings = settings or PerceptionSettings()
+    if inventory is None:
+        md = bop.models_dir(root)
+        inventory = Inventory.load(md, md / "grasps.json" if (md / "grasps.json").is_file() else None)
+    dirs = bop.scene_dirs(root, split)
+    if scenes:
+        dirs = [d for d in dirs if d.name.isdigit() and int(d.name) in scenes]
+        if not dirs:
+            raise ValueError(f"--scenes: none of {scenes} is in {root}")
+    perceivers: dict[bool, Perceiver] = {}
+
+    def perceiver(with_cell: bool) -> Perceiver:
+        if with_cell not in perceivers:
+            c = (cell or Cell()) if with_cell else None
+            db = next(iter(perceivers.values())).database if perceivers else None
+            perceivers[with_cell] = Perceiver(settings, inventory, c, database=db, use_cell=with_cell)
+        return perceivers[with_cell]
+
+    estimates: list[Estimate] = []
+    errors: list[float] = []
+    diam_thr: list[float] = []
+    per_obj: dict[int, list[bool]] = {}
+    false_pos = 0
+    timings: dict[str, list[float]] = {}
+    pose_ms: list[float] = []
+    scan_ms: list[float] = []
+    per_scan = []
+    pts = {m.obj_id: m.points for m in inventory}
+    n_images = 0
+    iterator = dirs
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(dirs), desc="scenes", unit="scene", dynamic_ncols=True)
+    for sd in iterator:
+        images = bop.read_scene(sd)
+        for group in bop.view_groups(images):
+            with_cell = use_cell == "always" or (use_cell == "auto" and group[0].has_world_pose)
+            p = perceiver(with_cell)
+            t0 = time.perf_counter()
+            res = p.perceive([im.view for im in group])
+            dt = time.perf_counter() - t0
+            scan_ms.append(1000 * dt)
+            pose_ms += res.pose_ms
+            for k, v in res.timings_ms.items():
+                timings.setdefault(k, []).append(v)
+            for im, view in zip(group, res.views):
+                n_images += 1
+                est = []
+                for po in res.poses:
+                    if len(group) > 1 and not _visible_in(view, po.T_base_obj, pts[po.obj_id]):
+                        continue
+                    T = inv(view.T_base_cam) @ po.T_base_obj
+                    est.append((po.obj_id, T, po.score))
+                    estimates.append(Estimate(im.scene_id, im.im_id, po.obj_id, po.score, T, dt))
+                gt = [(g.obj_id, g.T_cam_obj) for g in im.gt if g.visib_fract >= min_visib and g.obj_id in pts]
+                matches, unmatched = match_image(gt, est, pts)
+                ok_count = 0
+                for mt in matches:
+                    d = inventory[gt[mt.gt_index][0]].diameter
+                    errors.append(mt.error)
+                    diam_thr.append(0.1 * d)
+                    ok = mt.error < 0.1 * d
+                    ok_count += ok
+                    per_obj.setdefault(gt[mt.gt_index][0], []).append(bool(ok))
+                    if mt.est_index >= 0 and not ok:
+                        false_pos += 1
+                false_pos += len(unmatched)
+                per_scan.append({"scene_id": im.scene_id, "im_id": im.im_id, "gt": len(gt), "estimates": len(est),
+                                 "correct": int(ok_count)})
+        if bar is not None:
+            bar.update(1)
+            if errors:
+                bar.set_postfix(adi=f"{np.mean(np.array(errors) < np.array(diam_thr)):.3f}")
+    if bar is not None:
+        bar.close()
+    e = np.array(errors)
+    report = {
+        "dataset": str(root),
+        "adi_recall_0.1d": float(np.mean(e < np.array(diam_thr))) if len(e) else 0.0,
+        "auc_adds_10cm": auc_adds(e),
+        "per_object": {str(o): {"name": inventory[o].name, "recall": float(np.mean(v)), "n": len(v)}
+                       for o, v in sorted(per_obj.items())},
+        "false_positives": int(false_pos),
+        "objects": int(len(e)),
+        "estimates": len(estimates),
+        "scenes": len(dirs),
+        "images": n_images,
+        "min_visib_fract": min_visib,
+        "timing_median_ms": {k: float(np.median(v)) for k, v in timings.items()},
+        "pose_ms_per_object_median": float(np.median(pose_ms)) if pose_ms else 0.0,
+        "scan_ms_median": float(np.median(scan_ms)) if scan_ms else 0.0,
+        "settings": settings.model_dump(mode="json"),
+    }
+    return EvalResult(estimates, report, per_scan)
+
+
+def write_bop_csv(estimates: list[Estimate], path: str | Path) -> None:
+    """BOP results: scene_id,im_id,obj_id,score,R (row-major, space separated),t (mm),time (s)."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["scene_id", "im_id", "obj_id", "score", "R", "t", "time"])
+        for e in estimates:
+            R = " ".join(f"{x:.6f}" for x in e.T_cam_obj[:3, :3].reshape(-1))
+            t = " ".join(f"{x:.3f}" for x in e.T_cam_obj[:3, 3] * 1000)
+            w.writerow([e.scene_id, e.im_id, e.obj_id, f"{e.score:.4f}", R, t, f"{e.time_s:.4f}"])
+
+
+SWEEPS = {
+    "voxel": ("voxel_size", [0.004, 0.006, 0.008, 0.010, 0.012, 0.015, 0.020]),
+    "topk": ("top_k", [1, 2, 3, 4, 5, 6]),
+    "iou": ("iou_threshold", [0.1, 0.3, 0.5, 0.6, 0.7, 0.8, 0.9]),
+}
+
+
+def sweep(dataset: str | Path, what: str, settings: PerceptionSettings, png: str | Path, **kw) -> list[dict]:
+    """Evaluate for each value of one hyperparameter and plot ADI recall (and time per object) against it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if what not in SWEEPS:
+        raise ValueError(f"--sweep: expected one of {sorted(SWEEPS)}, got {what!r}")
+    field_, values = SWEEPS[what]
+    rows = []
+    for v in values:
+        s = settings.model_copy(update={field_: v})
+        r = evaluate(dataset, s, **kw).report
+        rows.append({"value": v, "adi": r["adi_recall_0.1d"], "auc": r["auc_adds_10cm"],
+                     "pose_ms": r["pose_ms_per_object_median"]})
+    fig, ax = plt.subplots(figsize=(5, 3.6))
+    x = [r["value"] * (1000 if what == "voxel" else 1) for r in rows]
+    ax.plot(x, [r["adi"] for r in rows], "o-", label="ADI recall @0.1d")
+    ax.plot(x, [r["auc"] for r in rows], "s--", label="AUC ADD-S 10 cm")
+    ax.set_xlabel({"voxel": "voxel size (mm)", "topk": "top-K candidates", "iou": "IoU threshold"}[what])
+    ax.set_ylabel("score")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax2 = ax.twinx()
+    ax2.plot(x, [r["pose_ms"] for r in rows], "^:", color="grey", label="ms / object")
+    ax2.set_ylabel("median pose time per object (ms)")
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, loc="lower left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+    return rows

@@ -1,0 +1,150 @@
+"""Each stage alone on synthetic views with a known answer (inventory meshes at known poses, raycast)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kitchenbot.perception.associate import associate
+from kitchenbot.perception.features import ColourEncoder, FPFHEncoder, fuse_instance, l2n
+from kitchenbot.perception.map import align_views, build_map, consolidate
+from kitchenbot.perception.segment_geometric import GeometricSegmenter
+from kitchenbot.perception.types import View
+from kitchenbot.transforms import from_rotvec, pose_error
+
+from kitchenbot.perception.synthetic import render, resting_pose, scan_poses
+
+
+@pytest.fixture(scope="module")
+def scene(inventory, cell):
+    placed = [(4, resting_pose(inventory, 4, 0.45, 0.09, 0.3, cell)),  # cup
+              (2, resting_pose(inventory, 2, 0.56, -0.06, 0.0, cell)),  # side plate
+              (5, resting_pose(inventory, 5, 0.38, -0.11, 1.0, cell))]  # mug
+    views, labels = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    return placed, views, labels
+
+
+def _iou(a, b):
+    return (a & b).sum() / max((a | b).sum(), 1)
+
+
+def _main_masks(dets, lab, n):
+    """For each object k, the detection covering most of it: (precision, recall) of that mask."""
+    out = []
+    for k in range(n):
+        gt = lab == k
+        best = max(dets, key=lambda d: (d.mask & gt).sum())
+        inter = (best.mask & gt).sum()
+        out.append((inter / best.mask.sum(), inter / gt.sum()))
+    return out
+
+
+def test_geometric_segmentation_finds_each_item(scene, cell):
+    placed, views, labels = scene
+    seg = GeometricSegmenter(cell)
+    for v, lab in zip(views, labels):
+        dets = seg.detect(v)
+        assert len(placed) <= len(dets) <= len(placed) + 1  # a mug handle may come out on its own
+        for prec, rec in _main_masks(dets, lab, len(placed)):
+            # Precise; not complete: a thin bottom lying on the sink floor is within the floor's margin.
+            assert prec > 0.97 and rec > 0.7
+        for d in dets:  # no mask straddles two objects or takes in the sink
+            assert np.bincount(lab[d.mask] + 1, minlength=len(placed) + 1).max() > 0.97 * d.mask.sum()
+
+
+def test_segmentation_of_an_empty_sink_and_of_holes(inventory, cell):
+    views, _ = render(inventory, [], scan_poses(cell, 1), cell, noise=0.002)
+    assert GeometricSegmenter(cell).detect(views[0]) == []
+    v = views[0]
+    d = v.depth.copy()
+    d[::7] = np.nan  # NaN rows and zero columns: unknown depth
+    d[:, ::11] = 0
+    assert GeometricSegmenter(cell).detect(View(v.rgb, d, v.K, v.T_base_cam)) == []
+
+
+def test_association_gives_one_id_per_object_across_views(scene, cell):
+    placed, views, labels = scene
+    seg = GeometricSegmenter(cell)
+    dets = [seg.detect(v) for v in views]
+    ids = associate(views, dets, 0.6)
+    truth = {}
+    for ds, iv, lab in zip(dets, ids, labels):
+        for d, i in zip(ds, iv):
+            if d.mask.sum() < 1500:  # fragments (a mug handle seen apart from its body) are merged later, in 3D
+                continue
+            k = int(np.bincount(lab[d.mask & (lab >= 0)]).argmax())
+            truth.setdefault(k, set()).add(int(i))
+    assert len(truth) == len(placed)
+    assert all(len(s) == 1 for s in truth.values())  # one id per object ...
+    assert len({next(iter(s)) for s in truth.values()}) == len(placed)  # ... and different objects differ
+    # A threshold no projection can reach leaves every mask its own instance.
+    ids_strict = associate(views, dets, 0.999)
+    assert len(np.unique(np.concatenate(ids_strict))) == sum(len(d) for d in dets)
+
+
+def test_map_alignment_recovers_perturbed_scan_poses(scene):
+    _, views, _ = scene
+    err = from_rotvec(np.radians([0.3, -0.3, 0.25]), [0.004, -0.003, 0.002])  # ~5 mm, ~0.5 deg
+    bad = [views[0]] + [View(v.rgb, v.depth, v.K, err @ v.T_base_cam) for v in views[1:]]
+    fixed, _ = align_views(bad, 0.01)
+    for v_true, v_fix, v_bad in zip(views[1:], fixed[1:], bad[1:]):
+        rot, tr = pose_error(v_true.T_base_cam, v_fix.T_base_cam)
+        rot0, tr0 = pose_error(v_true.T_base_cam, v_bad.T_base_cam)
+        assert tr < 0.5 * tr0 and tr < 0.003
+        assert rot < np.radians(0.25)
+
+
+def test_instance_map_points_lie_on_their_objects(scene, inventory, cell):
+    placed, views, labels = scene
+    seg = GeometricSegmenter(cell)
+    dets = [seg.detect(v) for v in views]
+    m = consolidate(build_map(views, dets, associate(views, dets, 0.6)))
+    assert len(m.instance_ids) == len(placed)
+    from scipy.spatial import cKDTree
+
+    for i in m.instance_ids:
+        P = m.points[m.ids == i]
+        # Every instance is one object: nearly all its points are within 5 mm of that object's surface.
+        fr = []
+        for oid, T in placed:
+            surf = inventory[oid].points @ T[:3, :3].T + T[:3, 3]
+            fr.append(np.mean(cKDTree(surf).query(P)[0] < 0.006))
+        assert max(fr) > 0.9
+
+
+def test_colour_encoder_separates_hues_and_ignores_shading():
+    enc = ColourEncoder()
+    img = np.zeros((8, 16, 3), np.uint8)
+    img[:, :8] = (200, 40, 40)
+    img[:, 8:] = (100, 20, 20)  # same red, darker
+    red = enc.encode(img, np.ones((8, 16), bool))[0]
+    green = enc.encode(np.full((8, 16, 3), (40, 180, 60), np.uint8), np.ones((8, 16), bool))[0]
+    bright, dark = enc.encode(img[:, :8], np.ones((8, 8), bool))[0], enc.encode(img[:, 8:], np.ones((8, 8), bool))[0]
+    assert bright @ dark > 0.95
+    assert red @ green < 0.2
+    cls, patches = enc.encode(img[:5, :7], np.ones((5, 7), bool))  # odd crop sizes pad to whole patches
+    assert patches.shape == (2, 2, 16) and np.isclose(np.linalg.norm(cls), 1)
+
+
+def test_fused_features_are_two_unit_halves(scene, cell):
+    placed, views, labels = scene
+    seg = GeometricSegmenter(cell)
+    dets = [seg.detect(v) for v in views]
+    m = build_map(views, dets, associate(views, dets, 0.6))
+    i = m.instance_ids[0]
+    sel = m.ids == i
+    masks = []
+    for k, v in enumerate(views):
+        mk = np.zeros(v.depth.shape, bool)
+        px = m.pixel[sel & (m.view == k)]
+        mk[px[:, 0], px[:, 1]] = True
+        masks.append(mk if mk.any() else None)
+    fc = fuse_instance(m.points[sel], m.view[sel], m.pixel[sel], [v.rgb for v in views], masks, m.cam_centres,
+                       0.01, ColourEncoder(), FPFHEncoder())
+    F = fc.fused
+    assert F.shape[1] == 16 + 33
+    assert np.allclose(np.linalg.norm(F[:, :16], axis=1), 1, atol=1e-6)
+    assert np.allclose(np.linalg.norm(F[:, 16:], axis=1), 1, atol=1e-6)
+    # Normals face the cameras.
+    assert np.mean(np.einsum("ij,ij->i", fc.normals, m.cam_centres.mean(0) - fc.points) > 0) > 0.95
+    assert np.allclose(l2n(np.array([[3.0, 4.0]])), [[0.6, 0.8]])
