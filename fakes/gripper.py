@@ -88,7 +88,8 @@ class FakeGripper(Gripper):
                 stop_at = contact[0]
         self._travel(start, stop_at, timeout)
         self._current = IDLE_CURRENT if stop_at == target else 0.9 * self.max_current
-        if stop_at != target:
+        if stop_at != target:  # stalled short of the goal: the driver waits out its timeout
+            self.world.clock.advance(max(0.0, timeout - abs(stop_at - start) / self.speed))
             raise DriverTimeoutError(
                 f"FakeGripper: did not reach {target * 1000:.1f} mm (stuck at {stop_at * 1000:.1f} mm; "
                 "something between the pads)"

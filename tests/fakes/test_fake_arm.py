@@ -264,3 +264,16 @@ def test_polling_loop_progresses_with_poll_dt():
         polls += 1
     assert polls == pytest.approx(250, abs=1) and world.clock.now() == pytest.approx(2.5, abs=0.011)
     assert np.allclose(arm.joint_positions(), target)
+
+
+def test_self_collision_stops_the_elbow_folding_in():
+    world, arm, _ = make_rig()
+    start = HOME.copy()
+    start[3] = -0.8  # wrist 1 tilts the gripper back towards the upper arm
+    arm.move_joints(start, speed=1.0, accel=2.0)
+    folded = start.copy()
+    folded[2] = 3.1  # elbow closes until the fingers meet the upper arm
+    with pytest.raises(ProtectiveStopError, match="finger_pos hits upper_arm"):
+        arm.move_joints(folded, speed=0.5, accel=1.0)
+    q = arm.joint_positions()
+    assert start[2] < q[2] < folded[2] and arm.collision.check_config(q, world.gripper_opening) is None
