@@ -153,6 +153,10 @@ class ArmLog:
     motion_time: float = 0.0  # simulated seconds spent moving
     events: list[ArmEvent] = field(default_factory=list)
 
+    def as_dict(self) -> dict:
+        """The counters (no events), for run reports."""
+        return {k: v for k, v in self.__dict__.items() if k != "events"}
+
 
 @dataclass
 class _Motion:

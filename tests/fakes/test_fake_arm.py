@@ -122,6 +122,7 @@ def test_protective_stop_before_driving_into_the_counter():
     z_tip = arm.tcp_pose()[2, 3] - arm.collision.gripper.tip_z
     assert -0.001 < z_tip < 0.008  # stopped within a sample step before touching the counter top (z = 0)
     assert arm.log.collisions == 1 and arm.log.protective_stops == 1
+    assert arm.log.as_dict()["collisions"] == 1 and "events" not in arm.log.as_dict()
     with pytest.raises(ProtectiveStopError):
         arm.move_linear(above)
     arm.unlock_protective_stop()
