@@ -45,7 +45,7 @@ def crop_sampling_grid(H: int, W: int, side: int, r0: int, c0: int, out: int):
     an out x out grid of cells covering the H x W crop placed at (r0, c0) in the square."""
     import torch
 
-    ys = (np.arange(out) + 0.5) * H / out
+    ys = (np.arange(out) + 0.5) * H / out + r0
     xs = (np.arange(out) + 0.5) * W / out + c0
     gy, gx = np.meshgrid(2 * ys / side - 1, 2 * xs / side - 1, indexing="ij")
     return torch.from_numpy(np.stack([gx, gy], -1)[None].astype(np.float32))
