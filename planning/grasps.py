@@ -24,6 +24,7 @@ from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.types import (
     Grasp,
     NoCollisionFreeGrasp,
+    NoFeasiblePlacement,
     NoGraspableObject,
     NoIK,
     PlanningFailure,
@@ -44,6 +45,7 @@ class GraspStats:
     multi_object: int = 0
     no_ik: int = 0
     in_collision: int = 0
+    no_placement: int = 0  # the placement asked for is unreachable with this grasp
     feasible: int = 0
 
 
@@ -55,6 +57,36 @@ def _tf(T: np.ndarray) -> coal.Transform3s:
 def closing_volume(opening: float, pad_width: float, pad_root: float, pad_tip: float) -> tuple[coal.Box, np.ndarray]:
     """The space the pads sweep while closing, as a box in the TCP frame."""
     return coal.Box(pad_width, max(opening, 1e-3), pad_tip - pad_root), make_T(t=(0.0, 0.0, (pad_root + pad_tip) / 2))
+
+
+TILTS = (np.radians(30.0), np.radians(-30.0), np.radians(50.0), np.radians(-50.0))
+_expanded: dict[int, list] = {}
+
+
+def expand_grasps(model) -> list:
+    """The model's predefined grasps plus, for rotationally symmetric items, each side grasp (approach
+    perpendicular to the symmetry axis) tilted about its closing axis by +-30 and +-50 degrees.
+
+    The closing axis and the TCP point stay, so the pads pinch the same diameter; only the direction the
+    gripper comes from changes (from above at an angle, not level: a 20 cm tool cannot come in level below
+    the counter top). Contacts of the tilted pads with the target are allowed at the grasp anyway."""
+    from kitchenbot.perception.inventory import GraspSpec
+    from kitchenbot.transforms import rot_y
+
+    key = id(model)
+    if key in _expanded:
+        return _expanded[key]
+    out = list(model.grasps)
+    if model.is_rotationally_symmetric:
+        axis = np.asarray(model.symmetries_continuous[0]["axis"], float)
+        axis /= np.linalg.norm(axis)
+        for g in model.grasps:
+            if abs(float(g.T_obj_tcp[:3, 2] @ axis)) > 0.2:
+                continue  # not a side grasp
+            for t in TILTS:
+                out.append(GraspSpec(f"{g.name}_tilt{np.degrees(t):+.0f}", g.T_obj_tcp @ rot_y(t), g.opening, g.width))
+    _expanded[key] = out
+    return out
 
 
 def select_grasps(
@@ -96,20 +128,18 @@ def select_grasps(
             model = inventory[o.obj_id]
         except KeyError:
             continue
-        if not model.grasps:
+        specs = expand_grasps(model)
+        if not specs:
             continue
         any_model = True
         others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
                   if j != k and objects[j].obj_id in inventory.models]
         grasp_scene = scene.for_grasp(names[k])
-        for spec in model.grasps:
+        for spec in specs:
             st.considered += 1
             T = np.asarray(o.T_base_obj, float) @ spec.T_obj_tcp
             if T[2, 2] > settings.max_approach_up:
                 st.from_below += 1
-                continue
-            if grasp_filter is not None and not grasp_filter(o, spec, T):
-                st.no_ik += 1
                 continue
             # multi-object grasp: another object inside the closing volume
             vol, T_tcp_vol = closing_volume(spec.opening, gripper.pad_width, gripper.pad_root, gripper.pad_tip)
@@ -165,6 +195,9 @@ def select_grasps(
             if not scene.valid(ik_pre.q):
                 st.in_collision += 1
                 continue
+            if grasp_filter is not None and not grasp_filter(o, spec, T):
+                st.no_placement += 1
+                continue
             clearance = grasp_scene.min_distance(ik.q, ("palm", "pad_a", "pad_b", "camera"), exclude=(f"obj:{names[k]}",))
             motion = float(np.max(np.abs(ik_pre.q - q_current)))
             down = -T[2, 2]  # 1 = straight down
@@ -177,6 +210,8 @@ def select_grasps(
     details = st.__dict__.copy()
     if not any_model or st.considered == 0:
         return NoGraspableObject("no candidate object with grasps (occluded, unknown model or no grasps)", details)
+    if st.no_placement > 0 and st.in_collision + st.multi_object + st.no_ik == 0:
+        return NoFeasiblePlacement("no collision-free grasp can also reach the requested placement", details)
     if st.in_collision + st.multi_object > 0:
         return NoCollisionFreeGrasp("every reachable grasp collides or takes in another object", details)
     return NoIK("no grasp pose is reachable", details)

@@ -69,6 +69,7 @@ class Planner:
         self.world = CollisionWorld(
             robot, cell, T_flange_cam, margin=s.collision_margin, grasp_margin=s.grasp_margin, voxel_size=s.map_voxel_size
         )
+        self._placeable: dict = {}  # (obj_id, grasp name, targets) -> a release pose exists
         # OMPL's check step must stay below twice the margin (see planning.motion); never above it.
         self.planning_resolution = min(s.planning_resolution, max(2 * s.collision_margin - 0.002, s.validity_resolution))
 
@@ -178,8 +179,17 @@ class Planner:
         if place_target is not None:
             targets = [place_target] if isinstance(place_target, PlaceTarget) else list(place_target)
 
+            tool_scene = self.world.scene().for_release(None)  # gripper vs the cell at the release pose
+
             def flt(obj, spec, T_base_tcp):
-                return any(self._place_tcp_options(t, spec.T_obj_tcp, q, first_only=True) for t in targets)
+                # depends on the grasp in the object frame and the target only: cached across calls
+                key = (obj.obj_id, spec.name, tuple(t.T_base_obj.tobytes() for t in targets))
+                if key not in self._placeable:
+                    tool_scene.set_opening(spec.width)
+                    self._placeable[key] = any(
+                        self._place_tcp_options(t, spec.T_obj_tcp, q, tool_scene, first_only=True) for t in targets
+                    )
+                return self._placeable[key]
 
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
                              target=target, grasp_filter=flt, stats=stats)
@@ -254,23 +264,36 @@ class Planner:
         return PickPlan(g, approach, grasp_in, lift, timings_ms=timings)
 
     # ---- place -----------------------------------------------------------------------------------------------------
-    def _place_tcp_options(self, target: PlaceTarget, T_obj_tcp: np.ndarray, q_ref: np.ndarray, first_only: bool = False):
-        """[(T_base_obj, T_base_tcp, q)] reachable release poses for `target` with this grasp, closest first."""
+    def _place_tcp_options(self, target: PlaceTarget, T_obj_tcp: np.ndarray, q_ref: np.ndarray,
+                           release_scene: Scene | None = None, first_only: bool = False):
+        """[(T_base_obj, T_base_tcp, q)] reachable release poses for `target` with this grasp, closest first.
+
+        Free-yaw targets are turned about the object's own axis in 30 degree steps. When `release_scene` is
+        given, a release pose whose gripper/held object collides is raised in 1 cm steps up to
+        ``settings.max_release_drop`` (the object then drops that far when released, e.g. a cup inverted over
+        a rack whose rails are taller than the gripper can reach past)."""
         T_obj = np.asarray(target.T_base_obj, float)
         turns = np.linspace(0, 2 * np.pi, 12, endpoint=False) if target.free_yaw else [0.0]
+        raises = np.arange(0.0, self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else [0.0]
         out = []
         for a in turns:
-            To = T_obj @ rot_z(a)  # about the object's own (symmetry) axis
-            T = To @ T_obj_tcp
-            if T[2, 2] > self.settings.max_approach_up:
+            To0 = T_obj @ rot_z(a)  # about the object's own (symmetry) axis
+            T0 = To0 @ T_obj_tcp
+            if T0[2, 2] > self.settings.max_approach_up:
                 continue
-            q = self.robot.ik_q(T, q_ref)
-            if q is None:
-                continue
-            out.append((To, T, q))
-            if first_only:
+            q = None
+            for dz in raises:
+                To = trans(0.0, 0.0, float(dz)) @ To0
+                T = To @ T_obj_tcp
+                q = self.robot.ik_q(T, q_ref if q is None else q, max_seeds=6 if q is None else 0, max_iter=40)
+                if q is None:
+                    break
+                if release_scene is None or release_scene.valid(q):
+                    out.append((To, T, q))
+                    break
+            if first_only and out:
                 break
-        out.sort(key=lambda x: float(np.max(np.abs(x[2] - q_ref))))
+        out.sort(key=lambda x: (round(float(x[0][2, 3] - T_obj[2, 3]), 3), float(np.max(np.abs(x[2] - q_ref)))))
         return out
 
     def plan_place(
@@ -300,9 +323,10 @@ class Planner:
         timings: dict = {}
         t_start = time.perf_counter()
         held_scene = self.scene(objects, map_points, exclude=grasp.obj, held=grasp)
+        release_scene = held_scene.for_release(None)
         last: PlanningFailure | None = None
         for tgt in targets:
-            options = self._place_tcp_options(tgt, grasp.T_obj_tcp, q0)
+            options = self._place_tcp_options(tgt, grasp.T_obj_tcp, q0, release_scene)
             if not options:
                 last = NoFeasiblePlacement(f"no reachable release pose for target {tgt.slot or tgt.kind}")
                 continue
@@ -319,7 +343,7 @@ class Planner:
                     if transfer.kind in ("start_in_collision",):
                         return transfer
                     continue
-                r = self._line(held_scene.for_release(None), q_pre, T_tcp, "lower")
+                r = self._line(release_scene, q_pre, T_tcp, "lower")
                 if isinstance(r, PlanningFailure):
                     last = r
                     continue

@@ -24,5 +24,8 @@ class PlanningSettings(BaseModel):
     )
     max_grasp_candidates: int = Field(8, ge=1, le=100, description="ranked grasps tried by plan_pick")
     map_voxel_size: float = Field(0.02, gt=0.002, le=0.1, description="voxels (m) for map points no object explains")
+    max_release_drop: float = Field(
+        0.10, ge=0.0, le=0.2, description="highest release (m) above the resting pose when the gripper cannot go lower"
+    )
     velocity_scale: float = Field(0.5, gt=0.0, le=1.0)
     acceleration_scale: float = Field(0.5, gt=0.0, le=1.0)

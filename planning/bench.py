@@ -1,0 +1,149 @@
+"""`kitchenbot bench planning [--scenes N] [--seed S] [--report FILE.json]`: planning over random sink scenes.
+
+Per scene (``fakes.scenes.generate_scene``, true object poses): from the home configuration, try the objects
+top first (up to ``--objects`` of them) until one gets a pick plan (approach, grasp-in, lift) whose grasp can
+also reach a free dishwasher rack slot, then plan the place into that rack. A scene succeeds when a pick and a
+place plan were found and every segment of both is collision-free when re-checked densely by the independent
+python-fcl checker (planning/fcl_check.py). Prints a table; the JSON report holds ``success_rate``,
+``ik_ms_median``, ``grasp_selection_ms_median``, ``plan_ms_median`` (RRT-Connect + simplification + dense
+re-check per joint motion), failures by type and per-scene rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("planning", help="pick-and-place planning over random sink scenes")
+    p.add_argument("--scenes", type=int, default=20, help="number of random scenes (default 20)")
+    p.add_argument("--seed", type=int, default=0, help="first scene seed")
+    p.add_argument("--objects", type=int, default=4, help="objects tried per scene before giving up")
+    p.add_argument("--check-step", type=float, default=0.003, help="independent re-check step, metres")
+    p.add_argument("--config", default=None, help="cell config YAML (default: the simulation config)")
+    p.add_argument("--report", default=None, help="write the JSON report here")
+    p.set_defaults(func=run)
+
+
+def _median(xs) -> float | None:
+    return float(np.median(xs)) if len(xs) else None
+
+
+def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, check_step: float = 0.003,
+              progress=None) -> dict:
+    from kitchenbot.fakes.scenes import generate_scene  # the simulator's scene generator (bench only)
+    from kitchenbot.perception.inventory import Inventory
+    from kitchenbot.perception.types import ObjectPose
+    from kitchenbot.planning.fcl_check import FclChecker, verify_pick, verify_place
+    from kitchenbot.planning.pick_place import Planner
+    from kitchenbot.planning.placement import SlotBook
+
+    if cfg is None:
+        from kitchenbot.executive.config import load_config
+
+        cfg = load_config(None)
+    inventory = Inventory.builtin()
+    planner = Planner.from_config(cfg, inventory)
+    checker = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
+    home = np.asarray(cfg.robot.home, float)
+    ik_ms, sel_ms, plan_ms, pick_ms, place_ms = [], [], [], [], []
+    failures: Counter = Counter()
+    rows = []
+    ok_scenes = 0
+    fcl_violations = 0
+    segments_checked = 0
+    for s in range(seed, seed + n_scenes):
+        world = generate_scene(s, inventory, cfg.cell)
+        objs = [ObjectPose(o.model.obj_id, o.model.cls, o.T_base_obj, 1.0, instance_id=uid) for uid, o in world.objects.items()]
+        # IK timing on this scene's grasp poses (reachable or not, as the selector meets them)
+        for o in objs:
+            for g in inventory[o.obj_id].grasps[::3]:
+                t0 = time.perf_counter()
+                planner.robot.ik(o.T_base_obj @ g.T_obj_tcp, home)
+                ik_ms.append((time.perf_counter() - t0) * 1e3)
+        book = SlotBook(planner.cell)
+        row = {"seed": s, "objects": len(objs), "status": "failed", "object": None, "reason": None}
+        order = sorted(objs, key=lambda o: -float(o.T_base_obj[2, 3]))[:objects_per_scene]
+        for o in order:
+            targets = book.targets_for(inventory[o.obj_id])[:4]
+            t0 = time.perf_counter()
+            pick = planner.plan_pick(home, objs, target=o, place_target=targets)
+            dt = (time.perf_counter() - t0) * 1e3
+            if not pick.ok:
+                failures[f"pick:{pick.kind}"] += 1
+                row["reason"] = f"pick {pick.kind}"
+                continue
+            pick_ms.append(dt)
+            sel_ms.append(pick.timings_ms.get("grasp_selection_ms", np.nan))
+            plan_ms += [v for k, v in pick.timings_ms.items() if k.endswith("_plan_ms")]
+            t0 = time.perf_counter()
+            place = planner.plan_place(pick.end, pick.grasp, targets, objects=objs)
+            dt = (time.perf_counter() - t0) * 1e3
+            if not place.ok:
+                failures[f"place:{place.kind}"] += 1
+                row["reason"] = f"place {place.kind}"
+                continue
+            place_ms.append(dt)
+            plan_ms += [v for k, v in place.timings_ms.items() if k.endswith("_plan_ms")]
+            checks = verify_pick(checker, planner, pick, objs, step=check_step) + \
+                verify_place(checker, planner, place, pick.grasp, objs, step=check_step)
+            segments_checked += len(checks)
+            bad = [(n, str(r)) for n, r in checks if not r.ok]
+            if bad:
+                fcl_violations += len(bad)
+                failures["fcl_recheck"] += 1
+                row["reason"] = f"fcl {bad}"
+                continue
+            row.update(status="succeeded", object=o.cls, grasp=pick.grasp.spec.name, slot=place.target.slot,
+                       pick_ms=round(pick_ms[-1], 1), place_ms=round(dt, 1), reason=None)
+            ok_scenes += 1
+            break
+        rows.append(row)
+        if progress:
+            progress(row)
+    return {
+        "benchmark": "planning",
+        "scenes": n_scenes,
+        "seed": seed,
+        "robot": cfg.robot.model,
+        "success_rate": ok_scenes / max(n_scenes, 1),
+        "ik_ms_median": _median(ik_ms),
+        "grasp_selection_ms_median": _median([x for x in sel_ms if np.isfinite(x)]),
+        "plan_ms_median": _median(plan_ms),
+        "plan_ms_p90": float(np.percentile(plan_ms, 90)) if plan_ms else None,
+        "pick_ms_median": _median(pick_ms),
+        "place_ms_median": _median(place_ms),
+        "segments_rechecked": segments_checked,
+        "fcl_violations": fcl_violations,
+        "failures": dict(failures),
+        "per_scene": rows,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from kitchenbot.executive.config import load_config
+
+    cfg = load_config(args.config)
+
+    def progress(row):
+        print(f"  scene {row['seed']:4d}: {row['status']:9s} {row.get('object') or '':6s} "
+              f"{row.get('grasp') or '':18s} {row.get('slot') or '':10s} {row.get('reason') or ''}", flush=True)
+
+    rep = run_bench(args.scenes, args.seed, cfg, args.objects, args.check_step, progress)
+    print()
+    fmt = lambda v, u="": "-" if v is None else (f"{v:.3f}{u}" if isinstance(v, float) else f"{v}{u}")  # noqa: E731
+    for key, unit in (("success_rate", ""), ("ik_ms_median", " ms"), ("grasp_selection_ms_median", " ms"),
+                      ("plan_ms_median", " ms"), ("plan_ms_p90", " ms"), ("pick_ms_median", " ms"),
+                      ("place_ms_median", " ms"), ("segments_rechecked", ""), ("fcl_violations", "")):
+        print(f"{key:28s} {fmt(rep[key], unit)}")
+    print(f"{'failures':28s} {rep['failures']}")
+    if args.report:
+        Path(args.report).write_text(json.dumps(rep, indent=2))
+        print(f"report: {args.report}")
+    return 0
