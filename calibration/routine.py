@@ -20,7 +20,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from kitchenbot.calibration.board import BoardDetectionError, BoardDetector, CharucoSpec
@@ -30,16 +29,16 @@ from kitchenbot.drivers.arm import Arm
 from kitchenbot.drivers.camera import Camera, Frame
 from kitchenbot.drivers.errors import LimitViolation
 from kitchenbot.drivers.safety import SafetyLimits
-from kitchenbot.drivers.ur_kinematics import URModel, fk_flange, link_segments
+from kitchenbot.drivers.ur_kinematics import URModel, fk_flange, fk_frames, link_segments
 from kitchenbot.transforms import inv, make_T, transform_points
 
 
 @dataclass
 class RoutineSettings:
     samples: int = 15
-    distance_m: tuple[float, float] = (0.30, 0.48)  # camera to board centre
-    tilt_deg: tuple[float, float] = (10.0, 35.0)  # optical axis vs. the board's normal
-    roll_deg: float = 70.0  # +- rotation about the optical axis
+    distance_m: tuple[float, float] = (0.33, 0.50)  # camera to board centre
+    tilt_deg: tuple[float, float] = (15.0, 45.0)  # optical axis vs. the board's normal
+    roll_deg: float = 90.0  # +- rotation about the optical axis
     image_margin_px: float = 20.0
     candidates: int = 150
     max_joint_offset: float = 1.6  # rad from the start pose per joint: stay in the start's IK branch
@@ -64,26 +63,38 @@ def look_at(eye: np.ndarray, target: np.ndarray, roll: float = 0.0) -> np.ndarra
 
 
 def ik_flange(model: URModel, T_base_flange: np.ndarray, q_seed: np.ndarray, lower: np.ndarray,
-              upper: np.ndarray, tol_m: float = 1e-5, tol_rad: float = 1e-4) -> np.ndarray | None:
+              upper: np.ndarray, tol_m: float = 1e-5, tol_rad: float = 1e-4, iters: int = 60) -> np.ndarray | None:
     """Joints reaching `T_base_flange` near `q_seed` within [lower, upper], or None.
 
-    A local solve (scipy's trust-region least squares on the DH forward kinematics) is all the routine needs:
-    viewpoints are near the start pose and must stay in its IK branch.
+    Damped least squares on the geometric Jacobian of the DH chain, clipped to the bounds each step. A local
+    solver is all the routine needs (viewpoints stay in the start pose's IK branch) and it keeps calibration
+    depending on the drivers' kinematics only, like the arrows in DESIGN.md.
     """
     R_t, p_t = T_base_flange[:3, :3], T_base_flange[:3, 3]
-
-    def err(q: np.ndarray) -> np.ndarray:
-        T = fk_flange(model, q)
-        return np.concatenate([T[:3, 3] - p_t, 0.2 * Rotation.from_matrix(R_t.T @ T[:3, :3]).as_rotvec()])
-
-    x0 = np.clip(q_seed, lower + 1e-6, upper - 1e-6)
-    sol = least_squares(err, x0, bounds=(lower, upper), xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
-    T = fk_flange(model, sol.x)
-    if np.linalg.norm(T[:3, 3] - p_t) > tol_m:
-        return None
-    if np.linalg.norm(Rotation.from_matrix(R_t.T @ T[:3, :3]).as_rotvec()) > tol_rad:
-        return None
-    return sol.x
+    q = np.clip(np.asarray(q_seed, float), lower, upper)
+    lam2 = 1e-4
+    checkpoint = np.inf
+    for it in range(iters):
+        F = fk_frames(model, q)
+        T = F[-1]
+        ep = p_t - T[:3, 3]
+        er = Rotation.from_matrix(R_t @ T[:3, :3].T).as_rotvec()
+        if np.linalg.norm(ep) < tol_m and np.linalg.norm(er) < tol_rad:
+            return q
+        if it % 10 == 0:  # every 10 steps the error must at least halve, else the target is out of reach
+            err = float(np.linalg.norm(ep) + 0.2 * np.linalg.norm(er))
+            if it >= 20 and err > 0.5 * checkpoint:
+                return None
+            checkpoint = err
+        z = np.array([f[:3, 2] for f in F[:6]])
+        o = np.array([f[:3, 3] for f in F[:6]])
+        J = np.vstack([np.cross(z, T[:3, 3] - o).T, z.T])
+        dq = J.T @ np.linalg.solve(J @ J.T + lam2 * np.eye(6), np.concatenate([ep, er]))
+        n = np.abs(dq).max()
+        if n > 0.5:  # trust region: large steps jump between IK branches
+            dq *= 0.5 / n
+        q = np.clip(q + dq, lower, upper)
+    return None
 
 
 def clears_cell(model: URModel, q: np.ndarray, boxes: Sequence, clearance: float,
@@ -110,11 +121,30 @@ def clears_cell(model: URModel, q: np.ndarray, boxes: Sequence, clearance: float
     return True
 
 
+def tool_spheres(T_flange_tcp: np.ndarray, T_flange_cam: np.ndarray, radius: float = 0.075,
+                 camera_radius: float = 0.045) -> list[tuple[np.ndarray, float]]:
+    """Conservative spheres (point in flange, radius) along the tool from the flange to 1 cm past the TCP, and
+    one around the camera, for :func:`clears_cell`."""
+    tip = T_flange_tcp[:3, 3] * (1.0 + 0.01 / max(np.linalg.norm(T_flange_tcp[:3, 3]), 1e-9))
+    n = max(2, int(np.linalg.norm(tip) / (radius / 2)) + 1)
+    out = [(s * tip, radius) for s in np.linspace(0.0, 1.0, n)]
+    out.append((np.asarray(T_flange_cam, float)[:3, 3], camera_radius))
+    return out
+
+
 def path_clears_cell(model: URModel, q0: np.ndarray, q1: np.ndarray, boxes: Sequence, clearance: float,
-                     extra: Sequence[tuple[np.ndarray, float]] = (), step: float = 0.05) -> bool:
-    """Clearance along the straight joint-space path (what move_joints executes), every `step` rad."""
+                     extra: Sequence[tuple[np.ndarray, float]] = (), step: float = 0.05,
+                     limits: SafetyLimits | None = None) -> bool:
+    """Clearance (and, given `limits`, the TCP workspace) along the straight joint-space path that
+    move_joints executes, every `step` rad."""
     n = max(2, int(np.max(np.abs(q1 - q0)) / step) + 1)
-    return all(clears_cell(model, q0 + s * (q1 - q0), boxes, clearance, extra) for s in np.linspace(0, 1, n))
+    for s in np.linspace(0, 1, n):
+        q = q0 + s * (q1 - q0)
+        if limits is not None and not limits.workspace.contains((fk_flange(model, q) @ limits.T_flange_tcp)[:3, 3]):
+            return False
+        if not clears_cell(model, q, boxes, clearance, extra):
+            return False
+    return True
 
 
 def board_in_view(T_cam_board: np.ndarray, spec: CharucoSpec, K: np.ndarray, size: tuple[int, int],
@@ -212,7 +242,7 @@ def plan_viewpoints(
         dist = [np.max(np.abs(q - cur)) for q, _ in left]
         for k in np.argsort(dist):
             q, T = left[k]
-            if not boxes or path_clears_cell(model, cur, q, boxes, settings.clearance_m, extra):
+            if path_clears_cell(model, cur, q, boxes, settings.clearance_m, extra, limits=limits):
                 order.append(Viewpoint(q, T))
                 cur = q
                 left.pop(int(k))
@@ -304,7 +334,8 @@ def run_routine(
             progress(rec)
     # Back to the start: straight if that path is clear, else retracing the visited viewpoints.
     back = [q_start]
-    if views and boxes and not path_clears_cell(arm.model, views[-1].q, q_start, boxes, settings.clearance_m, extra):
+    if views and not path_clears_cell(arm.model, views[-1].q, q_start, boxes, settings.clearance_m, extra,
+                                      limits=arm.limits):
         back = [v.q for v in reversed(views[:-1])] + [q_start]
     for q in back:
         arm.move_joints(q, speed=settings.speed, accel=settings.accel)

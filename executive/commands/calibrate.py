@@ -108,7 +108,7 @@ def _board(args: argparse.Namespace) -> int:
 # ---- the capture routine ---------------------------------------------------------------------------------------
 def _run_routine(args: argparse.Namespace) -> int:
     from kitchenbot.calibration.files import save_hand_eye, save_samples
-    from kitchenbot.calibration.routine import RoutineSettings, run_routine
+    from kitchenbot.calibration.routine import RoutineSettings, run_routine, tool_spheres
     from kitchenbot.executive.config import load_config
     from kitchenbot.perception.cell import Cell
     from kitchenbot.transforms import pose_error
@@ -117,7 +117,7 @@ def _run_routine(args: argparse.Namespace) -> int:
         raise ValueError(f"--samples: expected at least 3 viewpoints, got {args.samples}")
     cfg = load_config(args.config)
     spec = board_spec(args)
-    nominal = cfg.calibration.T_flange_cam.matrix()  # the mechanical mount steers the viewpoints
+    nominal = cfg.T_flange_cam()  # the configured mount only steers the viewpoints
     if args.sim:
         from kitchenbot.executive.calibration_sim import make_calibration_sim
 
@@ -136,7 +136,7 @@ def _run_routine(args: argparse.Namespace) -> int:
 
     try:
         report = run_routine(arm, camera, spec, nominal, settings, seed=args.seed, boxes=Cell(cfg.cell).boxes,
-                             progress=progress)
+                             extra=tool_spheres(cfg.robot.tool.T_flange_tcp.matrix(), nominal), progress=progress)
     finally:
         camera.disconnect()
         arm.disconnect()
@@ -163,16 +163,13 @@ def _run_routine(args: argparse.Namespace) -> int:
 
 
 def _real_devices(cfg):
-    """The configured arm and camera, connected. Uses the executive's cell assembly."""
-    try:
-        from kitchenbot.executive.cell import make_arm, make_camera
-    except ImportError:
-        raise ValueError("calibrate without --sim needs the executive's device assembly "
-                         "(kitchenbot.executive.cell.make_arm/make_camera), which is not available") from None
-    arm, camera = make_arm(cfg), make_camera(cfg)
-    arm.connect()
-    camera.connect()
-    return arm, camera
+    """The configured arm and camera (the executive's cell assembly), connected."""
+    from kitchenbot.executive.assembly import assemble
+
+    cell = assemble(cfg)
+    cell.arm.connect()
+    cell.camera.connect()
+    return cell.arm, cell.camera
 
 
 def _print_result(result) -> None:
