@@ -18,6 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenes", type=int, nargs="+", help="only these scene ids")
     p.add_argument("--sweep", choices=["voxel", "topk", "iou"], help="evaluate over a hyperparameter; plot ADI")
     p.add_argument("--sweep-plot", type=Path, help="PNG for --sweep (default: sweep_<what>.png)")
+    from kitchenbot.perception.sweep import add_arguments as add_model_sweep_arguments  # issue 4
+
+    add_model_sweep_arguments(p)  # --sweep-models, --sweep-table, --point-encoders
     p.add_argument("--overlays", type=Path, help="write PNG overlays of model contours at the estimated poses")
     p.add_argument("--overlay-scenes", type=int, nargs="+", help="scenes to draw (default: the first three)")
     p.add_argument("--cell", choices=["auto", "always", "never"], default="auto",
@@ -37,6 +40,10 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     kw = dict(cell=Cell(cfg.cell), use_cell=args.cell, split=args.split, scenes=args.scenes,
               min_visib=args.min_visib, progress=not args.no_progress)
+    if getattr(args, "sweep_models", False):  # every backend combination with weights (perception/sweep.py)
+        from kitchenbot.perception.sweep import run_cli
+
+        return run_cli(args, cfg.perception, kw)
     if args.sweep:
         png = args.sweep_plot or Path(f"sweep_{args.sweep}.png")
         rows = sweep(args.dataset, args.sweep, cfg.perception, png, **kw)
