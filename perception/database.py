@@ -146,7 +146,7 @@ def build_entry(model: ObjectModel, voxel: float, img_enc: ImageEncoder | None, 
     else:
         Fi, cls_all = np.zeros((len(P), 0)), np.zeros(0)
     ref = FusedCloud(P, N, Fi, Fp, cls_all, l2n(Fp.mean(axis=0)))
-    return ModelEntry(model.obj_id, ref, np.array(view_cls).reshape(-1, dim_i), np.array(view_geo),
+    return ModelEntry(model.obj_id, ref, np.array(view_cls).reshape(len(view_cls), dim_i), np.array(view_geo),
                       dense.astype(np.float32), dense_n.astype(np.float32))
 
 
