@@ -85,6 +85,20 @@ class Trapezoid:
         r = T - t
         return self.distance - 0.5 * a * r * r
 
+    def t_of_s(self, d: float) -> float:
+        """Time at which distance `d` is covered (inverse of s)."""
+        T, ta, a = self.duration, self.t_acc, self.a
+        if d <= 0 or T == 0:
+            return 0.0
+        if d >= self.distance:
+            return T
+        d_acc = 0.5 * a * ta * ta
+        if d < d_acc:
+            return math.sqrt(2 * d / a)
+        if d <= self.distance - d_acc:
+            return ta + (d - d_acc) / (a * ta)
+        return T - math.sqrt(2 * (self.distance - d) / a)
+
 
 # ---- kinematics (the simulator's own; it must not depend on planning/) -----------------------------------
 def _tcp_and_jacobian(model: URModel, q: np.ndarray, T_flange_tcp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -371,7 +385,7 @@ class FakeArm(Arm):
         qs = [q0]
         bad: str | None = None
         lo, hi = self.limits.joint_lower, self.limits.joint_upper
-        dt_cruise = (L / (n - 1)) / speed  # time per IK step at full speed
+        t_grid = np.array([prof.t_of_s(si * L) for si in s_grid])  # when the TCP passes each IK point
         for i in range(1, n):
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R_grid[i], p0 + (p1 - p0) * s_grid[i]
@@ -380,7 +394,7 @@ class FakeArm(Arm):
                 bad = f"no joint solution along the line at {s_grid[i] * 100:.0f} % (singularity or out of reach)"
             elif np.any(qi < lo - 1e-9) or np.any(qi > hi + 1e-9):
                 bad = f"joint limit along the line at {s_grid[i] * 100:.0f} %"
-            elif np.any(np.abs(qi - qs[-1]) / dt_cruise > self.limits.max_joint_speed * 1.05):
+            elif np.any(np.abs(qi - qs[-1]) > self.limits.max_joint_speed * 1.05 * (t_grid[i] - t_grid[i - 1]) + 1e-4):
                 bad = f"joint speed limit along the line at {s_grid[i] * 100:.0f} % (near a singularity)"
             if bad:
                 break
@@ -396,7 +410,7 @@ class FakeArm(Arm):
 
         stop_u = None
         if bad is not None:  # the path is only defined up to s_ok: find the time it gets there
-            stop_u = _time_at_fraction(prof, s_ok * L)
+            stop_u = prof.t_of_s(s_ok * L)
         self._start("move_linear", prof.duration, q_of_u, (stop_u, bad) if bad else None, asynchronous)
 
     def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool) -> None:
@@ -521,14 +535,3 @@ class FakeArm(Arm):
     def _event(self, kind: str, detail: str = "", t: float | None = None) -> None:
         self.log.events.append(ArmEvent(self.world.clock.now() if t is None else t, kind, detail))
 
-
-def _time_at_fraction(prof: Trapezoid, dist: float) -> float:
-    """Inverse of Trapezoid.s by bisection (monotone)."""
-    lo, hi = 0.0, prof.duration
-    for _ in range(60):
-        mid = (lo + hi) / 2
-        if prof.s(mid) < dist:
-            lo = mid
-        else:
-            hi = mid
-    return hi

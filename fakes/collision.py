@@ -13,8 +13,10 @@ protective stop just before the contact, like a real UR detecting the impact. Ge
 Allowed contacts (so that grasping and lifting are possible; documented choice, no explicit allow-list):
 - the fingers may touch an object while the TCP is within ``grasp_contact_radius`` (3 cm) of that object's
   surface: the pads close around what they are about to grasp, or open away from what they just released;
-- the fingers and the held object may stay in the contacts they already had at the start of a motion for the
-  first ``start_contact_travel`` (3 cm) of their travel (lifting an object off the one it rests on);
+- the fingers and the held object may stay in the contacts they already had at the start of a motion while
+  the contact lasts without a break, for at most ``start_contact_travel`` (10 cm) of their travel: lifting an
+  object off, or out of, the one it rests on or is nested in (resting meshes touch or overlap slightly); once
+  a pair separates, touching again is a collision;
 - self-collision is checked between non-adjacent links only; the gripper and camera (rigid with the flange)
   are checked against the links up to wrist 1 (wrist 2 and 3 carry them).
 
@@ -115,7 +117,7 @@ class SimCollision:
     """Collision queries on a SimWorld for arm configurations and paths."""
 
     def __init__(self, world, model: URModel | None = None, gripper: GripperGeometry | None = None,
-                 grasp_contact_radius: float = 0.03, start_contact_travel: float = 0.03,
+                 grasp_contact_radius: float = 0.03, start_contact_travel: float = 0.10,
                  camera_size: tuple[float, float, float] | None = (0.091, 0.028, 0.025)):
         """`camera_size`: the wrist camera's housing (x along the stereo baseline, z along the view), placed
         at ``world.T_flange_cam`` behind the optical centre; None leaves the camera out."""
@@ -197,7 +199,7 @@ class SimCollision:
         """First disallowed contact along consecutive configurations `qs` (N, 6), or None.
 
         The world's held object (if any) follows the TCP. Contacts at qs[0] of the fingers/held object are
-        allowed for their first `start_contact_travel` metres (see the module docstring).
+        allowed while they last, up to `start_contact_travel` metres (see the module docstring).
         """
         w = self.world
         held = w.held_uid
@@ -239,12 +241,14 @@ class SimCollision:
 
             if k == 0:
                 start_pos = {p[0]: (p[2] + p[3]) / 2 for p in parts}
-            hit = self._first_hit(parts, env, env_box, T_tcp, k, start_contacts, start_pos)
+            seen: set[tuple[str, str]] = set()
+            hit = self._first_hit(parts, env, env_box, T_tcp, k, (start_contacts, start_pos, seen))
             if hit is not None:
                 return hit
+            start_contacts &= seen  # a start contact that broke is no longer allowed
         return None
 
-    def _first_hit(self, parts, env, env_box, T_tcp, k, start_contacts, start_pos) -> Contact | None:
+    def _first_hit(self, parts, env, env_box, T_tcp, k, start) -> Contact | None:
         by_name = {p[0]: i for i, p in enumerate(parts)}
         plo = np.array([p[2] for p in parts])
         phi = np.array([p[3] for p in parts])
@@ -262,7 +266,7 @@ class SimCollision:
             e = env[j]
             if not fcl.collide(co, e.obj, self._req, fcl.CollisionResult()):
                 continue
-            if self._allowed(name, e, T_tcp, k, start_contacts, start_pos, parts[i]):
+            if self._allowed(name, e, T_tcp, k, start, parts[i]):
                 continue
             return Contact(k, name, e.name)
         return None
@@ -282,14 +286,18 @@ class SimCollision:
     def _env_aabb(env: list[_Env]) -> tuple[np.ndarray, np.ndarray]:
         return np.array([e.lo for e in env]), np.array([e.hi for e in env])
 
-    def _allowed(self, part, e: _Env, T_tcp, k, start_contacts, start_pos, this) -> bool:
+    def _allowed(self, part, e: _Env, T_tcp, k, start, this) -> bool:
+        start_contacts, start_pos, seen = start
         if part in ("finger_pos", "finger_neg", "held"):
+            pair = (part, e.name)
             if k == 0:
-                start_contacts.add((part, e.name))
+                start_contacts.add(pair)
+                seen.add(pair)
                 return True
-            if (part, e.name) in start_contacts:
+            if pair in start_contacts:
                 c = (this[2] + this[3]) / 2
                 if np.linalg.norm(c - start_pos[part]) <= self.start_contact_travel:
+                    seen.add(pair)
                     return True
         if part in ("finger_pos", "finger_neg") and e.uid is not None:
             probe = fcl.CollisionObject(fcl.Sphere(1e-4), fcl.Transform(np.eye(3), T_tcp[:3, 3]))

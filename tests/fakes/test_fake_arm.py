@@ -278,3 +278,9 @@ def test_self_collision_stops_the_elbow_folding_in():
         arm.move_joints(folded, speed=0.5, accel=1.0)
     q = arm.joint_positions()
     assert start[2] < q[2] < folded[2] and arm.collision.check_config(q, world.gripper_opening) is None
+
+
+@pytest.mark.parametrize("d", [0.0, 0.05, 0.125, 0.5, 0.9, 1.0])
+def test_trapezoid_inverse(d):
+    p = Trapezoid(1.0, 0.5, 1.0)
+    assert p.s(p.t_of_s(d)) == pytest.approx(d, abs=1e-12)
