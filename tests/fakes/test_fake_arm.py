@@ -284,3 +284,17 @@ def test_self_collision_stops_the_elbow_folding_in():
 def test_trapezoid_inverse(d):
     p = Trapezoid(1.0, 0.5, 1.0)
     assert p.s(p.t_of_s(d)) == pytest.approx(d, abs=1e-12)
+
+
+def test_broken_start_contact_does_not_stay_allowed():
+    from kitchenbot.fakes.arm import ik_dls
+
+    world, arm, uid = make_rig(with_cup=True)
+    gripper, T_grasp = _grasp_cup(world, arm, uid)
+    q0 = arm.joint_positions()
+    q_up = ik_dls(arm.model, trans(0, 0, 0.03) @ T_grasp, q0, arm.limits.T_flange_tcp)
+    q_in = ik_dls(arm.model, trans(0, 0, -0.01) @ T_grasp, q0, arm.limits.T_flange_tcp)
+    # lift off the counter (start contact, allowed), then push the cup 1 cm into it (a new contact)
+    with pytest.raises(ProtectiveStopError, match="held hits counter"):
+        arm.execute_trajectory(np.array([0.0, 1.0, 2.0]), np.stack([q0, q_up, q_in]))
+    assert arm.tcp_pose()[2, 3] > T_grasp[2, 3] - 1e-3
