@@ -312,7 +312,9 @@ class FakeArm(Arm):
             if timeout is not None and remaining > timeout + 1e-12:
                 self.world.clock.advance(max(timeout, 0.0))
                 self._sync()
-                raise DriverTimeoutError(f"FakeArm: motion still running after {timeout} s ({remaining - timeout:.3f} s left)")
+                raise DriverTimeoutError(
+                    f"FakeArm: motion still running after {timeout} s ({remaining - timeout:.3f} s left)"
+                )
             self.world.clock.advance(max(remaining, 0.0))
             self._sync()
         self._raise_pending()
@@ -456,7 +458,8 @@ class FakeArm(Arm):
         if f.arm_disconnect_after is not None:
             after, f.arm_disconnect_after = float(f.arm_disconnect_after), None
             if after < end_u:
-                end_u, outcome, detail, collided = after, "disconnected", f"link dropped {after:.3f} s into the motion", False
+                end_u, outcome, collided = after, "disconnected", False
+                detail = f"link dropped {after:.3f} s into the motion"
         m = _Motion(kind, self.world.clock.now(), duration, q_of_u, end_u, outcome, detail)
         if self.world.held_uid is not None and f.slip_probability > 0 and self.world.rng.random() < f.slip_probability:
             m.slip_u = float(self.world.rng.uniform(0.2, 0.8)) * end_u
@@ -464,7 +467,8 @@ class FakeArm(Arm):
         self.log.motions += 1
         if collided:
             self.log.collisions += 1
-        self._event("motion", f"{kind}: {duration:.3f} s" + (f"; will stop at {end_u:.3f} s ({detail})" if outcome != "done" else ""))
+        plan = f"; will stop at {end_u:.3f} s ({detail})" if outcome != "done" else ""
+        self._event("motion", f"{kind}: {duration:.3f} s{plan}")
         if not asynchronous:
             self.wait()
 

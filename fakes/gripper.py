@@ -7,8 +7,9 @@
   length ending at the finger tips, see fakes/collision.GripperGeometry) are probed with rays along the
   closing axis from each pad inwards, as perception.inventory.pad_span does; each pad stops at the first
   surface it meets. Fin-Ray pads conform, so the span is taken on lines near the pad centre (+-5 mm), and over
-  the whole pad face only if nothing crosses the centre. Stalled on an object: holding, opening = the object's span, current near the limit, the
-  object is attached to the TCP (``world.attach``). Nothing in between: closed (~0), not holding, small current.
+  the whole pad face only if nothing crosses the centre. Stalled on an object: holding, opening = the
+  object's span, current near the limit, the object is attached to the TCP (``world.attach``). Nothing in
+  between: closed (~0), not holding, small current.
 - Faults (``world.faults``): ``gripper_overload`` makes the next grasp end in an overload shutdown (status
   error "overload", HardwareError on every command until ``reboot()``; reboot drops any held object); slip is
   drawn by FakeArm during motions while holding (it calls ``world.release()`` and closes the fingers).
@@ -156,7 +157,9 @@ class FakeGripper(Gripper):
             frac = timeout / dt
             self.world.clock.advance(timeout)
             self.world.gripper_opening = start + (end - start) * frac
-            raise DriverTimeoutError(f"FakeGripper: motion {start:.3f} -> {end:.3f} m did not finish within {timeout} s")
+            raise DriverTimeoutError(
+                f"FakeGripper: motion {start:.3f} -> {end:.3f} m did not finish within {timeout} s"
+            )
         self.world.clock.advance(dt)
         self.world.gripper_opening = float(end)
 
