@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import os
+import select
 import termios
 import time
 from dataclasses import dataclass
@@ -83,13 +84,23 @@ def _signed(value: int, size: int) -> int:
     return value - (1 << bits) if value & (1 << (bits - 1)) else value
 
 
-class _PortHandler(PortHandler):
-    """The SDK's PortHandler with a floor on the status-packet timeout. The SDK waits 2 x 16 ms (the FTDI
-    latency timer) + transfer time; a loaded host or a slow USB hub can need more before declaring a timeout."""
+class DxlPortHandler(PortHandler):
+    """The SDK's PortHandler with two changes:
+    - a floor on the status-packet timeout: the SDK waits 2 x 16 ms (the FTDI latency timer) + transfer time;
+      a loaded host or a slow USB hub can need more before declaring a timeout;
+    - no busy wait: the SDK polls a non-blocking read in a tight loop while it waits for a status packet,
+      burning a core; here an empty read blocks in select() until a byte arrives (at most 1 ms), which wakes
+      as soon as data is there, so latency is unchanged."""
 
     def __init__(self, port_name: str, min_timeout_ms: float = 0.0):
         super().__init__(port_name)
         self.min_timeout_ms = min_timeout_ms
+
+    def readPort(self, length):  # noqa: N802 - SDK method name
+        data = self.ser.read(length)
+        if not data:
+            select.select([self.ser.fileno()], [], [], 0.001)
+        return data
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 - SDK method name
         super().setPacketTimeout(packet_length)
@@ -211,7 +222,7 @@ class DynamixelGripper(Gripper):
                 f"Dynamixel gripper: serial port {self.port_name} does not exist. Is the U2D2/USB adapter plugged "
                 f"in and powered? Check `ls /dev/ttyUSB* /dev/serial/by-id/` and drivers.gripper.port in the config."
             )
-        port = _PortHandler(self.port_name, self.min_packet_timeout_ms)
+        port = DxlPortHandler(self.port_name, self.min_packet_timeout_ms)
         try:
             port.openPort()
         except (SerialException, OSError) as e:

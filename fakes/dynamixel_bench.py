@@ -29,28 +29,36 @@ def _stats(samples: list[float]) -> dict:
 def bench_dynamixel(args: argparse.Namespace) -> int:
     from dynamixel_sdk import PacketHandler, PortHandler
 
-    from kitchenbot.drivers.dynamixel_gripper import DynamixelGripper
+    from kitchenbot.drivers.dynamixel_gripper import DxlPortHandler, DynamixelGripper
     from kitchenbot.fakes.dynamixel_emulator import DynamixelEmulator
 
     results: dict[str, dict] = {}
     with DynamixelEmulator(object_width=0.04) as emu:
-        port, ph = PortHandler(emu.port), PacketHandler(2.0)
-        port.openPort()
-        port.setBaudRate(57600)
-        kinds = {
-            "ping": lambda: ph.ping(port, 1),
-            "read_present_25B": lambda: ph.readTxRx(port, 1, 122, 25),
-            "write_goal_current": lambda: ph.write2ByteTxRx(port, 1, 102, 100),
-        }
-        for name, fn in kinds.items():
-            samples, failures = [], 0
-            for _ in range(args.n):
-                t0 = time.perf_counter()
-                out = fn()
-                samples.append(time.perf_counter() - t0)
-                failures += out[-2] != 0
-            results[name] = {**_stats(samples), "failures": int(failures)}
-        port.closePort()
+        # The SDK's own PortHandler (busy-polls while waiting) and the driver's DxlPortHandler (select()).
+        for label, port in (("sdk", PortHandler(emu.port)), ("dxl", DxlPortHandler(emu.port))):
+            ph = PacketHandler(2.0)
+            port.openPort()
+            port.setBaudRate(57600)
+            kinds = {
+                "ping": lambda: ph.ping(port, 1),
+                "read_present_25B": lambda: ph.readTxRx(port, 1, 122, 25),
+                "write_goal_current": lambda: ph.write2ByteTxRx(port, 1, 102, 100),
+            }
+            for name, fn in kinds.items():
+                samples, failures = [], 0
+                cpu0 = time.process_time()
+                for _ in range(args.n):
+                    t0 = time.perf_counter()
+                    out = fn()
+                    samples.append(time.perf_counter() - t0)
+                    failures += out[-2] != 0
+                cpu = time.process_time() - cpu0
+                results[f"{label}_{name}"] = {
+                    **_stats(samples),
+                    "failures": int(failures),
+                    "client_cpu_per_wall": round(cpu / sum(samples), 2),
+                }
+            port.closePort()
 
         g = DynamixelGripper(emu.port, min_packet_timeout_ms=100)
         g.connect()
@@ -68,8 +76,8 @@ def bench_dynamixel(args: argparse.Namespace) -> int:
         results["gripper_grasp_40mm"] = _stats(grasps)
 
     for name, r in results.items():
-        extra = f"  failures {r['failures']}" if "failures" in r else ""
-        print(f"{name:22s} median {r['median_ms']:8.2f} ms   p95 {r['p95_ms']:8.2f} ms   n={r['n']}{extra}")
+        extra = f"  failures {r['failures']}  client CPU/wall {r['client_cpu_per_wall']}" if "failures" in r else ""
+        print(f"{name:26s} median {r['median_ms']:8.2f} ms   p95 {r['p95_ms']:8.2f} ms   n={r['n']}{extra}")
     if args.report:
         args.report.write_text(json.dumps(results, indent=1))
     return 0

@@ -8,11 +8,16 @@ import time
 import pytest
 from dynamixel_sdk import PacketHandler, PortHandler
 
-from kitchenbot.drivers.dynamixel_gripper import DynamixelGripper, decode_hardware_error
+from kitchenbot.drivers.dynamixel_gripper import DynamixelGripper, DxlPortHandler, decode_hardware_error
 from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverError, DriverTimeoutError, HardwareError
 from kitchenbot.fakes.dynamixel_emulator import DynamixelEmulator, crc16, frame, unstuff
 
 pytestmark = pytest.mark.timeout(60)
+
+
+def _port(emu) -> PortHandler:
+    """The SDK's PortHandler with a 100 ms timeout floor: the emulator is a Python process on a loaded CI host."""
+    return DxlPortHandler(emu.port, 100.0)
 
 
 @pytest.fixture
@@ -70,7 +75,7 @@ class _Wire:
 
 
 def test_ping_reports_the_xm430_model_number(emu):
-    port = PortHandler(emu.port)
+    port = _port(emu)
     assert port.openPort() and port.setBaudRate(57600)
     ph = PacketHandler(2.0)
     try:
@@ -89,7 +94,7 @@ def test_ping_reports_the_xm430_model_number(emu):
 
 
 def test_eeprom_write_refused_while_torque_is_on(emu):
-    port = PortHandler(emu.port)
+    port = _port(emu)
     assert port.openPort() and port.setBaudRate(57600)
     ph = PacketHandler(2.0)
     try:
@@ -250,7 +255,7 @@ def test_low_voltage_is_an_alarm_not_a_shutdown(emu, gripper):
 def test_sync_and_bulk_instructions(emu):
     from dynamixel_sdk import GroupBulkRead, GroupSyncRead, GroupSyncWrite
 
-    port = PortHandler(emu.port)
+    port = _port(emu)
     assert port.openPort() and port.setBaudRate(57600)
     ph = PacketHandler(2.0)
     try:
