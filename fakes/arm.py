@@ -229,8 +229,11 @@ class FakeArm(Arm):
 
     # ---- connection -----------------------------------------------------------------------------------
     def connect(self) -> None:
+        self._sync()  # a motion cut by a dropped link ends where the link dropped
         self.world.faults.arm_disconnect = False
         self._connected = True
+        if isinstance(self._pending, DeviceNotConnectedError):  # already reported by whichever call hit it
+            self._pending = None
 
     def disconnect(self) -> None:
         self._sync()

@@ -298,3 +298,18 @@ def test_broken_start_contact_does_not_stay_allowed():
     with pytest.raises(ProtectiveStopError, match="held hits counter"):
         arm.execute_trajectory(np.array([0.0, 1.0, 2.0]), np.stack([q0, q_up, q_in]))
     assert arm.tcp_pose()[2, 3] > T_grasp[2, 3] - 1e-3
+
+
+def test_link_drop_seen_by_polling_then_reconnect():
+    world, arm, _ = make_rig()
+    target = HOME.copy()
+    target[0] -= 1.0
+    world.faults.arm_disconnect_after = 0.3
+    arm.move_joints(target, speed=0.5, accel=1.0, asynchronous=True)
+    with pytest.raises(DeviceNotConnectedError):
+        while arm.step(0.02):
+            pass
+    assert world.clock.now() == pytest.approx(0.3, abs=0.021)
+    arm.connect()
+    arm.wait(0.0)  # nothing stale left to raise
+    assert not arm.is_moving() and arm.joint_positions()[0] == pytest.approx(HOME[0] - 0.5 * 0.3**2)
