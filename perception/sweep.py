@@ -67,15 +67,16 @@ def unavailable(combo: Combo, weights_dir: str) -> str:
     """Why a combination cannot run here ('' when it can)."""
     from kitchenbot.perception.backends import backend_available
 
-    for name in (combo.detector, combo.segmenter, combo.image_encoder):
-        ok, why = backend_available(name, weights_dir)
+    why = []
+    for name in dict.fromkeys((combo.detector, combo.segmenter, combo.image_encoder)):
+        ok, reason = backend_available(name, weights_dir)
         if not ok:
-            return f"{name}: {why}"
-    return ""
+            why.append(f"{name}: {reason}")
+    return "; ".join(why)
 
 
 def run_sweep(dataset: str | Path, settings, point_encoders: list[str] | None = None, visual: list[str] | None = None,
-              progress=print, **eval_kw) -> list[SweepRow]:
+              log=print, **eval_kw) -> list[SweepRow]:
     """Evaluate every available combination (`evaluate` of evaluate.py, same keywords) and return the rows."""
     from kitchenbot.perception.evaluate import evaluate
     from kitchenbot.perception.hf_common import device_and_dtype
@@ -101,12 +102,12 @@ def run_sweep(dataset: str | Path, settings, point_encoders: list[str] | None = 
             r = evaluate(dataset, s, **eval_kw).report
         except (ValueError, FileNotFoundError, RuntimeError, ImportError) as e:
             rows.append(SweepRow(c, "failed", f"{type(e).__name__}: {e}", wall_s=time.perf_counter() - t0))
-            progress(f"[{k + 1}/{len(combos)}] {c.key}: failed: {e}")
+            log(f"[{k + 1}/{len(combos)}] {c.key}: failed: {e}")
             continue
         row = SweepRow(c, "ok", "", r["adi_recall_0.1d"], r["auc_adds_10cm"], r["pose_ms_per_object_median"],
                        r["scan_ms_median"], time.perf_counter() - t0, {"device": device, "objects": r["objects"]})
         rows.append(row)
-        progress(f"[{k + 1}/{len(combos)}] {c.key}: ADI {100 * row.adi:.2f} %  AUC {row.auc:.3f}  "
+        log(f"[{k + 1}/{len(combos)}] {c.key}: ADI {100 * row.adi:.2f} %  AUC {row.auc:.3f}  "
                  f"{row.pose_ms:.0f} ms/object  ({row.wall_s:.0f} s)")
     return rows
 
@@ -135,14 +136,18 @@ def table_markdown(rows: list[SweepRow], title: str = "") -> str:
                     cells.append(_cell(by.get(Combo(det, seg, v, pe, fusion).key)))
             lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "ADI recall (%) at 0.1 x diameter. ICP refinement on (the paper's Table 1 has it off)."]
-    skipped: dict[str, list[str]] = {}
+    skipped: dict[str, int] = {}
     for r in rows:
-        if r.status != "ok":
-            skipped.setdefault(f"{r.status}: {r.reason}", []).append(r.combo.key)
+        if r.status == "skipped":
+            for part in r.reason.split("; "):
+                skipped[part] = skipped.get(part, 0) + 1
+    failed = [r for r in rows if r.status == "failed"]
     if skipped:
-        lines += ["", "Not run:"]
-        for why, keys in skipped.items():
-            lines.append(f"- {len(keys)} combination(s) {why}")
+        lines += ["", f"Skipped ({sum(r.status == 'skipped' for r in rows)} combinations; `kitchenbot models` "
+                  "says how to fetch weights):"]
+        lines += [f"- {why} (needed by {n})" for why, n in skipped.items()]
+    if failed:
+        lines += ["", "Failed:"] + [f"- {r.combo.key}: {r.reason}" for r in failed]
     devs = {r.extra.get("device") for r in rows if r.status == "ok"}
     if devs and devs <= {"cpu"}:
         lines += ["", "Timings were taken on the CPU; no CUDA device was available, so no CUDA timings."]
