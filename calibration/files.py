@@ -4,7 +4,7 @@ and the recorded-samples JSON that ``kitchenbot calibrate solve`` reads.
 Result YAML::
 
     T_flange_cam: [[...4 numbers...] x 4]   # eye in hand (or T_base_cam for eye to hand), metres
-    method: park_martin_1994
+    method: park_martin_1994             # or park_martin_1994+reprojection (refined on the corner pixels)
     mount: eye_in_hand
     date: 2026-11-22T00:30:00+00:00
     samples_used: 14
@@ -29,9 +29,6 @@ from kitchenbot.calibration.park_martin import MOUNTS, X_NAME
 from kitchenbot.calibration.residuals import HandEyeResult
 from kitchenbot.transforms import is_rigid
 
-METHOD = "park_martin_1994"
-
-
 class CalibrationFileError(ValueError):
     """A calibration or samples file is missing, unreadable, or lacks a valid key."""
 
@@ -53,7 +50,7 @@ def save_hand_eye(path: str | Path, result: HandEyeResult, extra: dict | None = 
     path = Path(path)
     doc: dict[str, Any] = {
         result.name: [[float(v) for v in row] for row in result.X],
-        "method": METHOD,
+        "method": result.method,
         "mount": result.mount,
         "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "samples_used": len(result.samples_used),

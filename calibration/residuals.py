@@ -123,6 +123,7 @@ class HandEyeResult:
     translation_mm: np.ndarray
     spread: Spread
     samples_used: list[int] = field(default_factory=list)
+    method: str = "park_martin_1994"
 
     @property
     def name(self) -> str:
@@ -231,19 +232,34 @@ def solve_robust(
                 break  # rejecting more would leave a degenerate set: keep the last good solution
             prev = new_keep
             X, keep = X_start, new_keep
-    idx = np.flatnonzero(keep)
-    rot, tr = pair_residuals(X, [A_all[k] for k in idx], [B_all[k] for k in idx])
-    used = [pairs_all[k] for k in idx]
+    used = [pairs_all[k] for k in np.flatnonzero(keep)]
+    rejected = [pairs_all[k] for k in np.flatnonzero(~keep)]
+    return evaluate(X, F, C, mount, used, rejected)
+
+
+def evaluate(
+    X: np.ndarray,
+    T_base_flange: Sequence[np.ndarray],
+    T_cam_board: Sequence[np.ndarray],
+    mount: str,
+    pairs_used: Sequence[tuple[int, int]],
+    pairs_rejected: Sequence[tuple[int, int]] = (),
+    method: str = "park_martin_1994",
+) -> HandEyeResult:
+    """Residuals and board spread of a given X on the given pairs (used for Park–Martin and refined X alike)."""
+    A, B, used = motion_pairs(T_base_flange, T_cam_board, mount, pairs_used)
+    rot, tr = pair_residuals(X, A, B)
     samples_used = sorted({s for p in used for s in p})
-    spread = board_spread(X, [F[k] for k in samples_used], [C[k] for k in samples_used], mount)
+    spread = board_spread(X, [T_base_flange[k] for k in samples_used], [T_cam_board[k] for k in samples_used], mount)
     return HandEyeResult(
         X=X,
         mount=mount,
-        n_samples=n,
-        pairs_used=used,
-        pairs_rejected=[pairs_all[k] for k in np.flatnonzero(~keep)],
+        n_samples=len(T_base_flange),
+        pairs_used=list(used),
+        pairs_rejected=list(pairs_rejected),
         rotation_deg=rot,
         translation_mm=tr,
         spread=spread,
         samples_used=samples_used,
+        method=method,
     )

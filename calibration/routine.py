@@ -11,7 +11,8 @@ Steps:
    cell boxes. A greedy farthest-point pick in orientation keeps the rotations (and so their axes) varied,
    which is what conditions the rotation solve.
 3. Visit in nearest-neighbour order, checking the straight joint path for clearance, capture, detect (gated).
-4. Park–Martin on all pairs with MAD outlier rejection; residuals and board spread.
+4. Park–Martin on all pairs with MAD outlier rejection, then (by default) a refinement of X and the board pose
+   on the corner pixels of the retained views (calibration/refine.py); residuals and board spread of the result.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ from scipy.spatial.transform import Rotation
 
 from kitchenbot.calibration.board import BoardDetectionError, BoardDetector, CharucoSpec
 from kitchenbot.calibration.park_martin import DegenerateSetError
-from kitchenbot.calibration.residuals import HandEyeResult, solve_robust
+from kitchenbot.calibration.refine import Refinement, refine_reprojection
+from kitchenbot.calibration.residuals import HandEyeResult, evaluate, solve_robust
 from kitchenbot.drivers.arm import Arm
 from kitchenbot.drivers.camera import Camera, Frame
 from kitchenbot.drivers.errors import LimitViolation
@@ -47,6 +49,7 @@ class RoutineSettings:
     accel: float = 1.2  # rad/s^2
     min_corners: int = 12
     max_rms_px: float = 1.0
+    refine: bool = True  # refine Park–Martin's X on the corner pixels (calibration/refine.py)
 
 
 # ---- geometry -------------------------------------------------------------------------------------------------
@@ -262,6 +265,9 @@ class CaptureRecord:
     n_corners: int = 0
     rms_px: float = float("nan")
     error: str | None = None
+    object_points: np.ndarray | None = field(default=None, repr=False)  # (N, 3) board frame
+    image_points: np.ndarray | None = field(default=None, repr=False)  # (N, 2) px
+    K: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass
@@ -271,6 +277,8 @@ class RoutineReport:
     T_base_board_guess: np.ndarray
     viewpoints_planned: int
     notes: list[str] = field(default_factory=list)
+    park_martin: HandEyeResult | None = None  # before refinement (the same as `result` without it)
+    refinement: Refinement | None = None
 
     @property
     def samples(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -288,7 +296,8 @@ def capture_here(arm: Arm, camera: Camera, detector: BoardDetector, index: int,
         pose = detector.pose(frame.rgb, frame.K, dist)
     except BoardDetectionError as e:
         return CaptureRecord(index, q, F, None, error=str(e)), frame
-    return CaptureRecord(index, q, F, pose.T_cam_board, pose.n_corners, pose.rms_px), frame
+    return CaptureRecord(index, q, F, pose.T_cam_board, pose.n_corners, pose.rms_px, None, pose.object_points,
+                         pose.image_points, frame.K), frame
 
 
 def run_routine(
@@ -342,5 +351,14 @@ def run_routine(
     ok = [r for r in records if r.T_cam_board is not None]
     if len(ok) < 3:
         raise DegenerateSetError(f"too few samples: only {len(ok)} of {len(records)} captures found the board")
-    result = solve_robust([r.T_base_flange for r in ok], [r.T_cam_board for r in ok], "eye_in_hand")
-    return RoutineReport(records, result, T_base_board, len(views), notes)
+    F, C = [r.T_base_flange for r in ok], [r.T_cam_board for r in ok]
+    park_martin = solve_robust(F, C, "eye_in_hand")
+    result, refinement = park_martin, None
+    if settings.refine:
+        used = [ok[k] for k in park_martin.samples_used]
+        refinement = refine_reprojection(park_martin.X, park_martin.spread.mean, [r.T_base_flange for r in used],
+                                         [r.object_points for r in used], [r.image_points for r in used],
+                                         used[0].K, dist, "eye_in_hand")
+        result = evaluate(refinement.X, F, C, "eye_in_hand", park_martin.pairs_used, park_martin.pairs_rejected,
+                          method="park_martin_1994+reprojection")
+    return RoutineReport(records, result, T_base_board, len(views), notes, park_martin, refinement)

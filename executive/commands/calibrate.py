@@ -36,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--samples", type=int, default=15, help="viewpoints to capture (default 15)")
     p.add_argument("--seed", type=int, default=0, help="random seed for viewpoints (and the simulated mount error)")
     p.add_argument("--no-reject", action="store_true", help="keep every pair (no MAD outlier rejection)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="report Park–Martin's X as is (no refinement on the corner pixels)")
     p.add_argument("--save-samples", metavar="JSON", help="also write the captured samples (for `solve`)")
     p.add_argument("--board-squares", default="8x6", help="ChArUco squares as XxY (default 8x6)")
     p.add_argument("--square", type=float, default=0.030, help="square side, metres (default 0.030)")
@@ -126,7 +128,7 @@ def _run_routine(args: argparse.Namespace) -> int:
     else:
         arm, camera = _real_devices(cfg)
         truth = None
-    settings = RoutineSettings(samples=args.samples)
+    settings = RoutineSettings(samples=args.samples, refine=not args.no_refine)
 
     def progress(rec) -> None:
         if rec.error:
@@ -147,17 +149,38 @@ def _run_routine(args: argparse.Namespace) -> int:
         "captures": [{"index": r.index, "q": [float(v) for v in r.q], "corners": r.n_corners,
                       "rms_px": None if r.error else float(r.rms_px), "error": r.error} for r in report.records],
     }
+    if report.refinement is not None:
+        ref = report.refinement
+        extra["refinement"] = {"reprojection_rms_px_before": ref.rms_px_before,
+                               "reprojection_rms_px_after": ref.rms_px_after, "corners": ref.n_points}
+        extra["park_martin"] = {"T_flange_cam": report.park_martin.X.tolist(),
+                                "residuals": {"rotation_deg": report.park_martin.rotation_deg_mean,
+                                              "translation_mm": report.park_martin.translation_mm_mean}}
     if truth is not None:
         r, t = pose_error(report.result.X, truth)
         extra["simulation"] = {"true_T_flange_cam": np.asarray(truth).tolist(),
-                               "error_deg": float(np.rad2deg(r)), "error_mm": float(t * 1000)}
+                               "error_deg": float(np.rad2deg(r)), "error_mm": float(t * 1000),
+                               "arm_collisions": int(arm.log.collisions),
+                               "arm_protective_stops": int(arm.log.protective_stops)}
+        if report.refinement is not None:
+            r0, t0 = pose_error(report.park_martin.X, truth)
+            extra["simulation"].update(park_martin_error_deg=float(np.rad2deg(r0)), park_martin_error_mm=float(t0 * 1000))
     save_hand_eye(args.out, report.result, extra)
     if args.save_samples:
         F, C = report.samples
         save_samples(args.save_samples, "eye_in_hand", F, C)
+    if report.refinement is not None:
+        ref = report.refinement
+        print(f"refined on {ref.n_points} corner pixels: reprojection {ref.rms_px_before:.3f} -> "
+              f"{ref.rms_px_after:.3f} px rms")
     _print_result(report.result)
     if truth is not None:
-        print(f"simulation: error against the hidden mount {np.rad2deg(r):.4f} deg, {t * 1000:.3f} mm")
+        sim = extra["simulation"]
+        line = f"simulation: error against the hidden mount {sim['error_deg']:.4f} deg, {sim['error_mm']:.3f} mm"
+        if "park_martin_error_deg" in sim:
+            line += (f" (Park–Martin alone {sim['park_martin_error_deg']:.4f} deg, "
+                     f"{sim['park_martin_error_mm']:.3f} mm)")
+        print(line)
     print(f"wrote {args.out}")
     return 0
 
@@ -175,7 +198,7 @@ def _real_devices(cfg):
 def _print_result(result) -> None:
     s = result.summary()
     X = result.X
-    print(f"{result.name} ({result.mount}, Park–Martin, {len(result.samples_used)}/{result.n_samples} samples, "
+    print(f"{result.name} ({result.mount}, {result.method}, {len(result.samples_used)}/{result.n_samples} samples, "
           f"{s['pairs_used']} pairs, {len(s['pairs_rejected'])} rejected):")
     for row in X:
         print("  [" + ", ".join(f"{v: .6f}" for v in row) + "]")
