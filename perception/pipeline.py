@@ -82,6 +82,7 @@ class Perceiver:
         self.img_enc = backends.make_image_encoder(self.settings)  # colour | none | learned (fusion on/off)
         self.pt_enc = backends.make_point_encoder(self.settings.point_encoder)  # fpfh | plug-ins
         self._db = database
+        self.settings_seed = 0
         st = self.settings
         self.reg_cfg = RegistrationConfig(voxel=st.voxel_size, top_k=st.top_k, candidate_threshold=st.candidate_threshold,
                                           min_overlap=st.min_overlap)
@@ -106,6 +107,7 @@ class Perceiver:
 
         for k, v in enumerate(views):
             check_view(v, f"views[{k}]")
+        o3d.utility.random.seed(self.settings_seed)  # Open3D's RANSAC: same views, same answer
         db = self.database
         if len(views) > 1 and self.settings.align_views:
             with timed("align"):

@@ -192,13 +192,36 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
     return T
 
 
-def gravity_axes(query: FusedCloud, up: np.ndarray) -> list[np.ndarray]:
-    """Candidate directions of the object's z axis: up, down, and the query's most and least extended
+def seeds(points: np.ndarray, diameter: float, max_seeds: int = 6) -> list[np.ndarray]:
+    """Where to centre hypotheses: the query's centroid, and when the query is larger than the model (touching
+    items segmented together), farthest-point samples about half a diameter apart, each moved to the centroid
+    of the points around it."""
+    c = points.mean(axis=0)
+    out = [c]
+    if len(points) < 10 or np.ptp(points, axis=0).max() < 0.9 * diameter:
+        return out
+    r = 0.5 * diameter
+    d = np.linalg.norm(points - c, axis=1)
+    picked = [int(np.argmin(d))]
+    dmin = np.linalg.norm(points - points[picked[0]], axis=1)
+    while len(out) < max_seeds:
+        k = int(np.argmax(dmin))
+        if dmin[k] < r:
+            break
+        picked.append(k)
+        dmin = np.minimum(dmin, np.linalg.norm(points - points[k], axis=1))
+        local = points[np.linalg.norm(points - points[k], axis=1) < r]
+        out.append(local.mean(axis=0))
+    return out
+
+
+def gravity_axes(points: np.ndarray, up: np.ndarray) -> list[np.ndarray]:
+    """Candidate directions of the object's z axis: up, down, and the points' most and least extended
     principal axes (an item leaning or on its side), both ways."""
     axes = [up, -up]
-    if len(query.points) >= 5:
-        c = query.points.mean(axis=0)
-        _, vecs = np.linalg.eigh(np.cov((query.points - c).T))
+    if len(points) >= 5:
+        c = points.mean(axis=0)
+        _, vecs = np.linalg.eigh(np.cov((points - c).T))
         for k in (0, 2):
             a = vecs[:, k]
             if abs(a @ up) < 0.95:  # not already covered by up/down
@@ -217,7 +240,6 @@ def register_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel,
     up = np.array([0.0, 0.0, 1.0]) if up is None else up
     src = _pcd(query.points, query.normals)
     dst = _pcd(entry.ref.points, entry.ref.normals)
-    centre = query.points.mean(axis=0)
     scored: list[tuple[float, str, np.ndarray, tuple]] = []
 
     qs = query.points[:: max(1, len(query.points) // 300)]  # screening runs on <= ~300 points
@@ -238,9 +260,11 @@ def register_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel,
             if res.fitness > 0:
                 screen("ransac", inv(res.transformation))
     # (2) gravity priors: axis hypotheses (yaw 0), then yaws around the best axes when yaw matters.
-    axes = gravity_axes(query, up)
-    for a in axes:
-        screen("gravity", _pose(a, 0.0, centre))
+    r = 0.5 * model.diameter
+    for k, c in enumerate(seeds(query.points, model.diameter)):
+        local = query.points if k == 0 else query.points[np.linalg.norm(query.points - c, axis=1) < r]
+        for a in gravity_axes(local, up):
+            screen("gravity", _pose(a, 0.0, c))
     if not model.is_rotationally_symmetric and cfg.n_yaw > 1:
         grav = sorted([t for t in scored if t[1] == "gravity"], key=lambda t: -t[0])[:2]
         for _, _, Tb, _ in grav:

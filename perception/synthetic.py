@@ -43,8 +43,10 @@ def scan_poses(cell: Cell | None = None, n: int = 3, height: float = 0.45) -> li
 
 def render(inv_: Inventory, placed: list[tuple[int, np.ndarray]], T_base_cams: list[np.ndarray],
            cell: Cell | None = None, K: np.ndarray = K_VGA, size=(640, 480), noise: float = 0.0,
-           rng: np.random.Generator | None = None) -> tuple[list[View], list[np.ndarray]]:
-    """Views and per-pixel labels (-1 cell/background, k = index into `placed`)."""
+           rng: np.random.Generator | None = None,
+           extra: list[tuple[o3d.geometry.TriangleMesh, tuple[float, float, float]]] = ()) -> tuple[list[View], list[np.ndarray]]:
+    """Views and per-pixel labels (-1 cell/background, k = index into `placed`, then the `extra` meshes:
+    things that are not in the inventory, already in the base frame)."""
     cell = cell or Cell()
     scene = o3d.t.geometry.RaycastingScene()
     colours, labels = [], []
@@ -60,6 +62,10 @@ def render(inv_: Inventory, placed: list[tuple[int, np.ndarray]], T_base_cams: l
         scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(m))
         colours.append(inv_[oid].colour)
         labels.append(k)
+    for k, (mesh, colour) in enumerate(extra):
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+        colours.append(colour)
+        labels.append(len(placed) + k)
     colours, labels = np.array(colours), np.array(labels)
     rng = rng or np.random.default_rng(0)
     views, labs = [], []
