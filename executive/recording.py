@@ -58,8 +58,9 @@ class Recorder:
             self.rec.log(base, rr.Transform3D(translation=v.T_base_cam[:3, 3], mat3x3=v.T_base_cam[:3, :3]))
             h, w = v.depth.shape
             self.rec.log(base, rr.Pinhole(image_from_camera=v.K, resolution=[w, h]))
-            self.rec.log(f"{base}/rgb", rr.Image(v.rgb))
-            self.rec.log(f"{base}/depth", rr.DepthImage(np.nan_to_num(v.depth).astype(np.float32), meter=1.0))
+            self.rec.log(f"{base}/rgb", rr.Image(v.rgb).compress(jpeg_quality=85))
+            depth_mm = np.round(np.nan_to_num(v.depth, nan=0.0) * 1000).clip(0, 65535).astype(np.uint16)
+            self.rec.log(f"{base}/depth", rr.DepthImage(depth_mm, meter=1000.0))
 
     def perception(self, result, poses, sim_t: float | None) -> None:
         rr = self.rr

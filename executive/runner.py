@@ -35,7 +35,7 @@ from kitchenbot.executive import machine as M
 from kitchenbot.executive.journal import Journal
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.planning.types import NoFreeSlot, PlanningFailure, Trajectory
+from kitchenbot.planning.types import NoFreeSlot, Trajectory
 from kitchenbot.transforms import inv
 
 Listener = Callable[[dict], None]
@@ -101,6 +101,7 @@ class RunOptions:
     gone_radius: float = 0.02  # m: a same-class object this close to the picked one means it is still there
     max_reconnects: int = 3
     verify_target_view: bool = True  # capture at the retreat pose and check the object at its target
+    confirm_empty_scans: int = M.CONFIRM_EMPTY_SCANS  # consecutive scans that must agree the sink is done
 
 
 @dataclass
@@ -205,6 +206,7 @@ class TaskRunner:
         self.pending: _Pending | None = None
         self.failure: Failure | None = None
         self.tried: list[_Tried] = []
+        self.unverified: list[str] = []  # gone from the sink but not seen at the target
         self.scan_failures = 0
         self.consecutive_recoveries = 0
         self.empty_scans = 0
@@ -544,31 +546,27 @@ class TaskRunner:
         return "nothing_left"
 
     def _do_plan(self) -> str:
+        """Pick (only grasps that can also reach one of the targets) then place (first feasible target)."""
         obj = self.current
         q = self.arm.joint_positions()
         scene_objs = self.poses + self.task.obstacles()
-        last: PlanningFailure | None = None
-        for target in self.targets:
-            self._check_deadline()
-            self._cmd("plan_pick", cls=obj.cls, target=target.T_base_obj[:3, 3])
-            pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points, place_target=target)
-            if not pick.ok:
-                last = pick
-                if pick.kind in ("no_graspable_object", "invalid_input", "start_in_collision"):
-                    break
-                continue
-            others = [p for p in scene_objs if p is not obj]
-            self._cmd("plan_place", target=target.T_base_obj[:3, 3])
-            place = self.planner.plan_place(pick.end, pick.grasp, target, objects=others, map_points=self.map_points)
-            if place.ok:
-                self.pick, self.place = pick, place
-                self._log("result", "planned", grasp=pick.grasp.spec.name, target=place.T_base_obj[:3, 3],
-                          duration=sum(t.duration for t in pick.trajectories + place.trajectories))
-                if self.recorder is not None:
-                    self.recorder.plan(pick.trajectories + place.trajectories, self._sim_now())
-                return "planned"
-            last = place
-        raise StepFailed("planning", f"no plan for the {obj.cls}: {last}", planning_kind=getattr(last, "kind", "?"))
+        self._cmd("plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in self.targets])
+        pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points,
+                                      place_target=self.targets)
+        self._check_deadline()
+        if not pick.ok:
+            raise StepFailed("planning", f"no pick plan for the {obj.cls}: {pick}", planning_kind=pick.kind)
+        others = [p for p in scene_objs if p is not obj]
+        self._cmd("plan_place", grasp=pick.grasp.spec.name)
+        place = self.planner.plan_place(pick.end, pick.grasp, self.targets, objects=others, map_points=self.map_points)
+        if not place.ok:
+            raise StepFailed("planning", f"no place plan for the {obj.cls}: {place}", planning_kind=place.kind)
+        self.pick, self.place = pick, place
+        self._log("result", "planned", grasp=pick.grasp.spec.name, target=place.T_base_obj[:3, 3],
+                  duration=sum(t.duration for t in pick.trajectories + place.trajectories))
+        if self.recorder is not None:
+            self.recorder.plan(pick.trajectories + place.trajectories, self._sim_now())
+        return "planned"
 
     def _do_execute(self) -> str:
         pick, place, obj = self.pick, self.place, self.current
@@ -613,13 +611,17 @@ class TaskRunner:
             presence = None
             if p.target_view is not None:
                 presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
-            self._log("result", "verify", still_in_sink=len(still), presence=presence)
+            self._log("result", "verify", still_in_sink=len(still), presence=presence.as_dict() if presence else None)
             if still:
                 raise StepFailed("verify_failed", f"the {p.obj.cls} is still in the sink")
             if presence is not None and presence.decided and not presence.present:
+                self.unverified.append(p.obj.cls)
                 raise StepFailed("verify_failed", f"the {p.obj.cls} was not seen at its target "
                                  f"({presence.agree:.0%} of {presence.pixels} px agree)")
-            self.task.record_placed(p.obj, p.target, p.T_base_obj)
+            T_settled = p.T_base_obj.copy()
+            if presence is not None and presence.decided:
+                T_settled[2, 3] += presence.dz  # where it came to rest (it was released a little above)
+            self.task.record_placed(p.obj, p.target, T_settled)
             self.report.objects_done += 1
             self.consecutive_recoveries = 0
             w0, m0, s0 = self._cycle_t0
@@ -641,14 +643,23 @@ class TaskRunner:
             self.report.safe = self._make_safe()
             return "give_up"
         self.empty_scans += 1
-        return "complete" if self.empty_scans >= M.CONFIRM_EMPTY_SCANS else "next_object"
+        if self.empty_scans < self.opt.confirm_empty_scans:
+            return "next_object"
+        if self.unverified:
+            self.report.message = f"sink empty, but {len(self.unverified)} placement(s) not verified at the " \
+                f"target: {', '.join(self.unverified)}"
+            self.report.safe = self._make_safe()
+            return "give_up"
+        return "complete"
 
     def _do_recover(self) -> str:
         f = self.failure
         self.report.recoveries += 1
-        self.consecutive_recoveries += 1
+        if f.kind != "planning":  # planning failures are bounded per object; these count towards giving up
+            self.consecutive_recoveries += 1
         self._log("note", "recover", kind=f.kind, state=f.state)
-        if f.kind == "estop" or self.consecutive_recoveries > M.MAX_CONSECUTIVE_RECOVERIES:
+        if f.kind in ("estop", "error") or self.consecutive_recoveries > M.MAX_CONSECUTIVE_RECOVERIES:
+            # an emergency stop needs a person; an unexpected error is a bug: neither is retried
             self.report.message = f"gave up after {f.kind}: {f.message}"
             self.report.safe = f.kind != "estop" and self._make_safe()
             return "give_up"

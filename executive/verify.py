@@ -3,7 +3,8 @@
 The model's surface points at the target pose are projected into the view; where they are the nearest thing
 to the camera (a small z-buffer), the measured depth should agree. With the object there most pixels agree;
 with it missing the camera sees what lies behind (rack floor, counter) and few agree. Fewer than
-`min_pixels` projected pixels (target out of view) gives no decision.
+`min_pixels` projected pixels (target out of view) gives no decision. Pixels where something is nearer than
+predicted (an occluder, the cup it nests in) count neither way.
 """
 
 from __future__ import annotations
@@ -19,17 +20,36 @@ from kitchenbot.transforms import inv
 
 @dataclass
 class Presence:
-    pixels: int  # projected model pixels with a measured depth
-    agree: float  # fraction of them within `tol` of the prediction
+    pixels: int  # projected model pixels that are evidence (depth agrees, or is seen behind the object)
+    agree: float  # fraction of them that agree within `tol`
     decided: bool
     present: bool
+    dz: float = 0.0  # m: the vertical offset from the target that explains the depth best (how far it settled)
 
     def as_dict(self) -> dict:
-        return {"pixels": self.pixels, "agree": round(self.agree, 3), "decided": self.decided, "present": self.present}
+        return {"pixels": self.pixels, "agree": round(self.agree, 3), "decided": self.decided, "present": self.present,
+                "dz": round(self.dz, 4)}
 
 
-def target_presence(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol: float = 0.02,
-                    min_pixels: int = 40, threshold: float = 0.5, stride: int = 4) -> Presence:
+def target_presence(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol: float = 0.012,
+                    min_pixels: int = 40, threshold: float = 0.5, stride: int = 4,
+                    dz_range: tuple[float, float] = (-0.05, 0.01), dz_step: float = 0.005) -> Presence:
+    """Best agreement over vertical offsets in `dz_range` (released objects drop and settle a little)."""
+    best: Presence | None = None
+    for dz in np.arange(dz_range[0], dz_range[1] + 1e-9, dz_step):
+        T = np.array(T_base_obj, float)
+        T[2, 3] += dz
+        p = _presence_at(view, model, T, tol, min_pixels, threshold, stride)
+        p.dz = float(dz)
+        # most agreeing pixels, not the highest fraction: lowering the model turns pixels into "occluded",
+        # which would flatter the fraction
+        if best is None or (p.decided, p.agree * p.pixels) > (best.decided, best.agree * best.pixels):
+            best = p
+    return best
+
+
+def _presence_at(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol: float, min_pixels: int,
+                 threshold: float, stride: int) -> Presence:
     T_cam_obj = inv(view.T_base_cam) @ T_base_obj
     P = model.points @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
     P = P[P[:, 2] > 0.05]
@@ -50,5 +70,12 @@ def target_presence(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol:
     n = int(good.sum())
     if n < min_pixels:
         return Presence(n, 0.0, False, False)
-    agree = float(np.mean(np.abs(meas[good] - zbuf[ys[good], xs[good]]) < tol))
-    return Presence(n, agree, True, agree >= threshold)
+    diff = meas[good] - zbuf[ys[good], xs[good]]
+    agree = int(np.sum(np.abs(diff) < tol))
+    through = int(np.sum(diff >= tol))  # seen behind where the object should be: evidence it is absent
+    # nearer than predicted = something in front (an occluder, the cup it is nested in): no evidence either way
+    n = agree + through
+    if n < min_pixels:
+        return Presence(n, 0.0, False, False)
+    frac = agree / n
+    return Presence(n, frac, True, frac >= threshold)

@@ -73,6 +73,7 @@ class Task:
     inventory: Inventory
     cell: Cell
     placed: list[Placed] = field(default_factory=list)
+    pending: list[ObjectModel] = field(default_factory=list)  # models still in the sink (last remaining())
 
     name = "task"
     description = ""
@@ -86,9 +87,18 @@ class Task:
         return bool(self.cell.in_sink(obj.T_base_obj[:3, 3], margin=0.02)[0])
 
     def remaining(self, poses: list[ObjectPose]) -> list[ObjectPose]:
-        """Objects still to do, in pick order: the topmost first (stacked/nested items come off the top)."""
+        """Objects still to do, in pick order: uncovered ones first (stacked/nested items come off the top), plates
+        before other items (they need the most room at the target), then from the top down."""
         todo = [p for p in poses if self.in_sink(p) and self.wants(p)]
-        return sorted(todo, key=lambda p: -p.T_base_obj[2, 3])
+        self.pending = [self.inventory[p.obj_id] for p in todo]
+        return sorted(todo, key=lambda p: (self._covered(p, poses), p.cls != "plate", -p.T_base_obj[2, 3]))
+
+    def _covered(self, p: ObjectPose, poses: list[ObjectPose]) -> bool:
+        """Something rests on or over `p` (its centre within p's radius, higher up): take that first."""
+        r = max(self.inventory[p.obj_id].extents[:2]) / 2
+        c = p.T_base_obj[:3, 3]
+        return any(o is not p and o.T_base_obj[2, 3] > c[2] + 0.01 and np.linalg.norm(o.T_base_obj[:2, 3] - c[:2]) < r
+                   for o in poses)
 
     # ---- where it goes --------------------------------------------------------------------------------------------
     def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
@@ -134,18 +144,23 @@ def area_spots(model: ObjectModel, lo_xy, hi_xy, z: float, placed: list[Placed],
     (e.g. rack slots), then a `step` grid. The footprint must stay inside the box (or only the centre when
     `centre_inside`, for items larger than the area) and clear of everything placed."""
     lo_xy, hi_xy = np.asarray(lo_xy, float), np.asarray(hi_xy, float)
-    grid = [(x, y) for x in np.arange(lo_xy[0], hi_xy[0] + 1e-9, step) for y in np.arange(lo_xy[1], hi_xy[1] + 1e-9, step)]
-    out: list[np.ndarray] = []
-    centre = [tuple((lo_xy + hi_xy) / 2)]
-    # Nearest the robot first: rack/area corners far from the base are often out of reach with a tool.
-    cands = sorted(list(preferred or []) + centre, key=lambda xy: float(np.hypot(*xy))) + \
+    c = (lo_xy + hi_xy) / 2
+    nx, ny = (np.ceil((hi_xy - lo_xy) / 2 / step) + 1).astype(int)
+    # A grid centred on the area (so a centred spot exists for items as wide as the area), nearest the robot
+    # first: rack/area corners far from the base are often out of reach with a tool.
+    grid = [(c[0] + i * step, c[1] + j * step) for i in range(-nx, nx + 1) for j in range(-ny, ny + 1)]
+    cands = sorted(list(preferred or []), key=lambda xy: float(np.hypot(*xy))) + \
         sorted(grid, key=lambda xy: float(np.hypot(*xy)))
+    out: list[np.ndarray] = []
     for xy in cands:
         T = pose(model, xy, z)
         lo, hi, _ = footprint(model, T)
         # Items larger than the area may overhang it evenly (e.g. a dinner plate on a small drop zone).
         over = np.maximum(0.0, ((hi - lo) - (hi_xy - lo_xy)) / 2) if centre_inside else 0.0
-        inside = np.all(lo >= lo_xy - over + CLEARANCE / 2 - 1e-9) and np.all(hi <= hi_xy + over - CLEARANCE / 2 + 1e-9)
+        if centre_inside == "any":
+            over = (hi - lo) / 2
+        m = np.where(over > 0, -over, CLEARANCE / 2) if centre_inside else CLEARANCE / 2
+        inside = np.all(lo >= lo_xy + m - 1e-6) and np.all(hi <= hi_xy - m + 1e-6)
         taken = placed + [Placed(model.obj_id, model.cls, t, *footprint(model, t), None) for t in out]
         if not inside or _overlaps(lo, hi, taken):
             continue
@@ -166,10 +181,24 @@ def on_top_of_same(model: ObjectModel, placed: list[Placed], offset: float, max_
     return T if T[2, 3] < max_height else None
 
 
-def _drop_zone_targets(model: ObjectModel, zone: AreaSpec, placed: list[Placed], limit: int) -> list[PlaceTarget]:
-    """Free upright spots in an area (the centre inside it); when it is full, on top of the same model."""
+def _drop_zone_targets(model: ObjectModel, zone: AreaSpec, placed: list[Placed], limit: int,
+                       pending: list[ObjectModel] = ()) -> list[PlaceTarget]:
+    """Free upright spots in an area (the centre inside it); when it is full, on top of the same model.
+    Room is kept for the largest plate still `pending` (plates cannot go on cups; cups can go on plates)."""
     lo = np.array(zone.origin_xy)
-    spots = area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, placed, upright, limit, centre_inside=True)
+    hi = lo + np.array(zone.size_xy)
+    taken = list(placed)
+    plates = [m for m in pending if m.cls == "plate"]
+    if model.cls != "plate" and plates and not any(p.cls == "plate" for p in placed):
+        big = max(plates, key=lambda m: max(m.extents[:2]))
+        keep = area_spots(big, lo, hi, zone.z, placed, upright, 1, centre_inside=True)
+        if keep:
+            taken.append(Placed(big.obj_id, big.cls, keep[0], *footprint(big, keep[0]), None))
+    spots = area_spots(model, lo, hi, zone.z, taken, upright, limit, centre_inside=True)
+    if not spots:  # overhanging the zone's edge (centre inside) beats blocking the plate's room
+        spots = area_spots(model, lo, hi, zone.z, taken, upright, limit, centre_inside="any")
+    if not spots and len(taken) > len(placed):  # the reservation leaves no room: a placement now wins
+        spots = area_spots(model, lo, hi, zone.z, placed, upright, limit, centre_inside=True)
     out = [PlaceTarget(T, "drop", free_yaw=True, support="counter") for T in spots]
     if not out:
         from kitchenbot.tasks.cup_stacking import nest_offset_of

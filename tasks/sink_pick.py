@@ -18,5 +18,6 @@ class SinkPick(Task):
     success_criteria = "sink empty; every object verified in the drop zone"
 
     def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
-        out = _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, self.placed, 3)
+        out = _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, self.placed, 3,
+                                 self.pending)
         return out or NoFreeSlot(f"drop zone has no free spot for a {obj.cls}")

@@ -1,0 +1,88 @@
+"""Small simulated scenes for the executive's tests (fake drivers; oracle perception where a test says so)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kitchenbot.executive.assembly import assemble, make_sim_world
+from kitchenbot.executive.config import load_config
+from kitchenbot.executive.runner import RunOptions
+from kitchenbot.executive.session import build_runner
+
+
+def small_config(n: int = 3, seed: int = 0, waypoints: int = 1):
+    """The shipped sim config with n objects and only the first `waypoints` scan waypoints (oracle tests need
+    no more; it keeps each run to a few seconds)."""
+    cfg = load_config()
+    cfg.sim.min_objects = cfg.sim.max_objects = n
+    cfg.sim.seed = seed
+    cfg.scan_waypoints = cfg.scan_waypoints[:waypoints]
+    return cfg
+
+
+def cup_world(cfg, keep_cups: int = 1):
+    """Seed 0's three-object scene (a plate under two nested cups) reduced to `keep_cups` cups, settled on what
+    is below them. Picks that the planner handles reliably: the point here is the executive."""
+    from kitchenbot.fakes.placement import drop_onto
+
+    world = make_sim_world(cfg, 0)
+    cups = sorted([u for u, o in world.objects.items() if o.model.cls == "cup"],
+                  key=lambda u: world.objects[u].T_base_obj[2, 3])
+    for u in list(world.objects):
+        if u not in cups[:keep_cups]:
+            world.remove_object(u)
+    kept = cups[:keep_cups]
+    # The plate they rested on is gone: settle the lowest cup (the others out of the way), the rest move with it.
+    saved = {u: world.objects[u].T_base_obj.copy() for u in kept[1:]}
+    for u in saved:
+        far = saved[u].copy()
+        far[:3, 3] += (0, 0, 5.0)
+        world.set_pose(u, far)
+    T0 = world.objects[kept[0]].T_base_obj
+    T1 = drop_onto(world, kept[0], T0)
+    world.set_pose(kept[0], T1)
+    for u, T in saved.items():
+        T = T.copy()
+        T[2, 3] += T1[2, 3] - T0[2, 3]
+        world.set_pose(u, T)
+    return world
+
+
+@pytest.fixture
+def state_dir(tmp_path, monkeypatch):
+    monkeypatch.setenv("KITCHENBOT_STATE_DIR", str(tmp_path / "state"))
+    return tmp_path / "state"
+
+
+@pytest.fixture
+def make_runner(tmp_path):
+    """make_runner(task="cup-stacking", cups=1, oracle=True, journal=True) -> (runner, world)."""
+
+    def make(task: str = "cup-stacking", cups: int = 1, oracle: bool = True, journal: bool = True,
+             waypoints: int = 1, confirm: int = 1, **kw):
+        cfg = small_config(waypoints=waypoints)
+        world = cup_world(cfg, cups)
+        robot = assemble(cfg, world=world)
+        runner = build_runner(cfg, task, 0, robot=robot, oracle_perception=oracle,
+                              journal_path=(tmp_path / "journal.sqlite") if journal else False,
+                              options=kw.pop("options", RunOptions(poll_period=0.05, confirm_empty_scans=confirm)), **kw)
+        return runner, world
+
+    return make
+
+
+def assert_safe_end(runner, world) -> None:
+    """The run ended in a terminal state, journaled, with nothing in the gripper and the arm still."""
+    assert runner.state in ("done", "failed", "stopped")
+    assert world.held_uid is None
+    assert not runner.arm.is_moving()
+    j = runner.journal
+    if j is not None:
+        rec = j.run(runner.run_id)
+        assert rec.ended is not None and rec.status == runner.report.status
+        trans = j.events(runner.run_id, kind="transition")
+        assert [e["name"] for e in trans] == [t["trigger"] for t in runner.report.transitions]
+
+
+__all__ = ["assert_safe_end", "build_runner", "cup_world", "small_config", "np"]
