@@ -24,7 +24,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from kitchenbot.perception.cell import Cell
+from kitchenbot.perception.cell import Box, Cell
 from kitchenbot.perception.inventory import GRIPPER_MAX_OPENING, ObjectModel
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.transforms import inv, make_T
@@ -231,14 +231,17 @@ class CollisionWorld:
         voxels: np.ndarray | None = None,
         held: Held | None = None,
         opening: float = GRIPPER_MAX_OPENING,
+        boxes: Sequence[Box] = (),
     ) -> "Scene":
-        return Scene(self, list(objects), voxels if voxels is not None else np.zeros((0, 3)), held, opening)
+        """`boxes`: extra fixed obstacles (axis-aligned, base frame) beyond the cell's."""
+        return Scene(self, list(objects), voxels if voxels is not None else np.zeros((0, 3)), held, opening, list(boxes))
 
 
 class Scene:
     """One query's collision model. ``valid(q)`` / ``valid_batch(Q)`` are what the planners call."""
 
-    def __init__(self, world: CollisionWorld, objects: list[SceneObject], voxels: np.ndarray, held: Held | None, opening: float):
+    def __init__(self, world: CollisionWorld, objects: list[SceneObject], voxels: np.ndarray, held: Held | None,
+                 opening: float, boxes: list[Box] | None = None):
         self.world = world
         self.objects = objects
         self.voxels = np.asarray(voxels, float).reshape(-1, 3)
@@ -270,7 +273,7 @@ class Scene:
             add(tb.name, 6, T_j6_flange @ tb.T_flange_box, coal.Box(*tb.size), "tool")
         if held is not None:
             add("held", 6, T_j6_flange @ robot.T_flange_tcp @ held.T_tcp_obj, world.bvh(held.model), "held")
-        for b in world.cell.boxes:
+        for b in [*world.cell.boxes, *(boxes or [])]:
             add(f"cell:{b.name}", 0, make_T(t=b.centre), coal.Box(*b.size), "env")
         for o in objects:
             add(f"obj:{o.name}", 0, o.T_base_obj, world.bvh(o.model), "env")

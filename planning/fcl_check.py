@@ -110,12 +110,13 @@ class FclChecker:
         allowed: Iterable[tuple[str, str]] = (),
         start_travel: float = 0.0,
         step: float = 0.002,
+        boxes: Sequence = (),
     ) -> CheckResult:
         """Check the joint polyline Q (rows) densely. `objects`: (name, model, T_base_obj), named like the
         planner's ``obj:<name>``; `held`: (model, T_tcp_obj); `allowed`: (part, other) pairs never reported."""
         Q = np.asarray(Q, float)
         allowed = {tuple(p) for p in allowed} | {(b, a) for a, b in allowed}
-        env = list(self.env_static)
+        env = list(self.env_static) + [(f"cell:{b.name}", fcl.Box(*b.size), make_T(t=b.centre)) for b in boxes]
         for name, model, T in objects:
             env.append((f"obj:{name}", self._mesh(model), np.asarray(T, float)))
         if voxels is not None and len(voxels):

@@ -210,8 +210,10 @@ def select_grasps(
     details = st.__dict__.copy()
     if not any_model or st.considered == 0:
         return NoGraspableObject("no candidate object with grasps (occluded, unknown model or no grasps)", details)
-    if st.no_placement > 0 and st.in_collision + st.multi_object + st.no_ik == 0:
-        return NoFeasiblePlacement("no collision-free grasp can also reach the requested placement", details)
+    if st.no_placement > 0:
+        return NoFeasiblePlacement(
+            "collision-free grasps exist but none can also reach the requested placement "
+            "(e.g. regrasp via the drop zone)", details)
     if st.in_collision + st.multi_object > 0:
         return NoCollisionFreeGrasp("every reachable grasp collides or takes in another object", details)
     return NoIK("no grasp pose is reachable", details)

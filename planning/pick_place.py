@@ -275,25 +275,31 @@ class Planner:
         T_obj = np.asarray(target.T_base_obj, float)
         turns = np.linspace(0, 2 * np.pi, 12, endpoint=False) if target.free_yaw else [0.0]
         raises = np.arange(0.0, self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else [0.0]
-        out = []
-        for a in turns:
+        seeds: dict[int, np.ndarray | None] = {}
+        live = []
+        for k, a in enumerate(turns):
             To0 = T_obj @ rot_z(a)  # about the object's own (symmetry) axis
-            T0 = To0 @ T_obj_tcp
-            if T0[2, 2] > self.settings.max_approach_up:
-                continue
-            q = None
-            for dz in raises:
+            if (To0 @ T_obj_tcp)[2, 2] <= self.settings.max_approach_up:
+                live.append((k, To0))
+        out = []
+        for dz in raises:  # lowest release first, over all turns
+            for k, To0 in live:
+                if k in seeds and seeds[k] is None:
+                    continue  # unreachable at a lower height: higher is no better for this turn
                 To = trans(0.0, 0.0, float(dz)) @ To0
                 T = To @ T_obj_tcp
-                q = self.robot.ik_q(T, q_ref if q is None else q, max_seeds=6 if q is None else 0, max_iter=40)
+                q = self.robot.ik_q(T, q_ref if seeds.get(k) is None else seeds[k],
+                                    max_seeds=6 if seeds.get(k) is None else 0, max_iter=40)
+                seeds[k] = q
                 if q is None:
-                    break
+                    continue
                 if release_scene is None or release_scene.valid(q):
                     out.append((To, T, q))
-                    break
-            if first_only and out:
+                    if first_only:
+                        return out
+            if out:
                 break
-        out.sort(key=lambda x: (round(float(x[0][2, 3] - T_obj[2, 3]), 3), float(np.max(np.abs(x[2] - q_ref)))))
+        out.sort(key=lambda x: float(np.max(np.abs(x[2] - q_ref))))
         return out
 
     def plan_place(

@@ -39,14 +39,34 @@ def _half_extents(model: ObjectModel) -> np.ndarray:
     return (np.asarray(bb.get_max_bound()) - np.asarray(bb.get_min_bound())) / 2
 
 
-def slot_pose(model: ObjectModel, T_base_slot: np.ndarray, kind: str, drop: float = DROP_HEIGHT) -> np.ndarray:
-    """T_base_obj of `model` resting in a rack slot (plus `drop`)."""
+def _footprint(model: ObjectModel, T_base_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """xy bounding box (base frame) of the model at a pose."""
+    V = np.asarray(model.mesh.vertices)[:, :3] @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
+    return V[:, :2].min(0), V[:, :2].max(0)
+
+
+def slot_pose(model: ObjectModel, T_base_slot: np.ndarray, kind: str, drop: float = DROP_HEIGHT,
+              inverted: bool = True) -> np.ndarray:
+    """T_base_obj of `model` resting in a rack slot (plus `drop`): plates upright (axis along the rack's x),
+    others upside down (or upright with ``inverted=False``)."""
     h = _half_extents(model)
     if kind == "plates":
         # upright: object z (the plate's axis) along base x; its radius sets the height above the floor
         return T_base_slot @ trans(0.0, 0.0, h[0] + drop) @ rot_y(np.pi / 2)
-    # upside down: object z points down; half height above the floor
+    if not inverted:
+        return T_base_slot @ trans(0.0, 0.0, h[2] + drop)
     return T_base_slot @ trans(0.0, 0.0, h[2] + drop) @ rot_x(np.pi)
+
+
+def _fit_inside(model: ObjectModel, T: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
+    """T shifted in xy so the model's footprint lies within [lo, hi] (None when it is wider)."""
+    flo, fhi = _footprint(model, T)
+    if np.any(fhi - flo > hi - lo):
+        return None
+    shift = np.maximum(lo - flo, 0.0) + np.minimum(hi - fhi, 0.0)
+    out = T.copy()
+    out[:2, 3] += shift
+    return out
 
 
 @lru_cache(maxsize=64)
@@ -97,6 +117,7 @@ class SlotBook:
     def __init__(self, cell: Cell, drop_spacing: float = 0.12):
         self.cell = cell
         self.taken: set[str] = set()
+        self.footprints: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # slot -> xy AABB of what was put there
         self.slots = {s.name: s for s in cell.slots}
         a = cell.spec.drop_zone
         xs = np.arange(a.origin_xy[0] + drop_spacing / 2, a.origin_xy[0] + a.size_xy[0], drop_spacing)
@@ -104,29 +125,49 @@ class SlotBook:
         self.drop_spots = {f"drop_{i}_{j}": make_T(t=(x, y, a.z)) for i, x in enumerate(xs) for j, y in enumerate(ys)}
 
     # ---- bookkeeping ---------------------------------------------------------------------------------
-    def fill(self, name: str) -> None:
+    def fill(self, name: str, T_base_obj: np.ndarray | None = None, model: ObjectModel | None = None) -> None:
+        """Mark a slot/spot taken; with the object's pose and model, also remember its footprint so that
+        neighbouring slots it overlaps (a dinner plate spans two plate slots) are not offered."""
         if name not in self.slots and name not in self.drop_spots:
             raise KeyError(f"SlotBook.fill: unknown slot {name!r}")
         self.taken.add(name)
+        if T_base_obj is not None and model is not None:
+            self.footprints[name] = _footprint(model, T_base_obj)
 
     def free(self, name: str) -> None:
         self.taken.discard(name)
+        self.footprints.pop(name, None)
+
+    def _overlaps(self, model: ObjectModel, T: np.ndarray, clearance: float = 0.005) -> bool:
+        lo, hi = _footprint(model, T)
+        for flo, fhi in self.footprints.values():
+            if np.all(lo < fhi + clearance) and np.all(hi > flo - clearance):
+                return True
+        return False
 
     def free_slots(self, kind: str) -> list[str]:
         return [n for n, s in self.slots.items() if s.kind == kind and n not in self.taken]
 
     # ---- targets ---------------------------------------------------------------------------------------
-    def targets_for(self, model: ObjectModel) -> list[PlaceTarget]:
-        """Every free rack slot that fits `model`'s class, in rack order (plates upright, others inverted)."""
+    def targets_for(self, model: ObjectModel, inverted: bool = True) -> list[PlaceTarget]:
+        """Every free rack slot that fits `model`'s class, in rack order: plates upright; cups, glasses, bowls
+        and mugs upside down (``inverted=False``: upright, the fallback for an item whose grasp cannot turn
+        it over, see README of planning/__init__). Objects are shifted to stay inside the rack's rails."""
         kind = rack_kind_for(model.cls)
         out = []
         for name in self.free_slots(kind):
             s = self.slots[name]
-            T = slot_pose(model, s.T_base_slot, kind)
+            rack = getattr(self.cell.spec.dishwasher, s.rack)
+            lo = np.asarray(rack.origin_xy, float) + 0.006 + 0.003  # rails (6 mm wire) + clearance
+            hi = np.asarray(rack.origin_xy, float) + np.asarray(rack.size_xy, float) - 0.009
+            T = _fit_inside(model, slot_pose(model, s.T_base_slot, kind, inverted=inverted), lo, hi)
+            if T is None or self._overlaps(model, T):
+                continue
             sym = model.is_rotationally_symmetric
             out.append(PlaceTarget(T, "slot", name, free_yaw=sym, support=f"rack_{s.rack}"))
             if kind == "plates":  # a plate may face either way in its slot
-                out.append(PlaceTarget(s.T_base_slot @ rot_z(np.pi) @ inv(s.T_base_slot) @ T, "slot", name,
+                c = trans(*T[:3, 3])
+                out.append(PlaceTarget(c @ rot_z(np.pi) @ inv(c) @ T, "slot", name,
                                        free_yaw=sym, support=f"rack_{s.rack}"))
         return out
 
@@ -142,6 +183,8 @@ class SlotBook:
         out = []
         for name, T in self.drop_spots.items():
             if name in self.taken:
+                continue
+            if self._overlaps(model, T @ trans(0, 0, h[2])):
                 continue
             out.append(PlaceTarget(T @ trans(0, 0, h[2] + DROP_HEIGHT), "drop", name, free_yaw=True, support="counter"))
         return out

@@ -131,7 +131,9 @@ def time_parameterise(
     fn = stop_at_vertices if mode == "stop_at_vertices" else along_path
     slow = 1.0
     last: LimitViolation | None = None
-    for _ in range(12):
+    for attempt in range(16):
+        if attempt == 10 and fn is along_path:  # a corner the smooth profile cannot take: stop at the vertices
+            fn, slow = stop_at_vertices, 1.0
         times, q = fn(Q, vmax / slow, amax / slow**2, dt)
         try:
             limits.check_trajectory(ur, times, q)

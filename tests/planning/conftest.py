@@ -1,0 +1,50 @@
+"""Shared fixtures for the planning tests: one Planner (robot + collision world) per session."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kitchenbot.executive.config import CellConfig
+from kitchenbot.perception.inventory import Inventory
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.pick_place import Planner
+
+
+@pytest.fixture(scope="session")
+def cfg() -> CellConfig:
+    return CellConfig()
+
+
+@pytest.fixture(scope="session")
+def inventory() -> Inventory:
+    return Inventory.builtin()
+
+
+@pytest.fixture(scope="session")
+def planner(cfg, inventory) -> Planner:
+    return Planner.from_config(cfg, inventory)
+
+
+@pytest.fixture(scope="session")
+def home(cfg) -> np.ndarray:
+    return np.asarray(cfg.robot.home, float)
+
+
+def _resting(planner: Planner, name: str, xy, instance_id: int, upside_down: bool = False, z_floor: float | None = None) -> ObjectPose:
+    """An object of the builtin inventory standing on the sink floor (or `z_floor`) at `xy`."""
+    from kitchenbot.transforms import make_T, rot_x
+
+    m = planner.inventory.by_name(name)
+    lo, _ = planner.cell.sink_interior
+    zf = lo[2] if z_floor is None else z_floor
+    T = make_T(t=(xy[0], xy[1], zf + m.extents[2] / 2 + 0.001))
+    if upside_down:
+        T = T @ rot_x(np.pi)
+    return ObjectPose(m.obj_id, m.cls, T, 1.0, instance_id=instance_id)
+
+
+@pytest.fixture(scope="session")
+def resting(planner):
+    """resting(name, xy, instance_id, upside_down=False, z_floor=None) -> ObjectPose on the sink floor."""
+    return lambda *a, **k: _resting(planner, *a, **k)

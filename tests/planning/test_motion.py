@@ -1,0 +1,105 @@
+"""Motion: a 5 mm wall cannot be passed through, planned paths re-check clean (coal dense + independent FCL),
+timing stays within the safety limits, typed failures for colliding start/goal."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kitchenbot.perception.cell import Box
+from kitchenbot.planning.fcl_check import FclChecker
+from kitchenbot.planning.motion import (
+    cartesian_line,
+    check_segment,
+    densify,
+    plan_joint_path,
+    point_step,
+    reach_bounds,
+)
+from kitchenbot.planning.timing import time_parameterise
+from kitchenbot.planning.types import GoalInCollision, StartInCollision
+from kitchenbot.transforms import make_T, trans
+
+
+def _q_at(planner, home, xyz):
+    T = make_T(np.diag([1.0, -1.0, -1.0]), xyz)  # TCP pointing down
+    q = planner.robot.ik_q(T, home)
+    assert q is not None
+    return q
+
+
+@pytest.fixture(scope="module")
+def wall_case(planner, home):
+    """Two TCP positions above the counter on either side of a 5 mm wall between them."""
+    qa = _q_at(planner, home, (0.45, 0.30, 0.25))
+    qb = _q_at(planner, home, (0.45, -0.10, 0.25))
+    wall = Box("thin_wall", "wall", np.array([0.15, 0.1, 0.0]), np.array([0.80, 0.105, 0.45]), (1.0, 0.0, 0.0))
+    scene = planner.world.scene(boxes=[wall])
+    return qa, qb, wall, scene
+
+
+def test_straight_line_through_the_wall_is_rejected(planner, wall_case):
+    qa, qb, wall, scene = wall_case
+    assert scene.valid(qa) and scene.valid(qb)
+    r = reach_bounds(scene)
+    # the straight joint line passes through the wall: the planner's resolution and the dense check see it
+    assert check_segment(scene, np.vstack([qa, qb]), r, planner.planning_resolution) >= 0
+    assert check_segment(scene, np.vstack([qa, qb]), r, 0.004) >= 0
+    # ... and so does the independent checker
+    chk = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
+    assert not chk.check_path(np.vstack([qa, qb]), boxes=[wall], step=0.004).ok
+
+
+def test_planned_path_goes_around_the_wall(planner, wall_case):
+    qa, qb, wall, scene = wall_case
+    res = plan_joint_path(scene, qa, qb, timeout=5.0, planning_resolution=planner.planning_resolution)
+    assert not hasattr(res, "kind"), res
+    path = res.path
+    np.testing.assert_allclose(path[0], qa)
+    np.testing.assert_allclose(path[-1], qb)
+    r = reach_bounds(scene)
+    assert check_segment(scene, path, r, 0.004) < 0
+    chk = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
+    res_fcl = chk.check_path(path, boxes=[wall], step=0.003)
+    assert res_fcl.ok, str(res_fcl)
+
+
+def test_reach_bounds_bound_the_point_travel(planner, home):
+    """No geometry point moves farther than sum_j r_j |dq_j| (checked on the capsule end points and TCP)."""
+    scene = planner.world.scene()
+    r = reach_bounds(scene)
+    rng = np.random.default_rng(6)
+    for _ in range(50):
+        q0 = home + rng.uniform(-1, 1, 6)
+        dq = rng.uniform(-0.05, 0.05, 6)
+        P0, P1 = scene.placements(q0), scene.placements(q0 + dq)
+        moved = max(np.linalg.norm(P0[k][:3, 3] - P1[k][:3, 3]) for k in P0)
+        moved = max(moved, np.linalg.norm(planner.robot.fk_tcp(q0)[:3, 3] - planner.robot.fk_tcp(q0 + dq)[:3, 3]))
+        assert moved <= point_step(r, dq) + 1e-9
+    Q = densify(np.vstack([home, home + 0.5]), r, 0.004)
+    assert max(point_step(r, b - a) for a, b in zip(Q[:-1], Q[1:])) <= 0.004 + 1e-12
+
+
+def test_colliding_start_and_goal_are_typed_failures(planner, home):
+    scene = planner.world.scene()
+    bad = home.copy()
+    bad[2] = 3.1  # folded elbow
+    assert isinstance(plan_joint_path(scene, bad, home), StartInCollision)
+    assert isinstance(plan_joint_path(scene, home, bad), GoalInCollision)
+
+
+def test_timing_within_safety_limits(planner, home):
+    Q = np.vstack([home, home + [0.6, -0.2, 0.3, 0.1, 0.4, -1.0], home + [0.2, 0.1, 0.0, 0.0, 0.0, 0.5]])
+    line = cartesian_line(planner.robot, planner.world.scene(), home, trans(0.0, 0.0, -0.1) @ planner.robot.fk_tcp(home))
+    assert not hasattr(line, "kind"), line
+    for mode, P in (("stop_at_vertices", Q), ("along_path", line), ("along_path", Q)):
+        traj = time_parameterise(P, planner.limits, planner.robot.ur, mode=mode)
+        planner.limits.check_trajectory(planner.robot.ur, traj.times, traj.q)  # raises on a violation
+        np.testing.assert_allclose(traj.q[0], P[0])
+        np.testing.assert_allclose(traj.q[-1], P[-1])
+    traj = time_parameterise(Q, planner.limits, planner.robot.ur, mode="stop_at_vertices")
+    for v in Q:  # every vertex is a sample: linear interpolation never leaves the checked polyline
+        assert np.min(np.max(np.abs(traj.q - v), axis=1)) < 1e-12
+    # faster limits give a shorter trajectory; the joint speed limit is reached but not exceeded
+    vel = np.abs(np.diff(traj.q, axis=0) / np.diff(traj.times)[:, None])
+    assert vel.max() <= planner.limits.max_joint_speed.max() * 1.02

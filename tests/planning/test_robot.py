@@ -1,0 +1,77 @@
+"""Robot model: Pinocchio FK against the numpy DH code, IK round trips, wrapping, unreachable targets."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+from kitchenbot.drivers.ur_kinematics import UR_MODELS, fk_flange
+from kitchenbot.executive.config import CellConfig
+from kitchenbot.planning.robot import RobotModel
+from kitchenbot.transforms import trans
+
+
+@pytest.mark.parametrize("name", sorted(UR_MODELS))
+def test_fk_matches_dh_table(name):
+    cfg = CellConfig.model_validate({"robot": {"model": name}})
+    robot = RobotModel.from_config(cfg)
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        q = rng.uniform(-np.pi, np.pi, 6)
+        np.testing.assert_allclose(robot.fk(q, "flange"), fk_flange(robot.ur, q), atol=1e-12)
+        np.testing.assert_allclose(robot.fk_tcp(q), fk_flange(robot.ur, q) @ robot.T_flange_tcp, atol=1e-12)
+
+
+def test_no_urdf_to_cross_check():
+    """No UR URDF ships with the installed packages (pin has no example-robot-data here; ur-rtde has none),
+    so FK is cross-checked against the DH table only. If one appears, this test says so."""
+    assert importlib.util.find_spec("example_robot_data") is None
+
+
+def test_ik_round_trips(planner, home):
+    robot = planner.robot
+    rng = np.random.default_rng(2)
+    solved = 0
+    for _ in range(100):
+        q = home + rng.uniform(-1.0, 1.0, 6)
+        q = np.clip(q, robot.lower, robot.upper)
+        T = robot.fk_tcp(q)
+        res = robot.ik(T, q + rng.uniform(-0.2, 0.2, 6))
+        assert res.q is not None, "a pose from FK must be reachable"
+        np.testing.assert_allclose(robot.fk_tcp(res.q), T, atol=1e-4)
+        assert robot.within_limits(res.q)
+        solved += 1
+    assert solved == 100
+
+
+def test_ik_prefers_the_current_branch(planner, home):
+    robot = planner.robot
+    q = home + np.array([0.2, 0.1, -0.1, 0.1, 0.2, -0.3])
+    res = robot.ik(robot.fk_tcp(q), q + 0.05)
+    assert np.max(np.abs(res.q - q)) < 1e-3  # the same configuration, not another branch or a 2*pi turn
+
+
+def test_wrap_near_uses_the_closest_equivalent(planner):
+    robot = planner.robot
+    q = np.array([3.0, -1.0, 1.0, -1.5, -1.5, -0.1])
+    ref = q.copy()
+    ref[5] = 2 * np.pi - 0.5
+    w = robot.wrap_near(q, ref)
+    assert w[5] == pytest.approx(-0.1 + 2 * np.pi)  # a full turn closer to the current configuration
+    ref = q.copy()
+    ref[5] = 2 * np.pi - 0.5
+    q2 = q.copy()
+    q2[5] = 0.1
+    assert robot.wrap_near(q2, ref)[5] == pytest.approx(0.1)  # 0.1 + 2*pi would leave the +-2*pi limits
+    q3 = q.copy()
+    q3[2] = -3.0
+    ref3 = q.copy()
+    ref3[2] = 3.0
+    assert robot.wrap_near(q3, ref3)[2] == pytest.approx(-3.0)  # the elbow is limited to +-pi: no wrap
+
+
+def test_unreachable_pose_has_no_ik(planner, home):
+    T = trans(2.0, 0.0, 0.0) @ planner.robot.fk_tcp(home)
+    assert planner.robot.ik(T, home).q is None
