@@ -13,12 +13,17 @@ Result YAML::
 Samples JSON::
 
     {"mount": "eye_in_hand", "samples": [{"T_base_flange": 4x4, "T_cam_board": 4x4}, ...]}
+
+optionally with the detected corners (then `solve` refines on the pixels like the routine): a top-level
+`K` (3x3) and `dist` (list or null), and per sample `object_points` (N x 3, board frame, m) and
+`image_points` (N x 2, px).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -123,18 +128,61 @@ def load_samples(path: str | Path) -> tuple[str, list[np.ndarray], list[np.ndarr
     return mount, F, C
 
 
+@dataclass
+class Corners:
+    """Optional per-sample corner measurements in a samples file (enables the pixel refinement in `solve`)."""
+
+    K: np.ndarray
+    dist: np.ndarray | None
+    object_points: list[np.ndarray]  # (N_i, 3) board frame, metres
+    image_points: list[np.ndarray]  # (N_i, 2) px
+
+
 def save_samples(path: str | Path, mount: str, T_base_flange: list[np.ndarray], T_cam_board: list[np.ndarray],
-                 extra: dict | None = None) -> Path:
-    """Write recorded samples in the format :func:`load_samples` reads."""
+                 extra: dict | None = None, corners: Corners | None = None) -> Path:
+    """Write recorded samples in the format :func:`load_samples` reads (plus corners when given: `K`, `dist` at
+    the top level and `object_points` / `image_points` per sample)."""
     if mount not in MOUNTS:
         raise ValueError(f"mount: expected one of {list(MOUNTS)}, got {mount!r}")
-    doc: dict[str, Any] = {
-        "mount": mount,
-        "samples": [{"T_base_flange": np.asarray(f).tolist(), "T_cam_board": np.asarray(c).tolist()}
-                    for f, c in zip(T_base_flange, T_cam_board)],
-    }
+    samples = [{"T_base_flange": np.asarray(f).tolist(), "T_cam_board": np.asarray(c).tolist()}
+               for f, c in zip(T_base_flange, T_cam_board)]
+    doc: dict[str, Any] = {"mount": mount}
+    if corners is not None:
+        doc["K"] = np.asarray(corners.K, float).tolist()
+        doc["dist"] = None if corners.dist is None else np.asarray(corners.dist, float).ravel().tolist()
+        for s, o, i in zip(samples, corners.object_points, corners.image_points):
+            s["object_points"] = np.asarray(o, float).reshape(-1, 3).tolist()
+            s["image_points"] = np.asarray(i, float).reshape(-1, 2).tolist()
+    doc["samples"] = samples
     if extra:
         doc.update(extra)
     path = Path(path)
     path.write_text(json.dumps(doc, indent=1))
     return path
+
+
+def load_corners(path: str | Path) -> Corners | None:
+    """The corner measurements of a samples file, or None when it has none (`K` absent)."""
+    path = Path(path)
+    doc = json.loads(path.read_text())
+    if not isinstance(doc, dict) or doc.get("K") is None:
+        return None
+    K = np.asarray(doc["K"], dtype=np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+        raise CalibrationFileError(f"{path}: K: expected a 3x3 camera matrix")
+    dist = doc.get("dist")
+    dist = None if dist is None else np.asarray(dist, dtype=np.float64).ravel()
+    obj, img = [], []
+    for k, s in enumerate(doc.get("samples", [])):
+        for name in ("object_points", "image_points"):
+            if name not in s:
+                raise CalibrationFileError(f"{path}: samples[{k}]: missing key {name} (the file has K, so every "
+                                           "sample needs its corners)")
+        o = np.asarray(s["object_points"], dtype=np.float64)
+        i = np.asarray(s["image_points"], dtype=np.float64)
+        if o.ndim != 2 or o.shape[1] != 3 or i.shape != (len(o), 2) or len(o) < 4:
+            raise CalibrationFileError(f"{path}: samples[{k}]: expected object_points (N, 3) and image_points "
+                                       f"(N, 2) with N >= 4, got {o.shape} and {i.shape}")
+        obj.append(o)
+        img.append(i)
+    return Corners(K, dist, obj, img)

@@ -73,14 +73,29 @@ def run(args: argparse.Namespace) -> int:
 
 # ---- solve ------------------------------------------------------------------------------------------------------
 def _solve(args: argparse.Namespace) -> int:
-    from kitchenbot.calibration.files import load_samples, save_hand_eye
-    from kitchenbot.calibration.residuals import solve_robust
+    from kitchenbot.calibration.files import load_corners, load_samples, save_hand_eye
+    from kitchenbot.calibration.refine import refine_reprojection
+    from kitchenbot.calibration.residuals import evaluate, solve_robust
 
     if not args.samples_file:
         raise ValueError("calibrate solve: expected a SAMPLES.json argument")
     mount, F, C = load_samples(args.samples_file)
+    corners = load_corners(args.samples_file)
     result = solve_robust(F, C, mount, reject=not args.no_reject)
-    save_hand_eye(args.out, result, {"source": {"samples_file": str(Path(args.samples_file).resolve())}})
+    extra: dict = {"source": {"samples_file": str(Path(args.samples_file).resolve())}}
+    if corners is not None and not args.no_refine:
+        pm = result
+        used = pm.samples_used
+        ref = refine_reprojection(pm.X, pm.spread.mean, [F[k] for k in used], [corners.object_points[k] for k in used],
+                                  [corners.image_points[k] for k in used], corners.K, corners.dist, mount)
+        result = evaluate(ref.X, F, C, mount, pm.pairs_used, pm.pairs_rejected, method="park_martin_1994+reprojection")
+        extra["refinement"] = {"reprojection_rms_px_before": ref.rms_px_before,
+                               "reprojection_rms_px_after": ref.rms_px_after, "corners": ref.n_points}
+        extra["park_martin"] = {pm.name: pm.X.tolist(), "residuals": {"rotation_deg": pm.rotation_deg_mean,
+                                                                      "translation_mm": pm.translation_mm_mean}}
+        print(f"refined on {ref.n_points} corner pixels: reprojection {ref.rms_px_before:.3f} -> "
+              f"{ref.rms_px_after:.3f} px rms")
+    save_hand_eye(args.out, result, extra)
     _print_result(result)
     print(f"wrote {args.out}")
     return 0
@@ -109,7 +124,7 @@ def _board(args: argparse.Namespace) -> int:
 
 # ---- the capture routine ---------------------------------------------------------------------------------------
 def _run_routine(args: argparse.Namespace) -> int:
-    from kitchenbot.calibration.files import save_hand_eye, save_samples
+    from kitchenbot.calibration.files import Corners, save_hand_eye, save_samples
     from kitchenbot.calibration.routine import RoutineSettings, run_routine, tool_spheres
     from kitchenbot.executive.config import load_config
     from kitchenbot.perception.cell import Cell
@@ -120,6 +135,9 @@ def _run_routine(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     spec = board_spec(args)
     nominal = cfg.T_flange_cam()  # the configured mount only steers the viewpoints
+    if not args.sim and "fake" in (cfg.drivers.arm.kind, cfg.drivers.camera.kind):
+        raise ValueError(f"{cfg.source}: the config uses the fake arm/camera; add --sim to calibrate in the "
+                         "simulated cell, or configure the real drivers")
     if args.sim:
         from kitchenbot.executive.calibration_sim import make_calibration_sim
 
@@ -136,9 +154,14 @@ def _run_routine(args: argparse.Namespace) -> int:
         else:
             print(f"  view {rec.index:2d}: {rec.n_corners} corners, reprojection {rec.rms_px:.3f} px")
 
+    from kitchenbot.drivers.errors import DriverError
+
     try:
         report = run_routine(arm, camera, spec, nominal, settings, seed=args.seed, boxes=Cell(cfg.cell).boxes,
                              extra=tool_spheres(cfg.robot.tool.T_flange_tcp.matrix(), nominal), progress=progress)
+    except DriverError as e:  # a protective stop, a lost link, a dropped frame: stop and say so
+        print(f"kitchenbot calibrate: device error, calibration stopped: {type(e).__name__}: {e}", file=sys.stderr)
+        return 1
     finally:
         camera.disconnect()
         arm.disconnect()
@@ -167,8 +190,10 @@ def _run_routine(args: argparse.Namespace) -> int:
             extra["simulation"].update(park_martin_error_deg=float(np.rad2deg(r0)), park_martin_error_mm=float(t0 * 1000))
     save_hand_eye(args.out, report.result, extra)
     if args.save_samples:
-        F, C = report.samples
-        save_samples(args.save_samples, "eye_in_hand", F, C)
+        ok = [r for r in report.records if r.T_cam_board is not None]
+        corners = Corners(ok[0].K, None, [r.object_points for r in ok], [r.image_points for r in ok])
+        save_samples(args.save_samples, "eye_in_hand", [r.T_base_flange for r in ok], [r.T_cam_board for r in ok],
+                     corners=corners)
     if report.refinement is not None:
         ref = report.refinement
         print(f"refined on {ref.n_points} corner pixels: reprojection {ref.rms_px_before:.3f} -> "

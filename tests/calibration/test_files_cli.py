@@ -92,3 +92,24 @@ def test_board_image_cli(tmp_path):
 
     ids, _, _ = BoardDetector(CharucoSpec()).detect(img)
     assert len(ids) == CharucoSpec().n_corners
+
+
+def test_run_without_sim_on_fake_drivers_is_refused(tmp_path, capsys):
+    assert main(["calibrate", "--out", str(tmp_path / "x.yaml")]) == 2
+    assert "add --sim" in capsys.readouterr().err
+
+
+def test_samples_with_corners_are_checked(tmp_path, rng):
+    from kitchenbot.calibration.files import Corners, load_corners
+
+    F, C = synth.samples("eye_in_hand", 3, rng)
+    obj = [np.zeros((5, 3))] * 3
+    p = save_samples(tmp_path / "s.json", "eye_in_hand", F, C,
+                     corners=Corners(np.eye(3), None, obj, [np.zeros((5, 2))] * 3))
+    got = load_corners(p)
+    assert got is not None and len(got.image_points) == 3 and got.image_points[0].shape == (5, 2)
+    assert load_corners(save_samples(tmp_path / "plain.json", "eye_in_hand", F, C)) is None
+    p = save_samples(tmp_path / "bad.json", "eye_in_hand", F, C,
+                     corners=Corners(np.eye(3), None, obj, [np.zeros((4, 2))] * 3))
+    with pytest.raises(CalibrationFileError, match=r"bad.json: samples\[0\]: expected object_points"):
+        load_corners(p)
