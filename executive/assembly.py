@@ -102,7 +102,8 @@ def assemble(config: CellConfig, seed: int | None = None, world=None) -> RobotCe
         from kitchenbot.drivers.dynamixel_gripper import DynamixelGripper
 
         gripper = DynamixelGripper(d.gripper.port, d.gripper.baudrate, d.gripper.servo_id,
-                                   current_limit_ma=d.gripper.current_limit_ma)
+                                   closed_ticks=d.gripper.closed_ticks, open_ticks=d.gripper.open_ticks,
+                                   max_opening=d.gripper.max_opening, current_limit_ma=d.gripper.current_limit_ma)
 
     if d.camera.kind == "fake":
         from kitchenbot.fakes.camera import FakeCamera

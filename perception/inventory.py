@@ -342,13 +342,18 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
     """
     V = np.asarray(model.mesh.vertices)
     z_top = V[:, 2].max()
-    r_rim = np.max(np.linalg.norm(V[V[:, 2] > z_top - 0.004][:, :2], axis=1))
+    # The body's axis passes through the centre of the rim ring (not the bounding-box centre: a mug's handle
+    # shifts that off the axis).
+    rim = V[V[:, 2] > z_top - 0.004][:, :2]
+    axis_xy = (rim.max(axis=0) + rim.min(axis=0)) / 2
+    r_rim = np.max(np.linalg.norm(rim - axis_xy, axis=1))
+    axis = np.array([axis_xy[0], axis_xy[1], 0.0])
     grasps: list[GraspSpec] = []
     bite = 0.012 if model.cls in ("plate",) else 0.015
     for k in range(n_around):
         a = 2 * np.pi * k / n_around
         radial = np.array([np.cos(a), np.sin(a), 0.0])
-        pos = radial * (r_rim - 0.004) + np.array([0, 0, z_top - bite])
+        pos = axis + radial * (r_rim - 0.004) + np.array([0, 0, z_top - bite])
         T = _tcp_frame(np.array([0, 0, -1.0]), radial, pos)
         grasps.append(("rim", k, T))
     if model.cls in ("cup", "mug", "glass", "bowl"):
@@ -357,7 +362,7 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
             a = 2 * np.pi * k / n_around
             radial = np.array([np.cos(a), np.sin(a), 0.0])
             tangent = np.array([-np.sin(a), np.cos(a), 0.0])
-            T = _tcp_frame(-radial, tangent, np.array([0, 0, z_mid]))
+            T = _tcp_frame(-radial, tangent, axis + np.array([0, 0, z_mid]))
             grasps.append(("side", k, T))
     out = []
     scene = o3d.t.geometry.RaycastingScene()
@@ -367,4 +372,9 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
         if w is None or w > GRIPPER_MAX_OPENING - 0.01 or w <= 0:
             continue
         out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=min(GRIPPER_MAX_OPENING, w + 0.03), width=w))
+    # A rim pinch that also takes in something else (the root of a mug's handle) is not a rim pinch.
+    rim_w = [g.width for g in out if g.name.startswith("rim")]
+    if rim_w:
+        limit = 2.0 * float(np.median(rim_w))
+        out = [g for g in out if not (g.name.startswith("rim") and g.width > limit)]
     return out

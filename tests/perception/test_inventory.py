@@ -88,3 +88,12 @@ def test_broken_inputs_name_the_file(tmp_path, inventory):
         {"name": "a", "opening": 0.05, "width": 0.01, "T_obj_tcp": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}]}}}))
     with pytest.raises(InventoryError, match="rigid transform"):
         Inventory.load(tmp_path / "m", g)
+
+
+def test_mug_rim_grasps_straddle_the_wall(inventory):
+    """The mug's axis is off its bounding-box centre (the handle): rim grasps must still sit on the wall."""
+    mug = inventory.by_name("mug")
+    rim = [g for g in mug.grasps if g.name.startswith("rim")]
+    assert len(rim) >= 10
+    for g in rim:
+        assert g.width < 0.008  # pads close on the wall (5 mm), never on the handle's root
