@@ -148,6 +148,8 @@ class HandEyeResult:
             "translation_mm_median": float(np.median(self.translation_mm)),
             "pairs_used": len(self.pairs_used),
             "pairs_rejected": [list(p) for p in self.pairs_rejected],
+            "pairs_retained": [list(p) for p in self.pairs_used],
+            "samples_used": list(self.samples_used),
             "board_spread": self.spread.as_dict(),
         }
 
