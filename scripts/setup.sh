@@ -29,13 +29,23 @@ fi
   echo "setup: $PYTHON is $($PYTHON --version 2>&1); kitchenbot needs Python 3.11 or newer." >&2; exit 1; }
 [ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
 
-# 3. Python packages (the project itself in editable mode, with the test tools).
+# 3. Python packages (the project itself in editable mode, with the test tools and the learned backends).
+# torch first and pinned: this exact version resolves to the CPU build; any other spec would pull the CUDA
+# wheels (gigabytes). Skipped when already installed, so a second run stays quick.
 log=$(mktemp)
-if ! "$VENV/bin/python" -m pip install -q -e ".[dev]" >"$log" 2>&1; then
+TORCH_VERSION=2.13.0
+if ! "$VENV/bin/python" -c "import torch, sys; sys.exit(torch.__version__.split('+')[0] != '$TORCH_VERSION')" 2>/dev/null; then
+  echo "setup: installing torch==$TORCH_VERSION (CPU build)"
+  if ! "$VENV/bin/python" -m pip install -q "torch==$TORCH_VERSION" >"$log" 2>&1; then
+    grep -v "^WARNING: Location" "$log" >&2; rm -f "$log"
+    echo "setup: pip could not install torch==$TORCH_VERSION (see above)." >&2; exit 1
+  fi
+fi
+if ! "$VENV/bin/python" -m pip install -q -e ".[dev,learned]" >"$log" 2>&1; then
   grep -v "^WARNING: Location" "$log" >&2; rm -f "$log"
   echo "setup: pip could not install the Python packages (see above)." >&2; exit 1
 fi
 rm -f "$log"
-"$VENV/bin/python" -c "import kitchenbot, open3d, pinocchio, ompl" || {
+"$VENV/bin/python" -c "import kitchenbot, open3d, pinocchio, ompl, torch, transformers" || {
   echo "setup: the Python packages did not install; see the pip output above." >&2; exit 1; }
 echo "setup: ready ($VENV)"
