@@ -233,3 +233,15 @@ def backend_status(weights_dir: str | Path) -> list[BackendStatus]:
     for n, origin in point_encoder_names().items():
         out.append(BackendStatus("point_encoder", n, origin, "-", True, ""))
     return out
+
+
+def detect_and_segment(detector: "Detector", segmenter: "Segmenter", views: list) -> list[list]:
+    """Detections with masks for every view. Backends with `detect_batch` / `segment_batch` (the learned ones)
+    get all views in one call, so the GPU sees one batch per scan; others run view by view."""
+    if hasattr(detector, "detect_batch"):
+        boxes = detector.detect_batch(views)
+    else:
+        boxes = [detector.detect(v) for v in views]
+    if hasattr(segmenter, "segment_batch"):
+        return segmenter.segment_batch(views, boxes)
+    return [segmenter.segment(v, b) for v, b in zip(views, boxes)]

@@ -12,7 +12,7 @@ torch = pytest.importorskip("torch", reason="learned backends need torch (pip in
 transformers = pytest.importorskip("transformers", reason="learned backends need transformers (pip install -e .[learned])")
 
 from kitchenbot.perception.associate import associate  # noqa: E402
-from kitchenbot.perception.backends import CHECKPOINTS, make_detector, make_image_encoder  # noqa: E402
+from kitchenbot.perception.backends import CHECKPOINTS, detect_and_segment, make_detector, make_image_encoder  # noqa: E402
 from kitchenbot.perception.detect import Detection  # noqa: E402
 from kitchenbot.perception.features import FPFHEncoder, fuse_instance, l2n  # noqa: E402
 from kitchenbot.perception.hf_detectors import (BoxFilteredGeometric, GroundedDetector, boxes_to_pixels,  # noqa: E402
@@ -170,6 +170,11 @@ def test_sam2_boxes_to_masks_to_association(weights):
     v2 = seg.segment_batch([view], [[dets[1], dets[0]]])[0]
     ids = associate([view, view], [v1, v2], iou_threshold=0.6)
     assert ids[0][0] == ids[1][1] and ids[0][1] == ids[1][0] and ids[0][0] != ids[0][1]
+    # the pipeline's stage: all views through the detector and SAM2 in one batch each
+    det.box_threshold, det.max_detections = 0.0, 3
+    both = detect_and_segment(det, seg, [view, _plane_view(rgb=np.zeros((240, 320, 3), np.uint8))])
+    assert [len(d) for d in both] == [3, 3]
+    assert all(d.mask.shape == (240, 320) and d.mask.any() for ds in both for d in ds)
 
 
 # ---- image encoders ------------------------------------------------------------------------------------------
