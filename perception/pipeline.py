@@ -113,7 +113,7 @@ class Perceiver:
             with timed("align"):
                 views, _ = align_views(views, self.settings.voxel_size)
         with timed("segment"):
-            dets = [self.segmenter.segment(v, self.detector.detect(v)) for v in views]
+            dets = backends.detect_and_segment(self.detector, self.segmenter, views)  # batched when learned
         with timed("associate"):
             ids = associate(views, dets, self.settings.iou_threshold)
         with timed("map"):
