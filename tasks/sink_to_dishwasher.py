@@ -43,7 +43,8 @@ class SinkToDishwasher(Task):
             preferred = [(x, (lo[1] + hi[1]) / 2) for x in xs] + slots
             poses = area_spots(model, lo, hi, spec.floor_z, self.placed, on_edge, 3, preferred, step=0.015)
         else:
-            poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, slots)
+            # Packed from the corner nearest the robot on a fine grid (the nominal slots leave gaps a bowl needs).
+            poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3)
         names = {tuple(np.round(xy, 4)): s.name for xy, s in
                  zip(slots, [s for s in self.cell.slots if s.rack == rack])}
         # Plates on edge keep their face normal along x (tines); mugs have a handle: no free yaw for either.

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from kitchenbot.executive.assembly import assemble, make_sim_world
@@ -11,7 +10,7 @@ from kitchenbot.executive.runner import RunOptions
 from kitchenbot.executive.session import build_runner
 
 
-def small_config(n: int = 3, seed: int = 0, waypoints: int = 1):
+def _small_config(n: int = 3, seed: int = 0, waypoints: int = 1):
     """The shipped sim config with n objects and only the first `waypoints` scan waypoints (oracle tests need
     no more; it keeps each run to a few seconds)."""
     cfg = load_config()
@@ -21,7 +20,7 @@ def small_config(n: int = 3, seed: int = 0, waypoints: int = 1):
     return cfg
 
 
-def cup_world(cfg, keep_cups: int = 1):
+def _cup_world(cfg, keep_cups: int = 1):
     """Seed 0's three-object scene (a plate under two nested cups) reduced to `keep_cups` cups, settled on what
     is below them. Picks that the planner handles reliably: the point here is the executive."""
     from kitchenbot.fakes.placement import drop_onto
@@ -50,6 +49,24 @@ def cup_world(cfg, keep_cups: int = 1):
 
 
 @pytest.fixture
+def small_config():
+    """small_config(n=3, seed=0, waypoints=1) -> CellConfig"""
+    return _small_config
+
+
+@pytest.fixture
+def cup_world():
+    """cup_world(cfg, keep_cups=1) -> SimWorld with only cups in the sink"""
+    return _cup_world
+
+
+@pytest.fixture
+def safe_end():
+    """safe_end(runner, world): asserts the run ended safe and journaled."""
+    return assert_safe_end
+
+
+@pytest.fixture
 def state_dir(tmp_path, monkeypatch):
     monkeypatch.setenv("KITCHENBOT_STATE_DIR", str(tmp_path / "state"))
     return tmp_path / "state"
@@ -61,8 +78,8 @@ def make_runner(tmp_path):
 
     def make(task: str = "cup-stacking", cups: int = 1, oracle: bool = True, journal: bool = True,
              waypoints: int = 1, confirm: int = 1, **kw):
-        cfg = small_config(waypoints=waypoints)
-        world = cup_world(cfg, cups)
+        cfg = _small_config(waypoints=waypoints)
+        world = _cup_world(cfg, cups)
         robot = assemble(cfg, world=world)
         runner = build_runner(cfg, task, 0, robot=robot, oracle_perception=oracle,
                               journal_path=(tmp_path / "journal.sqlite") if journal else False,
@@ -85,4 +102,3 @@ def assert_safe_end(runner, world) -> None:
         assert [e["name"] for e in trans] == [t["trigger"] for t in runner.report.transitions]
 
 
-__all__ = ["assert_safe_end", "build_runner", "cup_world", "small_config", "np"]

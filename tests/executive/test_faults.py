@@ -1,0 +1,65 @@
+"""Every fault the fakes can inject, in each state where it can happen: the run ends in a safe, journaled
+state, and recoverable faults are recovered (the task still succeeds). Oracle perception (simulator truth):
+these tests are about the executive's recovery rules, not perception accuracy."""
+
+from __future__ import annotations
+
+import pytest
+
+# (fault switch, value, state whose entry arms it, recoverable)
+CASES = [
+    ("camera_drop", 1, "scan", True),  # retried at the waypoint
+    ("camera_drop", 3, "scan", True),  # retries exhausted: fault -> recover -> re-scan
+    ("camera_drop", 3, "verify", True),
+    ("camera_nan_depth", 3, "scan", True),
+    ("camera_nan_depth", 1, "verify", True),
+    ("arm_disconnect", True, "scan", True),
+    ("arm_disconnect_after", 0.3, "execute", True),  # link drops mid-move
+    ("protective_stop", 1, "scan", True),
+    ("protective_stop", 1, "execute", True),
+    ("gripper_overload", 1, "execute", True),
+    ("slip_probability", 1.0, "execute", True),  # the object slips out while carried
+    ("missed_detection", 1, "scan", True),
+    ("camera_drop", 10_000, "scan", False),  # the camera is gone: give up safely
+]
+
+
+@pytest.mark.parametrize("fault,value,state,recoverable", CASES,
+                         ids=[f"{f}-{s}-{v}" for f, v, s, _ in CASES])
+def test_fault_is_journaled_and_ends_safe(make_runner, safe_end, fault, value, state, recoverable):
+    runner, world = make_runner()
+    armed = {"done": False}
+
+    def inject(ev):
+        if ev["type"] == "transition" and ev["dest"] == state and not armed["done"]:
+            armed["done"] = True
+            setattr(world.faults, fault, value)
+        if fault == "slip_probability" and ev["type"] == "fault":
+            world.faults.slip_probability = 0.0  # one slip, then the retry may succeed
+
+    runner.listeners.append(inject)
+    report = runner.run()
+    safe_end(runner, world)
+    assert armed["done"]
+    faults = runner.journal.events(runner.run_id, kind="fault")
+    if fault != "missed_detection":
+        assert faults, "the fault must be journaled"
+    retried_in_place = (fault, value) in {("camera_drop", 1), ("camera_nan_depth", 1)}
+    if fault == "missed_detection":
+        triggers = [t["trigger"] for t in report.transitions]
+        assert world.faults.missed_detection == 0  # it fired: the first scan saw an empty sink
+        assert triggers.index("nothing_left") < triggers.index("selected")
+    elif not retried_in_place:
+        assert report.recoveries >= 1
+    if fault == "slip_probability":
+        assert report.slips == 1
+    if fault == "protective_stop":
+        assert report.protective_stops == 1
+    if recoverable:
+        assert report.status == "succeeded", (report.message, report.failures)
+        assert report.truth["end"]["delivered"] == 1 and report.truth["end"]["in_sink"] == 0
+    else:
+        assert report.status == "failed" and report.safe
+        assert "camera" in report.message
+        assert world.gripper_opening > 0.05  # gripper open
+    assert report.collisions == 0

@@ -1,0 +1,107 @@
+"""End-to-end runs in the simulated cell: success with a full report, write-ahead journal, stop, pause/resume,
+homing after an interrupted run, recordings. Oracle perception where marked (the executive is under test)."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from kitchenbot.executive.journal import HomingRequired, Journal
+from kitchenbot.executive.runner import home_arm
+
+
+def test_oracle_cup_stacking_succeeds_with_full_report(make_runner, safe_end, tmp_path):
+    runner, world = make_runner(record_path=tmp_path / "run.rrd", dataset_dir=tmp_path / "ds")
+    report = runner.run()
+    safe_end(runner, world)
+    assert report.status == "succeeded" and report.perception == "oracle"
+    assert (report.objects_done, report.objects_total, report.attempts) == (1, 1, 1)
+    assert report.collisions == 0 and report.limit_violations == 0
+    assert report.truth["end"] == {"in_sink": 0, "delivered": 1, "elsewhere": 0, "held": False}
+    assert set(report.state_time_s) >= {"scan", "perceive", "select_grasp", "plan", "execute", "verify"}
+    assert [t["trigger"] for t in report.transitions][:6] == ["start", "scanned", "perceived", "selected", "planned",
+                                                             "executed"]
+    assert report.cycles and report.cycles[0]["compute_s"] > 0 and report.cycles[0]["motion_sim_s"] > 0
+    # the journal: every device command row precedes its result row
+    ev = runner.journal.events(runner.run_id)
+    cmds = [k for k, e in enumerate(ev) if e["kind"] == "command" and e["name"] == "arm.execute_trajectory"]
+    res = [k for k, e in enumerate(ev) if e["kind"] == "result" and e["name"] == "arm.execute_trajectory"]
+    assert len(cmds) == len(res) >= 6 and all(c < r for c, r in zip(cmds, res))
+    grasp_cmd = next(k for k, e in enumerate(ev) if e["name"] == "gripper.grasp" and e["kind"] == "command")
+    grasp_res = next(k for k, e in enumerate(ev) if e["name"] == "gripper.grasp" and e["kind"] == "result")
+    assert grasp_cmd < grasp_res and ev[grasp_res]["payload"]["holding"] is True
+    # recordings: a rerun file and one BOP scene per scan
+    assert (tmp_path / "run.rrd").stat().st_size > 10_000
+    scenes = sorted((tmp_path / "ds" / "scans").iterdir())
+    assert len(scenes) == runner.scan_count >= 2
+    cam = json.loads((scenes[0] / "scene_camera.json").read_text())
+    assert len(cam["0"]["cam_K"]) == 9 and (scenes[0] / "depth" / "000000.png").exists()
+    report.save(tmp_path / "r.json")
+    d = json.loads((tmp_path / "r.json").read_text())
+    for k in ("task", "status", "objects_total", "objects_done", "attempts", "recoveries", "state_time_s",
+              "transitions", "collisions", "limit_violations"):
+        assert k in d
+
+
+def test_stop_acts_at_once_mid_motion(make_runner, safe_end):
+    runner, world = make_runner()
+    polls = {"n": 0}
+    step = runner.advance
+
+    def advance(dt):  # the stop arrives while the approach motion is being polled
+        step(dt)
+        if runner.state == "execute":
+            polls["n"] += 1
+            if polls["n"] == 3:
+                runner.request_stop()
+
+    runner.advance = advance
+    report = runner.run()
+    assert report.status == "stopped" and runner.state == "stopped"
+    assert not runner.arm.is_moving() and runner.arm.log.stops >= 1
+    assert runner.journal.run(runner.run_id).status == "stopped"
+    assert [t["trigger"] for t in report.transitions][-1] == "stop"
+
+
+def test_pause_waits_at_a_safe_point_and_resume_rescans(make_runner, safe_end):
+    runner, world = make_runner()
+    paused = threading.Event()
+    runner.listeners.append(lambda ev: ev["type"] == "paused" and paused.set())
+    runner.request_pause()
+    t = threading.Thread(target=runner.run)
+    t.start()
+    assert paused.wait(30)
+    assert runner.state == "paused" and not runner.arm.is_moving()
+    runner.request_resume()
+    t.join(60)
+    report = runner.report
+    triggers = [x["trigger"] for x in report.transitions]
+    assert "pause" in triggers and triggers[triggers.index("pause") + 1] == "resume"
+    assert triggers[triggers.index("resume")] == "resume" and report.status == "succeeded"
+    safe_end(runner, world)
+
+
+def test_interrupted_run_blocks_motion_until_home(make_runner, tmp_path):
+    j = Journal(tmp_path / "journal.sqlite")
+    j.begin_run("cup-stacking", 0)  # a run that never ended (the process was killed)
+    j.close()
+    runner, world = make_runner()
+    assert [r.task for r in runner.journal.recover()] == ["cup-stacking"]
+    q0 = world.q.copy()
+    with pytest.raises(HomingRequired):
+        runner.run()
+    assert np.allclose(world.q, q0)  # nothing moved
+    home_arm(runner.robot, runner.planner, runner.journal, advance=runner.arm.step)
+    assert np.allclose(world.q, runner.robot.config.robot.home, atol=1e-3)
+    runner2, world2 = make_runner()
+    assert runner2.run().status == "succeeded"
+
+
+def test_unknown_task_is_a_clear_error(small_config):
+    from kitchenbot.executive.runner import run_task
+
+    with pytest.raises(ValueError, match="unknown task 'dishes'"):
+        run_task(small_config(), "dishes", 0, progress=False, journal_path=False)
