@@ -53,6 +53,7 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
     checker = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
     home = np.asarray(cfg.robot.home, float)
     ik_ms, sel_ms, plan_ms, pick_ms, place_ms = [], [], [], [], []
+    parts: dict[str, list[float]] = {"search": [], "simplify": [], "recheck": []}
     failures: Counter = Counter()
     rows = []
     ok_scenes = 0
@@ -82,6 +83,10 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
             pick_ms.append(dt)
             sel_ms.append(pick.timings_ms.get("grasp_selection_ms", np.nan))
             plan_ms += [v for k, v in pick.timings_ms.items() if k.endswith("_plan_ms")]
+            for k, v in pick.timings_ms.items():
+                for p_ in parts:
+                    if k.endswith(f"_{p_}_ms"):
+                        parts[p_].append(v)
             t0 = time.perf_counter()
             place = planner.plan_place(pick.end, pick.grasp, targets, objects=objs)
             dt = (time.perf_counter() - t0) * 1e3
@@ -91,6 +96,10 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
                 continue
             place_ms.append(dt)
             plan_ms += [v for k, v in place.timings_ms.items() if k.endswith("_plan_ms")]
+            for k, v in place.timings_ms.items():
+                for p_ in parts:
+                    if k.endswith(f"_{p_}_ms"):
+                        parts[p_].append(v)
             checks = verify_pick(checker, planner, pick, objs, step=check_step) + \
                 verify_place(checker, planner, place, pick.grasp, objs, step=check_step)
             segments_checked += len(checks)
@@ -117,6 +126,9 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
         "grasp_selection_ms_median": _median([x for x in sel_ms if np.isfinite(x)]),
         "plan_ms_median": _median(plan_ms),
         "plan_ms_p90": float(np.percentile(plan_ms, 90)) if plan_ms else None,
+        "plan_search_ms_median": _median(parts["search"]),
+        "plan_simplify_ms_median": _median(parts["simplify"]),
+        "plan_recheck_ms_median": _median(parts["recheck"]),
         "pick_ms_median": _median(pick_ms),
         "place_ms_median": _median(place_ms),
         "segments_rechecked": segments_checked,
@@ -139,7 +151,9 @@ def run(args: argparse.Namespace) -> int:
     print()
     fmt = lambda v, u="": "-" if v is None else (f"{v:.3f}{u}" if isinstance(v, float) else f"{v}{u}")  # noqa: E731
     for key, unit in (("success_rate", ""), ("ik_ms_median", " ms"), ("grasp_selection_ms_median", " ms"),
-                      ("plan_ms_median", " ms"), ("plan_ms_p90", " ms"), ("pick_ms_median", " ms"),
+                      ("plan_ms_median", " ms"), ("plan_ms_p90", " ms"),
+                      ("plan_search_ms_median", " ms"), ("plan_simplify_ms_median", " ms"),
+                      ("plan_recheck_ms_median", " ms"), ("pick_ms_median", " ms"),
                       ("place_ms_median", " ms"), ("segments_rechecked", ""), ("fcl_violations", "")):
         print(f"{key:28s} {fmt(rep[key], unit)}")
     print(f"{'failures':28s} {rep['failures']}")

@@ -314,6 +314,8 @@ class Scene:
         self.gd = pin.GeometryData(gm)
         self._bp = None
         self._tcp_in_j6 = robot.model.frames[robot.tcp_id].placement.translation.copy()
+        self._ws_lo = np.asarray(robot.limits.workspace.lower, float)
+        self._ws_hi = np.asarray(robot.limits.workspace.upper, float)
         self.pair_names = [(self.names[p.first], self.names[p.second]) for p in gm.collisionPairs]
         self._set_margins({}, world.margin)
 
@@ -374,14 +376,14 @@ class Scene:
     def valid(self, q: np.ndarray) -> bool:
         """True when q is within the joint limits and nothing collides (within the margins)."""
         q = np.asarray(q, float)
-        if not self.world.robot.within_limits(q):
+        robot = self.world.robot
+        if (q < robot.lower - 1e-9).any() or (q > robot.upper + 1e-9).any():
             return False
         if pin.computeCollisions(self.model, self.data, self._broadphase(), q, True):
             return False
         # the TCP must stay inside the safety workspace (the Arm refuses trajectories that leave it)
         p = self.data.oMi[6].act(self._tcp_in_j6)
-        ws = self.world.robot.limits.workspace
-        return bool(np.all(p >= ws.lower) and np.all(p <= ws.upper))
+        return not ((p < self._ws_lo).any() or (p > self._ws_hi).any())
 
     def valid_batch(self, Q: np.ndarray) -> np.ndarray:
         """Validity of each row of Q (N, 6)."""

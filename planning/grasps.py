@@ -100,8 +100,12 @@ def select_grasps(
     target: ObjectPose | None = None,
     grasp_filter=None,
     stats: GraspStats | None = None,
+    limit: int | None = None,
 ) -> list[Grasp] | PlanningFailure:
     """Ranked feasible grasps (best first), or the failure that explains why there are none.
+
+    Candidates are checked most promising first; with `limit`, checking stops once that many are feasible
+    (the ranking is then among those).
 
     `scene` holds every perceived object as ``obj:<object_name>``; `grasp_filter(obj, spec, T_base_tcp) -> bool`
     is an extra predicate (e.g. the placement must be reachable with this grasp).
@@ -120,6 +124,8 @@ def select_grasps(
     req = coal.CollisionRequest()
     ur = robot.ur
     reach = abs(ur.a[1]) + abs(ur.a[2]) + np.hypot(ur.d[3], ur.d[4]) + 0.02
+    # Phase 1: cheap filters (occlusion, approach from above, reach) over every (object, grasp) pair.
+    pending = []
     for k, o in cands:
         if 1.0 - float(o.visible_fraction) > max_hidden:
             st.occluded += 1
@@ -132,78 +138,86 @@ def select_grasps(
         if not specs:
             continue
         any_model = True
-        others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
-                  if j != k and objects[j].obj_id in inventory.models]
-        grasp_scene = scene.for_grasp(names[k])
         for spec in specs:
             st.considered += 1
             T = np.asarray(o.T_base_obj, float) @ spec.T_obj_tcp
             if T[2, 2] > settings.max_approach_up:
                 st.from_below += 1
                 continue
-            # multi-object grasp: another object inside the closing volume
-            vol, T_tcp_vol = closing_volume(spec.opening, gripper.pad_width, gripper.pad_root, gripper.pad_tip)
-            Tv = T @ T_tcp_vol
-            T_vol = coal.Transform3s(Tv[:3, :3].copy(), Tv[:3, 3].copy())
-            taken_in = False
-            for po, pm in others:
-                if np.linalg.norm(po.T_base_obj[:3, 3] - T[:3, 3]) > pm.diameter / 2 + 0.15:
-                    continue
-                res = coal.CollisionResult()
-                if coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, res):
-                    taken_in = True
-                    break
-            if taken_in:
-                st.multi_object += 1
-                continue
             # reach: the wrist centre must be within the arm's reach of the shoulder (cheap IK pre-filter)
             wrist = T[:3, 3] - T[:3, :3] @ robot.T_flange_tcp[:3, 3]
-            if np.linalg.norm(wrist - np.array([0.0, 0.0, robot.ur.d[0]])) > reach:
+            if np.linalg.norm(wrist - np.array([0.0, 0.0, ur.d[0]])) > reach:
                 st.no_ik += 1
                 continue
-            grasp_scene.set_opening(spec.opening)
+            pending.append((k, o, spec, T))
+    # Phase 2, most promising first (objects higher up are less buried; approaches closer to vertical leave
+    # the gripper more room): the expensive checks, until `limit` grasps are feasible.
+    pending.sort(key=lambda c: -(c[3][2, 3] + 0.05 * -c[3][2, 2]))
+    scenes: dict[int, Scene] = {}
+    for k, o, spec, T in pending:
+        if limit is not None and len(out) >= limit:
+            break
+        if k not in scenes:
+            scenes[k] = scene.for_grasp(names[k])
+        grasp_scene = scenes[k]
+        others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
+                  if j != k and objects[j].obj_id in inventory.models]
+        # multi-object grasp: another object inside the closing volume
+        vol, T_tcp_vol = closing_volume(spec.opening, gripper.pad_width, gripper.pad_root, gripper.pad_tip)
+        T_vol = _tf(T @ T_tcp_vol)
+        taken_in = False
+        for po, pm in others:
+            if np.linalg.norm(po.T_base_obj[:3, 3] - T[:3, 3]) > pm.diameter / 2 + 0.15:
+                continue
+            if coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, coal.CollisionResult()):
+                taken_in = True
+                break
+        if taken_in:
+            st.multi_object += 1
+            continue
+        grasp_scene.set_opening(spec.opening)
+        ik = None
+        reached = False
+        # A Fin-Ray grasp still holds with a shallower bite: back off along the approach (up to 8 mm)
+        # when the finger tips would touch what the object rests on.
+        q_seed = None
+        for back in (0.0, 0.004, 0.008):
+            Tb = T @ trans(0.0, 0.0, -back)
+            ik = robot.ik(Tb, q_current if q_seed is None else q_seed, max_seeds=6 if q_seed is None else 0,
+                          max_iter=40)
+            if q_seed is None and ik.q is None:
+                break  # unreachable: backing off 8 mm will not change that
+            q_seed = ik.q
+            if ik.q is None:
+                continue
+            reached = True
+            if grasp_scene.valid(ik.q):
+                T = Tb
+                break
             ik = None
-            reached = False
-            # A Fin-Ray grasp still holds with a shallower bite: back off along the approach (up to 8 mm)
-            # when the finger tips would touch what the object rests on.
-            q_seed = None
-            for back in (0.0, 0.004, 0.008):
-                Tb = T @ trans(0.0, 0.0, -back)
-                ik = robot.ik(Tb, q_current if q_seed is None else q_seed, max_seeds=6 if q_seed is None else 0,
-                              max_iter=40)
-                if q_seed is None and ik.q is None:
-                    break  # unreachable: backing off 8 mm will not change that
-                q_seed = ik.q
-                if ik.q is None:
-                    continue
-                reached = True
-                if grasp_scene.valid(ik.q):
-                    T = Tb
-                    break
-                ik = None
-            if ik is None or ik.q is None:
-                if reached:
-                    st.in_collision += 1
-                else:
-                    st.no_ik += 1
-                continue
-            T_pre = T @ trans(0.0, 0.0, -settings.approach_distance)
-            ik_pre = robot.ik(T_pre, ik.q, max_seeds=0)
-            if ik_pre.q is None:
-                st.no_ik += 1
-                continue
-            if not scene.valid(ik_pre.q):
+        if ik is None or ik.q is None:
+            if reached:
                 st.in_collision += 1
-                continue
-            if grasp_filter is not None and not grasp_filter(o, spec, T):
-                st.no_placement += 1
-                continue
-            clearance = grasp_scene.min_distance(ik.q, ("palm", "pad_a", "pad_b", "camera"), exclude=(f"obj:{names[k]}",))
-            motion = float(np.max(np.abs(ik_pre.q - q_current)))
-            down = -T[2, 2]  # 1 = straight down
-            score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
-            out.append(Grasp(spec, o, T, ik.q, ik_pre.q, T_pre, float(score), float(clearance)))
-            st.feasible += 1
+            else:
+                st.no_ik += 1
+            continue
+        T_pre = T @ trans(0.0, 0.0, -settings.approach_distance)
+        ik_pre = robot.ik(T_pre, ik.q, max_seeds=0)
+        if ik_pre.q is None:
+            st.no_ik += 1
+            continue
+        if not scene.valid(ik_pre.q):
+            st.in_collision += 1
+            continue
+        if grasp_filter is not None and not grasp_filter(o, spec, T):
+            st.no_placement += 1
+            continue
+        clearance = grasp_scene.min_distance(ik.q, ("palm", "pad_a", "pad_b", "camera"), exclude=(f"obj:{names[k]}",))
+        motion = float(np.max(np.abs(ik_pre.q - q_current)))
+        down = -T[2, 2]  # 1 = straight down
+        score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
+        out.append(Grasp(spec, o, T, ik.q, ik_pre.q, T_pre, float(score), float(clearance)))
+        st.feasible += 1
     if out:
         out.sort(key=lambda g: -g.score)
         return out

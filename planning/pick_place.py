@@ -143,6 +143,9 @@ class Planner:
         if isinstance(res, PlanningFailure):
             res.details.setdefault("segment", name)
             return res
+        timings[f"{name}_search_ms"] = res.plan_ms
+        timings[f"{name}_simplify_ms"] = res.simplify_ms
+        timings[f"{name}_recheck_ms"] = res.recheck_ms
         return self._time(res.path, name, "stop_at_vertices")
 
     def _line(self, scene: Scene, q0, T_goal, name: str, *, check_start: bool = True, start_scene: Scene | None = None,
@@ -169,12 +172,16 @@ class Planner:
         map_points: np.ndarray | None = None,
         place_target: PlaceTarget | Sequence[PlaceTarget] | None = None,
         stats: GraspStats | None = None,
+        limit: int | None = None,
+        scene: Scene | None = None,
     ) -> list[Grasp] | PlanningFailure:
-        """Ranked feasible grasps (best first) over `objects` (or only `target`)."""
+        """Ranked feasible grasps (best first) over `objects` (or only `target`); `limit`: stop checking once
+        that many are feasible."""
         q = self._check_q(q_current, "q_current")
         if isinstance(q, PlanningFailure):
             return q
-        scene = self.scene(objects, map_points)
+        if scene is None:
+            scene = self.scene(objects, map_points)
         flt = None
         if place_target is not None:
             targets = [place_target] if isinstance(place_target, PlaceTarget) else list(place_target)
@@ -192,7 +199,7 @@ class Planner:
                 return self._placeable[key]
 
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
-                             target=target, grasp_filter=flt, stats=stats)
+                             target=target, grasp_filter=flt, stats=stats, limit=limit)
 
     # ---- pick ------------------------------------------------------------------------------------------------------
     def plan_pick(
@@ -216,11 +223,12 @@ class Planner:
             return q0
         timings: dict = {}
         t0 = time.perf_counter()
-        grasps = self.select_grasps(q0, objects, target=target, map_points=map_points, place_target=place_target)
+        base_scene = self.scene(objects, map_points)
+        grasps = self.select_grasps(q0, objects, target=target, map_points=map_points, place_target=place_target,
+                                    limit=self.settings.max_grasp_candidates, scene=base_scene)
         timings["grasp_selection_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(grasps, PlanningFailure):
             return grasps
-        base_scene = self.scene(objects, map_points)
         last: PlanningFailure | None = None
         tried = 0
         for g in grasps[: self.settings.max_grasp_candidates]:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg.lapack import dgesv as _dgesv
 
 from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import URModel, ur_model
@@ -141,18 +142,15 @@ class RobotModel:
     # ---- inverse kinematics ----------------------------------------------------------------------------------
     def wrap_near(self, q: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
         """Each joint moved by multiples of 2*pi to the value closest to `ref` inside the limits (None if none)."""
-        out = np.empty(6)
-        for j in range(6):
-            k = np.round((ref[j] - q[j]) / (2 * np.pi))
-            best = None
-            for kk in (k, k - 1, k + 1, k - 2, k + 2):
-                v = q[j] + 2 * np.pi * kk
-                if self.lower[j] - 1e-9 <= v <= self.upper[j] + 1e-9 and (best is None or abs(v - ref[j]) < abs(best - ref[j])):
-                    best = v
-            if best is None:
-                return None
-            out[j] = min(max(best, self.lower[j]), self.upper[j])
-        return out
+        q = np.asarray(q, float)
+        k0 = np.round((ref - q) / (2 * np.pi))
+        cand = q[None, :] + 2 * np.pi * (k0[None, :] + np.array([0.0, -1.0, 1.0, -2.0, 2.0])[:, None])  # (5, 6)
+        ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)
+        if not np.all(ok.any(axis=0)):
+            return None
+        dist = np.where(ok, np.abs(cand - ref), np.inf)
+        out = cand[np.argmin(dist, axis=0), np.arange(6)]
+        return np.clip(out, self.lower, self.upper)
 
     def _dls(self, T_target: pin.SE3, q0: np.ndarray, max_iter: int, tol: float, damping: float) -> tuple[np.ndarray, float, int]:
         model, data, fid = self.model, self.data, self.tcp_id
@@ -166,7 +164,7 @@ class RobotModel:
             oMf = pin.updateFramePlacement(model, data, fid)
             dM = oMf.actInv(T_target)
             e = pin.log6(dM).vector
-            err = float(np.linalg.norm(e))
+            err = float(np.sqrt(e @ e))
             if err < tol:
                 return q, err, it
             # unreachable targets converge to a non-zero error: stop once progress stalls
@@ -176,7 +174,9 @@ class RobotModel:
             prev = err
             J = pin.getFrameJacobian(model, data, fid, pin.LOCAL)
             Jl = pin.Jlog6(dM) @ J
-            dq = Jl.T @ np.linalg.solve(Jl @ Jl.T + damp, e)
+            # LAPACK dgesv directly: numpy.linalg.solve's wrapper costs 5x the 6x6 solve itself
+            x = _dgesv(Jl @ Jl.T + damp, e)[2]
+            dq = Jl.T @ x
             n = np.abs(dq).max()
             if n > 0.6:  # trust region: big steps jump between IK branches erratically
                 dq *= 0.6 / n
