@@ -23,6 +23,7 @@ import open3d as o3d
 from PIL import Image
 
 from kitchenbot.fakes.render import render, rgb_noise, stereo_noise
+from kitchenbot.perception.raycast import pinhole_rays
 from kitchenbot.transforms import inv
 
 DEPTH_SCALE = 0.1  # BOP depth_scale: stored value x 0.1 = mm (sub-millimetre storage, as many BOP sets do)
@@ -39,9 +40,7 @@ def _alone_mask(world, uid: int, K: np.ndarray, T_base_cam: np.ndarray, w: int, 
     """Pixels the object would cover with nothing in front of it (for visib_fract)."""
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(world.object_mesh(uid)))
-    rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
-        o3d.core.Tensor(K), o3d.core.Tensor(inv(T_base_cam)), w, h
-    )
+    rays = pinhole_rays(K, inv(T_base_cam), w, h)
     return np.isfinite(scene.cast_rays(rays)["t_hit"].numpy())
 
 

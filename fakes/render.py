@@ -10,10 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from kitchenbot.fakes.geometry import build_scene
 from kitchenbot.perception.cell import STYLE_COLOURS
+from kitchenbot.perception.raycast import pinhole_rays
 from kitchenbot.transforms import inv
 
 # OAK-D-like colour camera at 640x480: ~66 deg horizontal field of view.
@@ -42,14 +42,7 @@ _LIGHT = np.array([0.25, -0.35, 1.0]) / np.linalg.norm([0.25, -0.35, 1.0])
 def render(world, K: np.ndarray, T_base_cam: np.ndarray, width: int, height: int) -> RenderResult:
     scene, labelled = build_scene(world)
     T_cam_base = inv(T_base_cam)
-    # Open3D casts the ray of pixel (u, v) through (u + 0.5, v + 0.5) (pixel-corner convention); OpenCV's K, which
-    # the camera reports, puts pixel centres at integers. Shift cx, cy by half a pixel so the image is the
-    # pinhole projection through the reported K (else every pose from this camera is off by ~0.06 deg).
-    K_o3d = np.array(K, dtype=np.float64)
-    K_o3d[:2, 2] += 0.5
-    rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
-        o3d.core.Tensor(K_o3d), o3d.core.Tensor(T_cam_base), width, height
-    )
+    rays = pinhole_rays(K, T_cam_base, width, height)  # OpenCV pixel centres (see perception/raycast.py)
     ans = scene.cast_rays(rays)
     t = ans["t_hit"].numpy()  # z-depth (rays are not normalised)
     gid = ans["geometry_ids"].numpy().astype(np.int64)
