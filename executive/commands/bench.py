@@ -14,6 +14,7 @@ BENCH_MODULES = [
     "kitchenbot.fakes.dynamixel_bench",  # dynamixel
     "kitchenbot.fakes.arm_bench",  # fakearm
     "kitchenbot.perception.bench",
+    "kitchenbot.perception.bench_backends",  # backends (learned detectors, SAM2, image encoders)
     "kitchenbot.planning.bench",  # planning
     "kitchenbot.executive.bench",  # tasks
     "kitchenbot.calibration.bench",
