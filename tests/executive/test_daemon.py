@@ -1,0 +1,131 @@
+"""The daemon's HTTP API through FastAPI's TestClient (no network): tokens, validation, start/stop/pause,
+history, images, the event stream, and the homing interlock. Oracle perception in the simulated cell."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+from fastapi.testclient import TestClient
+
+from kitchenbot.executive.daemon import create_app, load_token
+from kitchenbot.executive.journal import Journal
+
+TOKEN = "s3cret-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+@pytest.fixture
+def app(make_runner, small_config, tmp_path):
+    journal = Journal(tmp_path / "journal.sqlite")
+    made = []
+
+    def factory(task, seed, oracle):
+        runner, world = make_runner(task=task, journal=False)
+        runner.journal = journal
+        made.append((runner, world))
+        return runner
+
+    homed = []
+    app = create_app(small_config(), token=TOKEN, journal=journal, runner_factory=factory,
+                     home_action=lambda: (homed.append(1), journal.mark_homed()))
+    app.state.made, app.state.homed = made, homed
+    return app
+
+
+def wait_idle(client, timeout=60):
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        s = client.get("/status").json()
+        if not s["busy"]:
+            return s
+        time.sleep(0.05)
+    raise AssertionError("run did not finish")
+
+
+def test_moving_endpoints_need_the_token_and_bad_input_moves_nothing(app):
+    c = TestClient(app)
+    assert c.post("/runs", json={"task": "cup-stacking"}).status_code == 401
+    assert c.post("/runs", json={"task": "cup-stacking"}, headers={"Authorization": "Bearer nope"}).status_code == 403
+    assert c.post("/home").status_code == 401 and c.post("/pause").status_code == 401
+    r = c.post("/runs", json={"task": "juggle"}, headers=AUTH)
+    assert r.status_code == 422 and "task" in r.json()["detail"]
+    r = c.post("/runs", content=b"{not json", headers={**AUTH, "content-type": "application/json"})
+    assert r.status_code == 422 and "invalid request" in r.json()["detail"]
+    r = c.post("/runs", json={"task": "cup-stacking", "speed": 9}, headers=AUTH)
+    assert r.status_code == 422 and "speed" in r.json()["detail"]
+    assert app.state.made == []  # nothing was built, nothing moved
+    assert c.post("/pause", headers=AUTH).status_code == 409
+    assert c.get("/status").json()["state"] == "idle"
+
+
+def test_start_run_history_images_and_openapi(app):
+    c = TestClient(app)
+    r = c.post("/runs", json={"task": "cup-stacking", "seed": 0}, headers={"X-Kitchenbot-Token": TOKEN})
+    assert r.status_code == 202, r.text
+    assert c.post("/runs", json={"task": "cup-stacking"}, headers=AUTH).status_code in (202, 409)
+    s = wait_idle(c)
+    assert s["status"] == "succeeded" and s["objects_done"] == 1
+    runs = c.get("/runs").json()
+    assert runs[0]["task"] == "cup-stacking" and runs[0]["status"] == "succeeded"
+    one = c.get(f"/runs/{runs[0]['id']}?events=true").json()
+    assert one["report"]["objects_done"] == 1 and any(e["kind"] == "transition" for e in one["events"])
+    assert c.get("/runs/99999").status_code == 404
+    names = c.get("/images/latest").json()
+    assert names
+    img = c.get(f"/images/latest/{names[0]}.png")
+    assert img.status_code == 200 and img.content[:8] == b"\x89PNG\r\n\x1a\n"
+    spec = c.get("/openapi.json").json()
+    assert {"/runs", "/stop", "/pause", "/resume", "/status", "/events", "/home"} <= set(spec["paths"])
+
+
+def test_stop_pause_resume_and_event_stream(app):
+    c = TestClient(app)
+    # pause before the first safe point, watch the stream, resume, then stop
+    assert c.post("/runs", json={"task": "cup-stacking"}, headers=AUTH).status_code == 202
+    runner, world = app.state.made[-1]
+    assert c.post("/pause", headers=AUTH).status_code == 200
+    t0 = time.time()
+    while runner.state != "paused" and time.time() - t0 < 30:
+        time.sleep(0.02)
+    assert runner.state == "paused"
+    with c.stream("GET", "/events?limit=2") as s:
+        assert c.post("/resume", headers=AUTH).status_code == 200
+        lines = [ln for ln in s.iter_lines() if ln.startswith("data: ")]
+    evs = [json.loads(ln[6:]) for ln in lines]
+    assert evs[0]["state"] in ("paused", "scan") and evs[1]["type"] == "transition"
+    r = c.post("/stop")  # no token needed to stop
+    assert r.status_code == 200
+    s = wait_idle(c)
+    assert s["state"] in ("stopped", "done")
+    assert not runner.arm.is_moving()
+
+
+def test_interrupted_run_refuses_motion_until_home(app, tmp_path):
+    journal = app.state.daemon.journal
+    rid = journal.begin_run("sink-pick", 1)  # as if a previous daemon died mid-run
+    c = TestClient(app)
+    r = c.post("/runs", json={"task": "cup-stacking"}, headers=AUTH)
+    assert r.status_code == 409 and "running" in r.json()["detail"]
+    journal.recover()
+    r = c.post("/runs", json={"task": "cup-stacking"}, headers=AUTH)
+    assert r.status_code == 409 and "homed" in r.json()["detail"]
+    assert app.state.made == []
+    assert c.post("/home", headers=AUTH).json() == {"homed": True} and app.state.homed == [1]
+    assert journal.run(rid).status == "interrupted"
+    assert c.post("/runs", json={"task": "cup-stacking"}, headers=AUTH).status_code == 202
+    wait_idle(c)
+
+
+def test_token_sources(tmp_path, monkeypatch):
+    monkeypatch.delenv("KITCHENBOT_TOKEN", raising=False)
+    f = tmp_path / "tok"
+    t1 = load_token(f)
+    assert len(t1) > 20 and (f.stat().st_mode & 0o777) == 0o600 and load_token(f) == t1
+    monkeypatch.setenv("KITCHENBOT_TOKEN", "from-env")
+    assert load_token(f) == "from-env"
+    monkeypatch.delenv("KITCHENBOT_TOKEN")
+    f.write_text("  \n")
+    with pytest.raises(ValueError, match="empty"):
+        load_token(f)
