@@ -1,0 +1,108 @@
+"""`kitchenbot bench tasks`: the three tasks over many simulated scenes, with slip during transport.
+
+Per run: objects the task wants in the sink at the start (simulator truth), how many ended at their target
+area (truth), collisions and refused commands counted by the fake arm, recoveries, and the compute time per
+placement cycle (wall time minus time spent waiting for simulated motions). Prints a table and a summary;
+``--json`` writes every run. Perception is the real pipeline unless ``--oracle-perception`` (then labelled).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+TASKS = ["sink-pick", "sink-to-dishwasher", "cup-stacking"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("tasks", help="task success over N simulated scenes per task (objects placed %, collisions)")
+    p.add_argument("--tasks", nargs="+", choices=TASKS, default=TASKS)
+    p.add_argument("--seeds", type=int, default=50, help="scenes per task")
+    p.add_argument("--start", type=int, default=0, help="first seed")
+    p.add_argument("--slip", type=float, default=0.05, help="slip probability per transport motion")
+    p.add_argument("--objects", type=int, default=None, help="objects per scene (default: config sim min..max)")
+    p.add_argument("--config", help="cell config YAML (default: the shipped simulation config)")
+    p.add_argument("--oracle-perception", action="store_true", help="poses from the simulator's truth (labelled)")
+    p.add_argument("--jobs", type=int, default=1, help="parallel processes")
+    p.add_argument("--json", help="write every run's numbers here")
+    p.set_defaults(func=run)
+
+
+def one(args: tuple) -> dict:
+    config_path, task, seed, slip, objects, oracle = args
+    from kitchenbot.executive.config import DriversConfig, load_config
+    from kitchenbot.executive.runner import run_task
+
+    cfg = load_config(config_path)
+    cfg = cfg.model_copy(update={"drivers": DriversConfig()})
+    cfg.sim.slip_probability = slip
+    if objects is not None:
+        cfg.sim.min_objects = cfg.sim.max_objects = objects
+    t0 = time.perf_counter()
+    try:
+        rep = run_task(cfg, task, seed, progress=False, oracle_perception=oracle, journal_path=False)
+    except Exception as e:  # noqa: BLE001 - a crash is a result too
+        return {"task": task, "seed": seed, "status": "crashed", "error": f"{type(e).__name__}: {e}",
+                "wanted": 0, "delivered": 0}
+    cyc = [c["compute_s"] for c in rep.cycles]
+    return {
+        "task": task, "seed": seed, "status": rep.status, "wanted": rep.truth["start"]["in_sink"],
+        "delivered": rep.truth["end"]["delivered"], "left_in_sink": rep.truth["end"]["in_sink"],
+        "elsewhere": rep.truth["end"]["elsewhere"], "objects_done": rep.objects_done,
+        "collisions": rep.collisions, "limit_violations": rep.limit_violations, "slips": rep.slips,
+        "recoveries": rep.recoveries, "attempts": rep.attempts, "compute_per_cycle_s": cyc,
+        "compute_s": rep.compute_time_s, "sim_s": rep.sim_time_s, "wall_s": time.perf_counter() - t0,
+        "message": rep.message, "perception": rep.perception,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    import numpy as np
+
+    jobs = [(args.config, t, s, args.slip, args.objects, args.oracle_perception)
+            for t in args.tasks for s in range(args.start, args.start + args.seeds)]
+    console = Console(width=160)
+    results = []
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as ex:
+        for r in ex.map(one, jobs):
+            results.append(r)
+            console.print(f"{r['task']:<20} seed {r['seed']:>3}: {r['status']:<9} {r['delivered']}/{r['wanted']} placed"
+                          f"{'  ' + r.get('message', '')[:70] if r['status'] != 'succeeded' else ''}")
+    t = Table(title=f"kitchenbot bench tasks ({'oracle' if args.oracle_perception else 'pipeline'} perception, "
+                    f"slip {args.slip:.0%} per transport)")
+    for col in ("task", "runs", "succeeded", "objects placed", "collisions", "limit violations", "slips",
+                "compute/cycle median s", "p90 s"):
+        t.add_column(col)
+    summary = {}
+    for task in args.tasks + ["all"]:
+        rs = [r for r in results if task == "all" or r["task"] == task]
+        if not rs:
+            continue
+        wanted = sum(r["wanted"] for r in rs)
+        placed = sum(r["delivered"] for r in rs)
+        cyc = [c for r in rs for c in r.get("compute_per_cycle_s", [])]
+        s = {"runs": len(rs), "succeeded": sum(r["status"] == "succeeded" for r in rs), "wanted": wanted,
+             "placed": placed, "placed_pct": 100.0 * placed / wanted if wanted else float("nan"),
+             "collisions": sum(r.get("collisions") or 0 for r in rs),
+             "limit_violations": sum(r.get("limit_violations") or 0 for r in rs),
+             "slips": sum(r.get("slips") or 0 for r in rs),
+             "compute_per_cycle_median_s": float(np.median(cyc)) if cyc else None,
+             "compute_per_cycle_p90_s": float(np.percentile(cyc, 90)) if cyc else None}
+        summary[task] = s
+        t.add_row(task, str(s["runs"]), str(s["succeeded"]), f"{placed}/{wanted} ({s['placed_pct']:.1f} %)",
+                  str(s["collisions"]), str(s["limit_violations"]), str(s["slips"]),
+                  f"{s['compute_per_cycle_median_s']:.2f}" if cyc else "-",
+                  f"{s['compute_per_cycle_p90_s']:.2f}" if cyc else "-")
+    console.print(t)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({"summary": summary, "runs": results,
+                                               "settings": {k: v for k, v in vars(args).items() if k != "func"}},
+                                              indent=2, default=str))
+    return 0
