@@ -42,7 +42,8 @@ def pad_to_square(rgb: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def crop_sampling_grid(H: int, W: int, side: int, r0: int, c0: int, out: int):
     """grid_sample coordinates ((1, out, out, 2), x then y in [-1, 1] of the padded square) at the centres of
-    an out x out grid of cells covering the H x W crop placed at (r0, c0) in the square."""
+    an out x out grid of cells covering the H x W input whose pixel (0, 0) lands at (r0, c0) of the square
+    (negative when the square holds only a crop of the input)."""
     import torch
 
     ys = (np.arange(out) + 0.5) * H / out + r0
@@ -108,9 +109,14 @@ class HFImageEncoder:
             mask = np.asarray(mask, bool)
             if rgb.shape[:2] != mask.shape:
                 raise ValueError(f"encode: crop {k} rgb {rgb.shape[:2]} and mask {mask.shape} differ in size")
-            sq, m, place = pad_to_square(rgb, mask)
+            # Tight crop around the mask whatever the caller passed (a crop, or a whole CAD render), so query
+            # crops and database renders show the object at the same scale.
+            rows, cols = np.nonzero(mask)
+            r0, r1, c0, c1 = (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1) if len(rows) else \
+                (0, mask.shape[0], 0, mask.shape[1])
+            sq, m, (L, pr, pc) = pad_to_square(rgb[r0:r1, c0:c1], mask[r0:r1, c0:c1])
             batch.append(to_chw(sq, (S, S), self.mean, self.std))
-            geo.append((mask.shape, place))
+            geo.append((mask.shape, (L, pr - r0, pc - c0)))  # input pixel (y, x) -> square (y + pr - r0, ...)
             # fraction of each patch inside the mask: weights for the PCA fit
             pmask.append(cv2_area(m.astype(np.float32), g))
         x = torch.from_numpy(np.stack(batch)).to(self.device, self.dtype)
@@ -153,9 +159,9 @@ def _pp_size(pp: dict) -> int | None:
 
 class ClassTokenOnly:
     """An image encoder used for candidate proposal only (the paper's "without fusion"): class tokens as the
-    wrapped encoder gives them, patch tokens one constant vector. A constant block in every fused feature
-    adds the same amount to every feature distance... precisely nothing: |[c, a] - [c, b]| = |a - b|, so
-    registration matches on point features alone while proposal still uses the image class tokens."""
+    wrapped encoder gives them, patch tokens one constant vector. The image block of every fused feature is
+    then the same, which leaves every feature distance unchanged (|[c, a] - [c, b]| = |a - b|): registration
+    matches on point features alone while the proposal still uses the image class tokens."""
 
     def __init__(self, inner: ImageEncoder):
         self.inner = inner

@@ -201,6 +201,25 @@ def test_image_encoder_shapes(weights, backend, model_cls):
     assert p2.shape == (1, 1, 32) and np.ptp(p2) == 0 and nf.name != enc.name
 
 
+def test_encoder_crops_to_the_mask_itself(weights):
+    """A whole render with the object in a corner gives the same tokens as the tight crop around it."""
+    enc = make_image_encoder(_settings(weights, image_encoder="dinov2"))
+    rng = np.random.default_rng(5)
+    full = (rng.random((160, 160, 3)) * 255).astype(np.uint8)
+    mask = np.zeros((160, 160), bool)
+    mask[20:80, 90:150] = True
+    c_full, p_full = enc.encode(full, mask)
+    c_crop, p_crop = enc.encode(full[20:80, 90:150], mask[20:80, 90:150])
+    np.testing.assert_allclose(c_full, c_crop, atol=1e-5)
+    # the token at a masked pixel, looked up as fuse_instance / the database do: pixel (50, 120) of the render
+    # is pixel (30, 30) of the crop; grids of 224 cells over 160 resp. 60 pixels
+    t_full = p_full[50 * 224 // 160, 120 * 224 // 160]
+    t_crop = p_crop[30 * 224 // 60, 30 * 224 // 60]
+    other = p_full[75 * 224 // 160, 95 * 224 // 160]  # another masked pixel, for scale
+    same, diff = np.dot(l2n(t_full), l2n(t_crop)), np.dot(l2n(other), l2n(t_crop))
+    assert same > 0.97 and diff < same - 0.1
+
+
 def test_sampling_grid_covers_the_crop_inside_the_square():
     sq, m, (L, r0, c0) = pad_to_square(np.full((20, 60, 3), 200, np.uint8), np.ones((20, 60), bool))
     assert (L, r0, c0) == (60, 20, 0) and sq[:20].max() == 0 and sq[20:40].min() == 200
