@@ -163,7 +163,8 @@ class _Pending:
     target: Any
     T_base_obj: np.ndarray
     target_view: View | None
-    presence: float | None = None
+    staging: bool = False  # set down upright on the counter to be grasped again (regrasp)
+    staged: Any = None  # the tasks.Placed record this object was picked up from (a staged object)
 
 
 # ---- the runner --------------------------------------------------------------------------------------------------------
@@ -207,6 +208,9 @@ class TaskRunner:
         self.failure: Failure | None = None
         self.tried: list[_Tried] = []
         self.unverified: list[str] = []  # gone from the sink but not seen at the target
+        self.staged: list = []  # tasks.Placed: objects set down on the counter for a regrasp
+        self.current_staged = None
+        self.staging = False
         self.scan_failures = 0
         self.consecutive_recoveries = 0
         self.empty_scans = 0
@@ -425,7 +429,7 @@ class TaskRunner:
         q_now = self.arm.joint_positions()
         if np.max(np.abs(q_now - q)) < 1e-3:
             return
-        plan = self.planner.plan_move(q_now, q, objects=self.poses + self.task.obstacles(),
+        plan = self.planner.plan_move(q_now, q, objects=self._scene_objects(),
                                       map_points=self.map_points) if self.planner is not None else None
         if plan is not None and plan.ok:
             self._run_trajectory(plan.trajectory)
@@ -529,6 +533,19 @@ class TaskRunner:
 
     def _do_select_grasp(self) -> str:
         self.pick = self.place = None
+        self.current_staged, self.staging = None, False
+        for st in list(self.staged):  # staged objects first: they wait on the counter for their regrasp
+            obj = self.task.as_pose(st)
+            t = self._tried_for(obj)
+            if t is not None and t.count >= M.MAX_ATTEMPTS_PER_OBJECT:
+                continue
+            targets = self.task.targets(obj)
+            if isinstance(targets, NoFreeSlot):
+                self._tried_for(obj, create=True).count = M.MAX_ATTEMPTS_PER_OBJECT
+                continue
+            self.current, self.targets, self.current_staged = obj, targets, st
+            self._log("note", "selected", obj_id=obj.obj_id, cls=obj.cls, xyz=obj.T_base_obj[:3, 3], staged=True)
+            return "selected"
         for obj in self._candidates():
             targets = self.task.targets(obj)
             if isinstance(targets, NoFreeSlot):
@@ -545,20 +562,40 @@ class TaskRunner:
             return "selected"
         return "nothing_left"
 
+    def _scene_objects(self) -> list[ObjectPose]:
+        """Perceived objects plus what the task put down; a perceived object where we put one down is that one."""
+        placed = self.task.obstacles()
+        seen = [p for p in self.poses
+                if not any(p.cls == o.cls and np.linalg.norm(p.T_base_obj[:3, 3] - o.T_base_obj[:3, 3]) < 0.04
+                           for o in placed)]
+        return seen + placed
+
     def _do_plan(self) -> str:
         """Pick (only grasps that can also reach one of the targets) then place (first feasible target)."""
         obj = self.current
         q = self.arm.joint_positions()
-        scene_objs = self.poses + self.task.obstacles()
+        scene_objs = self._scene_objects()
         self._cmd("plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in self.targets])
         pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points,
                                       place_target=self.targets)
         self._check_deadline()
+        targets = self.targets
+        if (not pick.ok and pick.kind == "no_feasible_placement" and self.current_staged is None
+                and self.task.needs_regrasp(self.targets)):
+            # No grasp of the object as it lies reaches the target orientation: set it down upright on the
+            # counter and grasp it again from there (its next pick offers other grasps).
+            stage = self.task.staging_targets(obj)
+            if not isinstance(stage, NoFreeSlot):
+                self._cmd("plan_pick", cls=obj.cls, staging=[t.T_base_obj[:3, 3] for t in stage])
+                staged_pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points,
+                                                     place_target=stage)
+                if staged_pick.ok:
+                    pick, targets, self.staging = staged_pick, stage, True
         if not pick.ok:
             raise StepFailed("planning", f"no pick plan for the {obj.cls}: {pick}", planning_kind=pick.kind)
-        others = [p for p in scene_objs if p is not obj]
-        self._cmd("plan_place", grasp=pick.grasp.spec.name)
-        place = self.planner.plan_place(pick.end, pick.grasp, self.targets, objects=others, map_points=self.map_points)
+        others = [p for p in scene_objs if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
+        self._cmd("plan_place", grasp=pick.grasp.spec.name, staging=self.staging)
+        place = self.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=self.map_points)
         if not place.ok:
             raise StepFailed("planning", f"no place plan for the {obj.cls}: {place}", planning_kind=place.kind)
         self.pick, self.place = pick, place
@@ -596,7 +633,7 @@ class TaskRunner:
                 view = self._capture_view(f"target{self.report.attempts}")
             except (DriverTimeoutError, StepFailed) as e:  # the re-scan still verifies the sink side
                 self._log("note", "no target view", reason=str(e))
-        self.pending = _Pending(obj, place.target, place.T_base_obj, view)
+        self.pending = _Pending(obj, place.target, place.T_base_obj, view, self.staging, self.current_staged)
         return "executed"
 
     def _do_verify(self) -> str:
@@ -621,9 +658,17 @@ class TaskRunner:
             T_settled = p.T_base_obj.copy()
             if presence is not None and presence.decided:
                 T_settled[2, 3] += presence.dz  # where it came to rest (it was released a little above)
-            self.task.record_placed(p.obj, p.target, T_settled)
-            self.report.objects_done += 1
+            if p.staged is not None:  # it left its staging spot
+                self.task.unplace(p.staged.instance_id)
+                self.staged = [s for s in self.staged if s is not p.staged]
+            placed = self.task.record_placed(p.obj, p.target, T_settled)
+            if p.staging:
+                self.staged.append(placed)
+                self._log("note", "staged for a regrasp", cls=p.obj.cls, xyz=T_settled[:3, 3])
+        if p is not None:
             self.consecutive_recoveries = 0
+        if p is not None and not p.staging:
+            self.report.objects_done += 1
             w0, m0, s0 = self._cycle_t0
             wall, sim = time.perf_counter(), self._sim_now()
             self.report.cycles.append({"object": p.obj.cls, "wall_s": round(wall - w0, 3),
@@ -633,7 +678,10 @@ class TaskRunner:
             self._emit({"type": "placed", "object": p.obj.cls, "objects_done": self.report.objects_done,
                         "objects_total": self.report.objects_total})
         cands = self._candidates()
-        if cands:
+        staged_left = [st for st in self.staged
+                       if (self._tried_for(self.task.as_pose(st)) or _Tried("", np.zeros(3))).count
+                       < M.MAX_ATTEMPTS_PER_OBJECT]
+        if cands or staged_left:
             self.empty_scans = 0
             return "next_object"
         left = self.task.remaining(self.poses)
@@ -645,9 +693,19 @@ class TaskRunner:
         self.empty_scans += 1
         if self.empty_scans < self.opt.confirm_empty_scans:
             return "next_object"
+        problems = []
         if self.unverified:
-            self.report.message = f"sink empty, but {len(self.unverified)} placement(s) not verified at the " \
-                f"target: {', '.join(self.unverified)}"
+            problems.append(f"{len(self.unverified)} placement(s) not verified at the target: "
+                            f"{', '.join(self.unverified)}")
+        if self.staged:
+            problems.append(f"{len(self.staged)} object(s) left on the counter after a regrasp failed: "
+                            f"{', '.join(st.cls for st in self.staged)}")
+        missing = (self._first_total or 0) - self.report.objects_done - len(self.unverified) - len(self.staged)
+        if missing > 0:
+            problems.append(f"{missing} object(s) seen in the first scan are neither in the sink nor placed "
+                            "(slipped out of reach?)")
+        if problems:
+            self.report.message = "sink empty, but " + "; ".join(problems)
             self.report.safe = self._make_safe()
             return "give_up"
         return "complete"
@@ -748,7 +806,7 @@ class TaskRunner:
                 targets.append(fb)
         if grasp is not None:
             for tgt in targets:
-                plan = self.planner.plan_place(q, grasp, tgt, objects=self.poses + self.task.obstacles())
+                plan = self.planner.plan_place(q, grasp, tgt, objects=self._scene_objects())
                 if plan.ok:
                     self._log("note", "putting down the held object", target=tgt.T_base_obj[:3, 3])
                     self._run_trajectory(plan.transfer)

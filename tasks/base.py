@@ -36,6 +36,7 @@ class Placed:
     hi: np.ndarray
     top_z: float
     target: PlaceTarget
+    instance_id: int = -1  # the id its ObjectPose carries as an obstacle (and as a pick target when staged)
 
 
 def upright(model: ObjectModel, xy, support_z: float) -> np.ndarray:
@@ -74,6 +75,7 @@ class Task:
     cell: Cell
     placed: list[Placed] = field(default_factory=list)
     pending: list[ObjectModel] = field(default_factory=list)  # models still in the sink (last remaining())
+    _next_id: int = 0
 
     name = "task"
     description = ""
@@ -111,15 +113,36 @@ class Task:
             NoFreeSlot("drop zone is full")
 
     # ---- bookkeeping --------------------------------------------------------------------------------------------
-    def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> None:
+    def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> Placed:
         model = self.inventory[obj.obj_id]
         lo, hi, top = footprint(model, T_base_obj)
-        self.placed.append(Placed(obj.obj_id, obj.cls, np.array(T_base_obj), lo, hi, top, target))
+        p = Placed(obj.obj_id, obj.cls, np.array(T_base_obj), lo, hi, top, target, 10_000 + self._next_id)
+        self._next_id += 1
+        self.placed.append(p)
+        return p
+
+    def unplace(self, instance_id: int) -> None:
+        """It left that place (a staged object picked up again)."""
+        self.placed = [p for p in self.placed if p.instance_id != instance_id]
+
+    def as_pose(self, p: Placed) -> ObjectPose:
+        return ObjectPose(p.obj_id, p.cls, p.T_base_obj, 1.0, instance_id=p.instance_id)
 
     def obstacles(self) -> list[ObjectPose]:
         """Placed items as object poses (for the planner's collision world)."""
-        return [ObjectPose(p.obj_id, p.cls, p.T_base_obj, 1.0, instance_id=10_000 + k)
-                for k, p in enumerate(self.placed)]
+        return [self.as_pose(p) for p in self.placed]
+
+    def needs_regrasp(self, targets: list[PlaceTarget]) -> bool:
+        """Targets that turn the object over (inverted / on edge) may need a different grasp than the one the
+        object offers in the sink: the executive then stages it upright on the counter and picks it again."""
+        return any(t.T_base_obj[2, 2] < 0.9 for t in targets)
+
+    def staging_targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+        """Upright spots in the counter drop zone to set an object down and grasp it again."""
+        out = _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, self.placed, 3)
+        for t in out:
+            t.kind, t.support = "stage", "counter (regrasp)"
+        return out or NoFreeSlot("drop zone has no free spot to stage a regrasp")
 
     def complete(self, poses: list[ObjectPose]) -> bool:
         """Success criterion: nothing this task wants is left in the sink."""
