@@ -134,9 +134,13 @@ class RunReport:
     def as_dict(self) -> dict:
         return asdict(self)
 
+    def to_dict(self) -> dict:
+        """Plain JSON types only (what the report file holds)."""
+        return json.loads(json.dumps(self.as_dict(), default=_jsonable))
+
     def save(self, path: str | Path) -> None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        Path(path).write_text(json.dumps(self.as_dict(), indent=2, default=_jsonable))
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2))
 
 
 def _jsonable(o):
