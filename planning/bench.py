@@ -4,7 +4,8 @@ Per scene (``fakes.scenes.generate_scene``, true object poses): from the home co
 top first (up to ``--objects`` of them) until one gets a pick plan (approach, grasp-in, lift) whose grasp can
 also reach a free dishwasher rack slot, then plan the place into that rack. A scene succeeds when a pick and a
 place plan were found and every segment of both is collision-free when re-checked densely by the independent
-python-fcl checker (planning/fcl_check.py). Prints a table; the JSON report holds ``success_rate``,
+python-fcl checker (planning/fcl_check.py) and the simulator's own collision check (fakes/collision.py, where
+FakeArm would stop) finds no contact either. Prints a table; the JSON report holds ``success_rate``,
 ``ik_ms_median``, ``grasp_selection_ms_median``, ``plan_ms_median`` (RRT-Connect + simplification + dense
 re-check per joint motion), failures by type and per-scene rows.
 """
@@ -29,6 +30,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", default=None, help="cell config YAML (default: the simulation config)")
     p.add_argument("--report", default=None, help="write the JSON report here")
     p.set_defaults(func=run)
+
+
+def sim_contacts(world, planner, pick, place, uid: int) -> list[str]:
+    """The simulator's own collision check (fakes/collision.py, what FakeArm stops on) over every segment,
+    with the world's held object and gripper opening as they would be when the segment runs."""
+    from kitchenbot.fakes.collision import SimCollision
+    from kitchenbot.planning.motion import densify, reach_bounds
+
+    sim = SimCollision(world, world.robot)
+    r = reach_bounds(planner.world.scene())
+    r = r + 0.3  # the held object (not in that scene) reaches farther out
+    g = pick.grasp
+    T0 = world.objects[uid].T_base_obj.copy()
+    out = []
+    steps = [("approach", pick.approach, None, g.spec.opening), ("grasp_in", pick.grasp_in, None, g.spec.opening),
+             ("lift", pick.lift, uid, g.spec.width), ("transfer", place.transfer, uid, g.spec.width),
+             ("lower", place.lower, uid, g.spec.width), ("retreat", place.retreat, None, g.spec.opening)]
+    try:
+        for name, traj, held, opening in steps:
+            if name == "retreat":
+                world.held_uid, world.T_tcp_held = None, None
+                world.objects[uid].T_base_obj = place.T_base_obj.copy()
+            else:
+                world.held_uid = held
+                world.T_tcp_held = None if held is None else g.T_tcp_obj
+            contact = sim.check_path(densify(traj.q, r, 0.004), opening)
+            if contact is not None:
+                out.append(f"{name}: {contact}")
+    finally:
+        world.held_uid, world.T_tcp_held = None, None
+        world.objects[uid].T_base_obj = T0
+    return out
 
 
 def _median(xs) -> float | None:
@@ -58,9 +91,13 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
     rows = []
     ok_scenes = 0
     fcl_violations = 0
+    sim_collisions = 0
     segments_checked = 0
     for s in range(seed, seed + n_scenes):
-        world = generate_scene(s, inventory, cfg.cell)
+        world = generate_scene(s, inventory, cfg.cell, world_kwargs={
+            "T_flange_tcp": planner.robot.T_flange_tcp.copy(),
+            "T_flange_cam": planner.world.T_flange_cam.copy() if planner.world.T_flange_cam is not None else np.eye(4),
+        })
         objs = [ObjectPose(o.model.obj_id, o.model.cls, o.T_base_obj, 1.0, instance_id=uid) for uid, o in world.objects.items()]
         # IK timing on this scene's grasp poses (reachable or not, as the selector meets them)
         for o in objs:
@@ -69,7 +106,7 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
                 planner.robot.ik(o.T_base_obj @ g.T_obj_tcp, home)
                 ik_ms.append((time.perf_counter() - t0) * 1e3)
         book = SlotBook(planner.cell)
-        row = {"seed": s, "objects": len(objs), "status": "failed", "object": None, "reason": None}
+        row = {"seed": s, "objects": len(objs), "status": "failed", "object": None, "reason": None, "tries": []}
         order = sorted(objs, key=lambda o: -float(o.T_base_obj[2, 3]))[:objects_per_scene]
         for o in order:
             targets = book.targets_for(inventory[o.obj_id])[:4]
@@ -79,6 +116,7 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
             if not pick.ok:
                 failures[f"pick:{pick.kind}"] += 1
                 row["reason"] = f"pick {pick.kind}"
+                row["tries"].append(f"{o.cls}: {row['reason']}")
                 continue
             pick_ms.append(dt)
             sel_ms.append(pick.timings_ms.get("grasp_selection_ms", np.nan))
@@ -93,6 +131,7 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
             if not place.ok:
                 failures[f"place:{place.kind}"] += 1
                 row["reason"] = f"place {place.kind}"
+                row["tries"].append(f"{o.cls}: {row['reason']}")
                 continue
             place_ms.append(dt)
             plan_ms += [v for k, v in place.timings_ms.items() if k.endswith("_plan_ms")]
@@ -104,10 +143,18 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
                 verify_place(checker, planner, place, pick.grasp, objs, step=check_step)
             segments_checked += len(checks)
             bad = [(n, str(r)) for n, r in checks if not r.ok]
+            sim_bad = sim_contacts(world, planner, pick, place, o.instance_id)
+            if sim_bad:
+                sim_collisions += 1
+                failures["sim_contact"] += 1
+                row["reason"] = f"simulator contact {sim_bad}"
+                row["tries"].append(f"{o.cls}: {row['reason']}")
+                continue
             if bad:
                 fcl_violations += len(bad)
                 failures["fcl_recheck"] += 1
                 row["reason"] = f"fcl {bad}"
+                row["tries"].append(f"{o.cls}: {row['reason']}")
                 continue
             row.update(status="succeeded", object=o.cls, grasp=pick.grasp.spec.name, slot=place.target.slot,
                        pick_ms=round(pick_ms[-1], 1), place_ms=round(dt, 1), reason=None)
@@ -133,6 +180,7 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
         "place_ms_median": _median(place_ms),
         "segments_rechecked": segments_checked,
         "fcl_violations": fcl_violations,
+        "sim_contact_plans": sim_collisions,
         "failures": dict(failures),
         "per_scene": rows,
     }
@@ -154,7 +202,8 @@ def run(args: argparse.Namespace) -> int:
                       ("plan_ms_median", " ms"), ("plan_ms_p90", " ms"),
                       ("plan_search_ms_median", " ms"), ("plan_simplify_ms_median", " ms"),
                       ("plan_recheck_ms_median", " ms"), ("pick_ms_median", " ms"),
-                      ("place_ms_median", " ms"), ("segments_rechecked", ""), ("fcl_violations", "")):
+                      ("place_ms_median", " ms"), ("segments_rechecked", ""), ("fcl_violations", ""),
+                      ("sim_contact_plans", "")):
         print(f"{key:28s} {fmt(rep[key], unit)}")
     print(f"{'failures':28s} {rep['failures']}")
     if args.report:

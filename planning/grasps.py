@@ -230,4 +230,6 @@ def select_grasps(
             "(e.g. regrasp via the drop zone)", details)
     if st.in_collision + st.multi_object > 0:
         return NoCollisionFreeGrasp("every reachable grasp collides or takes in another object", details)
+    if st.from_below == st.considered:
+        return NoIK("every grasp of the object would approach from below (e.g. an upside-down bowl)", details)
     return NoIK("no grasp pose is reachable", details)

@@ -96,6 +96,15 @@ def check_segment(scene: Scene, Q: np.ndarray, r: np.ndarray, step: float) -> in
     return scene.first_invalid(densify(Q, r, step))
 
 
+def _why(scene: Scene, q: np.ndarray, pairs: list) -> str:
+    robot = scene.world.robot
+    if not robot.within_limits(q):
+        return "is outside the joint limits"
+    if pairs:
+        return "collides (within the margin): " + ", ".join(f"{a}/{b}" for a, b in pairs[:4])
+    return "puts the TCP outside the safety workspace"
+
+
 # ---- RRT-Connect -----------------------------------------------------------------------------------------------
 @dataclass
 class JointPlan:
@@ -120,11 +129,11 @@ def plan_joint_path(
     if q_start.shape != (6,) or q_goal.shape != (6,) or not (np.all(np.isfinite(q_start)) and np.all(np.isfinite(q_goal))):
         return InvalidInput("q_start/q_goal: expected 6 finite joint values each")
     if not scene.valid(q_start):
-        return StartInCollision("start configuration is in collision or outside the limits",
-                                {"pairs": scene.colliding_pairs(q_start), "q": q_start.tolist()})
+        pairs = scene.colliding_pairs(q_start)
+        return StartInCollision(f"start configuration {_why(scene, q_start, pairs)}", {"pairs": pairs, "q": q_start.tolist()})
     if not scene.valid(q_goal):
-        return GoalInCollision("goal configuration is in collision or outside the limits",
-                               {"pairs": scene.colliding_pairs(q_goal), "q": q_goal.tolist()})
+        pairs = scene.colliding_pairs(q_goal)
+        return GoalInCollision(f"goal configuration {_why(scene, q_goal, pairs)}", {"pairs": pairs, "q": q_goal.tolist()})
     r = reach_bounds(scene)
     t0 = time.perf_counter()
     # Straight line first: most short motions in an uncluttered cell need no search.

@@ -185,6 +185,7 @@ class Planner:
         flt = None
         if place_target is not None:
             targets = [place_target] if isinstance(place_target, PlaceTarget) else list(place_target)
+            targets = targets[: self.settings.max_place_targets]
 
             tool_scene = self.world.scene().for_release(None)  # gripper vs the cell at the release pose
 
@@ -194,7 +195,8 @@ class Planner:
                 if key not in self._placeable:
                     tool_scene.set_opening(spec.width)
                     self._placeable[key] = any(
-                        self._place_tcp_options(t, spec.T_obj_tcp, q, tool_scene, first_only=True) for t in targets
+                        self._place_tcp_options(t, spec.T_obj_tcp, q, tool_scene, first_only=True, obj_id=obj.obj_id)
+                        for t in targets
                     )
                 return self._placeable[key]
 
@@ -261,19 +263,39 @@ class Planner:
         g.q = q_grasp
         # Lift: the held object leaves the contacts it rests in (sink floor, a stack) during the first
         # LIFT_CONTACT_TRAVEL metres, checked without it (gripper only); above that, everything is checked.
-        lift_scene = self.scene(objects, map_points, exclude=g.obj, held=g).for_release(None)
+        held_scene = self.scene(objects, map_points, exclude=g.obj, held=g)
+        lift_scene = held_scene.for_release(None)
         start_scene = self.scene(objects, map_points, exclude=g.obj, opening=g.spec.width).for_release(None)
         T_lift = trans(0.0, 0.0, s.lift_height) @ g.T_base_tcp
         r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False, start_scene=start_scene,
                        start_travel=LIFT_CONTACT_TRAVEL)
         if isinstance(r, PlanningFailure):
             return r
-        lift, _ = r
+        lift, q_lifted = r
+        if not held_scene.valid(q_lifted):  # plan_place starts here with the full margins
+            return CartesianPathFailed("lift: the lifted pose is within the collision margin",
+                                       {"pairs": held_scene.colliding_pairs(q_lifted), "segment": "lift"})
         return PickPlan(g, approach, grasp_in, lift, timings_ms=timings)
 
     # ---- place -----------------------------------------------------------------------------------------------------
+    def _place_turns(self, target: PlaceTarget, obj_id: int) -> list[np.ndarray]:
+        """Object-frame rotations (4x4, applied as T_base_obj @ R) the planner may use for this target."""
+        model = self.inventory.models.get(obj_id)
+        sym = model is not None and model.is_rotationally_symmetric
+        T_obj = np.asarray(target.T_base_obj, float)
+        turns = [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if (target.free_yaw or sym) else [np.eye(4)]
+        flip = target.flip_ok
+        if flip is None:
+            flip = target.kind == "slot" and sym and abs(T_obj[2, 2]) < 0.3
+        if flip:
+            # pi about the base vertical through the object's origin, expressed in the object frame
+            R = np.eye(4)
+            R[:3, :3] = T_obj[:3, :3].T @ rot_z(np.pi)[:3, :3] @ T_obj[:3, :3]
+            turns = turns + [R @ t for t in turns]
+        return turns
+
     def _place_tcp_options(self, target: PlaceTarget, T_obj_tcp: np.ndarray, q_ref: np.ndarray,
-                           release_scene: Scene | None = None, first_only: bool = False):
+                           release_scene: Scene | None = None, first_only: bool = False, obj_id: int | None = None):
         """[(T_base_obj, T_base_tcp, q)] reachable release poses for `target` with this grasp, closest first.
 
         Free-yaw targets are turned about the object's own axis in 30 degree steps. When `release_scene` is
@@ -281,12 +303,15 @@ class Planner:
         ``settings.max_release_drop`` (the object then drops that far when released, e.g. a cup inverted over
         a rack whose rails are taller than the gripper can reach past)."""
         T_obj = np.asarray(target.T_base_obj, float)
-        turns = np.linspace(0, 2 * np.pi, 12, endpoint=False) if target.free_yaw else [0.0]
+        if obj_id is not None:
+            turns = self._place_turns(target, obj_id)
+        else:
+            turns = [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if target.free_yaw else [np.eye(4)]
         raises = np.arange(0.0, self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else [0.0]
         seeds: dict[int, np.ndarray | None] = {}
         live = []
-        for k, a in enumerate(turns):
-            To0 = T_obj @ rot_z(a)  # about the object's own (symmetry) axis
+        for k, Rt in enumerate(turns):
+            To0 = T_obj @ Rt  # about the object's own (symmetry) axis, possibly facing the other way
             if (To0 @ T_obj_tcp)[2, 2] <= self.settings.max_approach_up:
                 live.append((k, To0))
         out = []
@@ -326,6 +351,7 @@ class Planner:
         if isinstance(q0, PlanningFailure):
             return q0
         targets = [target] if isinstance(target, PlaceTarget) else list(target)
+        targets = targets[: self.settings.max_place_targets]
         if not targets:
             return NoFreeSlot("plan_place: no target given")
         for t in targets:
@@ -340,7 +366,7 @@ class Planner:
         release_scene = held_scene.for_release(None)
         last: PlanningFailure | None = None
         for tgt in targets:
-            options = self._place_tcp_options(tgt, grasp.T_obj_tcp, q0, release_scene)
+            options = self._place_tcp_options(tgt, grasp.T_obj_tcp, q0, release_scene, obj_id=grasp.obj.obj_id)
             if not options:
                 last = NoFeasiblePlacement(f"no reachable release pose for target {tgt.slot or tgt.kind}")
                 continue

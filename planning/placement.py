@@ -23,7 +23,7 @@ from kitchenbot.perception.cell import Cell
 from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.transforms import inv, make_T, rot_x, rot_y, rot_z, trans
+from kitchenbot.transforms import make_T, rot_x, rot_y, trans
 
 DROP_HEIGHT = 0.006  # m above the resting pose at release
 CUP_CLASSES = ("cup", "glass", "bowl", "mug")
@@ -164,11 +164,8 @@ class SlotBook:
             if T is None or self._overlaps(model, T):
                 continue
             sym = model.is_rotationally_symmetric
+            # plates may face either way in their slot (flip_ok None: the planner decides so for slots)
             out.append(PlaceTarget(T, "slot", name, free_yaw=sym, support=f"rack_{s.rack}"))
-            if kind == "plates":  # a plate may face either way in its slot
-                c = trans(*T[:3, 3])
-                out.append(PlaceTarget(c @ rot_z(np.pi) @ inv(c) @ T, "slot", name,
-                                       free_yaw=sym, support=f"rack_{s.rack}"))
         return out
 
     def target_for(self, model: ObjectModel) -> PlaceTarget | NoFreeSlot:

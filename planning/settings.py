@@ -22,6 +22,7 @@ class PlanningSettings(BaseModel):
     planning_resolution: float = Field(
         0.015, gt=0.0, le=0.05, description="RRT-Connect motion check step (m of point travel); < 2 * collision_margin"
     )
+    max_place_targets: int = Field(12, ge=1, le=200, description="place targets considered per query, in the given order")
     max_grasp_candidates: int = Field(8, ge=1, le=100, description="ranked grasps tried by plan_pick")
     map_voxel_size: float = Field(0.02, gt=0.002, le=0.1, description="voxels (m) for map points no object explains")
     max_release_drop: float = Field(

@@ -104,8 +104,10 @@ class PlaceTarget:
     """Where the held object should end up: its pose ``T_base_obj`` (object frame as in the inventory).
 
     ``kind``: "slot" (dishwasher rack), "stack" (on a cup of the same type), "drop" (counter drop zone).
-    ``free_yaw``: the object is rotationally symmetric about its own z axis, so the planner may turn it about
-    that axis (through the target origin) to find a reachable release pose for the grasp used.
+    ``free_yaw``: the planner may turn the object about its own z axis (through the target origin) to find a
+    reachable release pose for the grasp used. Objects whose inventory model is rotationally symmetric are
+    turned about their symmetry axis regardless (the placement looks the same); the flag matters for the
+    others (a mug: its handle direction).
     ``slot``: the rack slot name for kind "slot" (SlotBook bookkeeping), else None.
     """
 
@@ -115,6 +117,9 @@ class PlaceTarget:
     free_yaw: bool = True
     support: str = ""  # what it rests on: a rack name, an object instance, "counter"
     approach_distance: float | None = None  # override the settings' approach distance (None = default)
+    # May the object also face the other way (turned by pi about the vertical through its centre)? None: yes
+    # for "slot" targets of objects whose symmetry axis is horizontal (plates on edge in a rack), else no.
+    flip_ok: bool | None = None
 
 
 # ---- failures ------------------------------------------------------------------------------------------------
