@@ -68,7 +68,8 @@ class Recorder:
         pts = getattr(result, "map_points", None)
         if pts is not None and len(pts):
             ids = getattr(result, "map_ids", None)
-            self.rec.log("world/map", rr.Points3D(pts, class_ids=ids if ids is not None else None, radii=0.002))
+            cls = (np.asarray(ids) + 1).clip(0, 65535).astype(np.uint16) if ids is not None else None  # 0 = none
+            self.rec.log("world/map", rr.Points3D(pts, class_ids=cls, radii=0.002))
         for k, p in enumerate(poses):
             m = self.inventory[p.obj_id]
             P = m.points[::8] @ p.T_base_obj[:3, :3].T + p.T_base_obj[:3, 3]

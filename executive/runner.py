@@ -226,6 +226,8 @@ class TaskRunner:
         self._motion_wall = 0.0
         self._cycle_t0 = (time.perf_counter(), 0.0, self._sim_now())
         self._first_total: int | None = None
+        self._deadline: float | None = None
+        self._t_start = time.perf_counter()
 
     # ---- control from other threads --------------------------------------------------------------------------------
     @property
@@ -492,6 +494,7 @@ class TaskRunner:
     def _perceive(self) -> None:
         self._cmd("perceive", views=len(self.views))
         res = self.perceiver.perceive(self.views)
+        self._check_deadline()  # perception cannot be interrupted: its timeout is checked when it returns
         poses = list(res.poses)
         if self.fault_hook is not None:
             poses = self.fault_hook(poses)
