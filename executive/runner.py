@@ -192,6 +192,7 @@ class TaskRunner:
         self.fault_hook = fault_hook
         self.opt = options or RunOptions()
         self.truth = truth
+        self.owns_devices = False  # set by whoever assembled the cell for this run only (disconnect at the end)
         self.report = RunReport(task.name, seed=seed, perception=perception_label)
         self.machine_model = M.MachineModel()
         self.machine = M.build_machine(self.machine_model)
@@ -238,6 +239,8 @@ class TaskRunner:
         """Stop now: the arm decelerates immediately; the run ends in `stopped`."""
         self._stop.set()
         self._resume.set()
+        if self.journal is not None:
+            self.journal.event(self.run_id, "command", "arm.stop", self.state, reason="stop requested")
         with self._arm_lock:
             try:
                 self.arm.stop()
@@ -395,6 +398,8 @@ class TaskRunner:
             self.journal.end_run(self.run_id, rt.status, rt.as_dict() | {"transitions": rt.transitions}, safe=rt.safe)
         if self.recorder is not None:
             self.recorder.close()
+        if self.owns_devices:
+            self.robot.disconnect()
         self._emit({"type": "finished", "status": rt.status, "objects_done": rt.objects_done,
                     "objects_total": rt.objects_total})
 
@@ -413,6 +418,7 @@ class TaskRunner:
             self.advance(self.opt.poll_period)
             el = (self._sim_now() - s0) if s0 is not None else (time.perf_counter() - t0)
             if el > limit:
+                self._cmd("arm.stop", reason=f"{what} overran its time budget")
                 with self._arm_lock:
                     self.arm.stop()
                 raise StateTimeout(f"{what}: still moving after {el:.1f} s (expected {expected_s:.1f} s)")

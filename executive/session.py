@@ -84,6 +84,7 @@ def build_runner(config, task_name: str, seed: int | None = None, *, record_path
     if task_name not in TASKS:
         raise ValueError(f"unknown task {task_name!r}; expected one of {sorted(TASKS)}")
     seed = config.sim.seed if seed is None else seed
+    owns = robot is None
     robot = robot or assemble(config, seed)
     task = make_task(task_name, robot.inventory, robot.cell)
     planner = planner or Planner.from_config(config, robot.inventory)
@@ -104,7 +105,7 @@ def build_runner(config, task_name: str, seed: int | None = None, *, record_path
     world = robot.world
     sim = world is not None and is_simulated(config)
     opt = options or RunOptions(poll_period=0.05 if sim else 0.01)
-    return TaskRunner(
+    runner = TaskRunner(
         robot, task, perceiver, planner, journal=journal, recorder=recorder, dataset=dataset, listeners=listeners,
         advance=robot.arm.step if sim else None,
         sim_clock=world.clock.now if world is not None else None,
@@ -112,6 +113,8 @@ def build_runner(config, task_name: str, seed: int | None = None, *, record_path
         options=opt, seed=seed, perception_label=label,
         truth=truth_audit(world, task) if world is not None else None,
     )
+    runner.owns_devices = owns
+    return runner
 
 
 __all__ = ["build_runner", "is_simulated", "make_perceiver", "missed_detection_hook", "open_journal", "truth_audit",
