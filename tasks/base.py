@@ -55,6 +55,17 @@ def on_edge(model: ObjectModel, xy, support_z: float) -> np.ndarray:
     return make_T(rot_y(np.pi / 2)[:3, :3], (xy[0], xy[1], support_z + r + DROP_HEIGHT))
 
 
+def as_is(R: np.ndarray):
+    """A pose function keeping the object's current orientation R (e.g. a glass lying on its side), resting on the
+    support: its lowest model point at support_z."""
+
+    def pose(model: ObjectModel, xy, support_z: float) -> np.ndarray:
+        bottom = float(np.min(model.points @ R[:, 2])) if len(model.points) else -model.extents[2] / 2
+        return make_T(R, (xy[0], xy[1], support_z - bottom + DROP_HEIGHT))
+
+    return pose
+
+
 def footprint(model: ObjectModel, T_base_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """xy box and top height of the model at that pose (from its bounding-box corners)."""
     e = model.extents / 2
