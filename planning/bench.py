@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="first scene seed")
     p.add_argument("--objects", type=int, default=4, help="objects tried per scene before giving up")
     p.add_argument("--check-step", type=float, default=0.003, help="independent re-check step, metres")
+    p.add_argument("--pose-noise", type=float, nargs=2, default=(0.0, 0.0), metavar=("MM", "DEG"),
+                   help="plan on object poses perturbed by this much (std, mm and degrees); the simulator "
+                        "check still uses the true poses (robustness to perception error)")
     p.add_argument("--config", default=None, help="cell config YAML (default: the simulation config)")
     p.add_argument("--report", default=None, help="write the JSON report here")
     p.set_defaults(func=run)
@@ -68,8 +71,19 @@ def _median(xs) -> float | None:
     return float(np.median(xs)) if len(xs) else None
 
 
+def _perturb(T: np.ndarray, rng: np.random.Generator, mm: float, deg: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    out = np.asarray(T, float).copy()
+    if mm > 0:
+        out[:3, 3] += rng.normal(0.0, mm * 1e-3, 3)
+    if deg > 0:
+        out[:3, :3] = Rotation.from_rotvec(rng.normal(0.0, np.radians(deg), 3)).as_matrix() @ out[:3, :3]
+    return out
+
+
 def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, check_step: float = 0.003,
-              progress=None) -> dict:
+              progress=None, pose_noise: tuple[float, float] = (0.0, 0.0)) -> dict:
     from kitchenbot.fakes.scenes import generate_scene  # the simulator's scene generator (bench only)
     from kitchenbot.perception.inventory import Inventory
     from kitchenbot.perception.types import ObjectPose
@@ -98,7 +112,9 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
             "T_flange_tcp": planner.robot.T_flange_tcp.copy(),
             "T_flange_cam": planner.world.T_flange_cam.copy() if planner.world.T_flange_cam is not None else np.eye(4),
         })
-        objs = [ObjectPose(o.model.obj_id, o.model.cls, o.T_base_obj, 1.0, instance_id=uid) for uid, o in world.objects.items()]
+        rng = np.random.default_rng(1000 + s)
+        objs = [ObjectPose(o.model.obj_id, o.model.cls, _perturb(o.T_base_obj, rng, *pose_noise), 1.0, instance_id=uid)
+                for uid, o in world.objects.items()]
         # IK timing on this scene's grasp poses (reachable or not, as the selector meets them)
         for o in objs:
             for g in inventory[o.obj_id].grasps[::3]:
@@ -168,6 +184,7 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
         "scenes": n_scenes,
         "seed": seed,
         "robot": cfg.robot.model,
+        "pose_noise_mm_deg": list(pose_noise),
         "success_rate": ok_scenes / max(n_scenes, 1),
         "ik_ms_median": _median(ik_ms),
         "grasp_selection_ms_median": _median([x for x in sel_ms if np.isfinite(x)]),
@@ -195,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  scene {row['seed']:4d}: {row['status']:9s} {row.get('object') or '':6s} "
               f"{row.get('grasp') or '':18s} {row.get('slot') or '':10s} {row.get('reason') or ''}", flush=True)
 
-    rep = run_bench(args.scenes, args.seed, cfg, args.objects, args.check_step, progress)
+    rep = run_bench(args.scenes, args.seed, cfg, args.objects, args.check_step, progress, tuple(args.pose_noise))
     print()
     fmt = lambda v, u="": "-" if v is None else (f"{v:.3f}{u}" if isinstance(v, float) else f"{v}{u}")  # noqa: E731
     for key, unit in (("success_rate", ""), ("ik_ms_median", " ms"), ("grasp_selection_ms_median", " ms"),

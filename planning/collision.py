@@ -201,10 +201,17 @@ class CollisionWorld:
 
     # ---- unexplained map points -> occupied voxels -----------------------------------------------------------
     def unexplained_voxels(
-        self, points: np.ndarray | None, objects: Sequence[SceneObject], explain_radius: float = 0.015, min_points: int = 3
+        self,
+        points: np.ndarray | None,
+        objects: Sequence[SceneObject],
+        explain_radius: float = 0.015,
+        min_points: int = 3,
+        instance_points: Sequence[np.ndarray] = (),
     ) -> np.ndarray:
-        """Centres of voxels holding >= `min_points` map points that neither a perceived object (its mesh
-        bounding box grown by `explain_radius`) nor a cell box (grown likewise) explains."""
+        """Centres of voxels holding >= `min_points` map points that nothing explains: not a cell box, not a
+        perceived object's mesh bounding box, not within `explain_radius` of a recognised instance's own points
+        (so a pose a little off does not leave a phantom obstacle beside the object), each grown by
+        `explain_radius`."""
         if points is None or len(points) == 0:
             return np.zeros((0, 3))
         P = np.asarray(points, float).reshape(-1, 3)
@@ -217,6 +224,13 @@ class CollisionWorld:
             bb = o.model.mesh.get_axis_aligned_bounding_box()
             lo, hi = np.asarray(bb.get_min_bound()) - explain_radius, np.asarray(bb.get_max_bound()) + explain_radius
             keep &= ~np.all((Pl >= lo) & (Pl <= hi), axis=1)
+        inst = [np.asarray(p, float).reshape(-1, 3) for p in instance_points if p is not None and len(p)]
+        if inst and keep.any():
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(np.vstack(inst)).query(P[keep], distance_upper_bound=explain_radius)
+            idx = np.flatnonzero(keep)
+            keep[idx[np.isfinite(d)]] = False
         P = P[keep]
         if len(P) == 0:
             return np.zeros((0, 3))

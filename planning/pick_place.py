@@ -106,9 +106,15 @@ class Planner:
         held: Grasp | None = None,
         opening: float | None = None,
     ) -> Scene:
-        """The collision scene of one query (perceived objects minus `exclude`, unexplained map points, held)."""
-        all_objs = self._scene_objects(objects)
-        voxels = self.world.unexplained_voxels(map_points, all_objs)
+        """The collision scene of one query (perceived objects minus `exclude`, unexplained map points, held).
+
+        Map points are explained by every perceived object (the excluded and the held one included: their
+        points were mapped where they were before the pick)."""
+        explainers = list(objects) + [o for o in (exclude, held.obj if held is not None else None)
+                                      if o is not None and not any(o is x for x in objects)]
+        all_objs = self._scene_objects(explainers)
+        voxels = self.world.unexplained_voxels(map_points, all_objs,
+                                               instance_points=[o.points for o in explainers])
         objs = self._scene_objects(objects, exclude=exclude)
         h = None
         if held is not None:
