@@ -38,6 +38,11 @@ class ModelEntry:
     dense_normals: np.ndarray  # (Nd, 3)
 
     @cached_property
+    def ref_tree(self) -> cKDTree:
+        """KD-tree over the voxel-level reference points (object frame)."""
+        return cKDTree(self.ref.points)
+
+    @cached_property
     def tree(self) -> cKDTree:
         """KD-tree over the dense surface points (object frame)."""
         return cKDTree(self.dense_points)

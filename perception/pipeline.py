@@ -24,7 +24,8 @@ from kitchenbot.perception import backends
 from kitchenbot.perception.features import FusedCloud, fuse_instance
 from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.map import InstanceMap, align_views, build_map, consolidate
-from kitchenbot.perception.register import Hypothesis, RegistrationConfig, Scorer, propose, register_candidate
+from kitchenbot.perception.register import (Hypothesis, RegistrationConfig, Scorer, propose, refine, screen_candidate,
+                                           snap_upright)
 from kitchenbot.perception.rgbd import check_view
 from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
@@ -41,6 +42,8 @@ class PerceptionResult:
     pose_ms: list[float] = field(default_factory=list)  # per instance: features + candidates + registration
     rejected: int = 0  # instances no inventory model explained
     views: list[View] = field(default_factory=list)  # the views as used (poses after alignment)
+    timings_cpu_ms: dict[str, float] = field(default_factory=dict)  # process CPU time per stage
+    pose_cpu_ms: list[float] = field(default_factory=list)  # process CPU time per instance
 
     @property
     def map_points(self) -> np.ndarray:
@@ -99,11 +102,14 @@ class Perceiver:
     def perceive(self, views: list[View]) -> PerceptionResult:
         timings: dict[str, float] = {}
 
+        cpu: dict[str, float] = {}
+
         @contextmanager
         def timed(name: str):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             yield
             timings[name] = timings.get(name, 0.0) + 1000 * (time.perf_counter() - t0)
+            cpu[name] = cpu.get(name, 0.0) + 1000 * (time.process_time() - c0)
 
         for k, v in enumerate(views):
             check_view(v, f"views[{k}]")
@@ -120,6 +126,7 @@ class Perceiver:
             m = consolidate(build_map(views, dets, ids))
         poses: list[ObjectPose] = []
         pose_ms: list[float] = []
+        pose_cpu_ms: list[float] = []
         rejected = 0
         vox = self.settings.voxel_size
         with timed("pose"):
@@ -127,23 +134,24 @@ class Perceiver:
             next_id = max(queue) + 1 if queue else 0
             ids_out = m.ids.copy()
             splits = 0
-            found: list[tuple[Hypothesis, int]] = []
+            found: list[tuple[Hypothesis, int, np.ndarray]] = []
             while queue:
                 iid = queue.pop(0)
                 sel = np.nonzero(ids_out == iid)[0]
                 if len(sel) < 30:
                     ids_out[sel] = -1
                     continue
-                t0 = time.perf_counter()
-                hyp, _query = self.estimate(m.select(sel), views)
+                t0, c0 = time.perf_counter(), time.process_time()
+                hyp, _query = self.estimate(m.select(sel), views, [f[0] for f in found])
                 pose_ms.append(1000 * (time.perf_counter() - t0))
+                pose_cpu_ms.append(1000 * (time.process_time() - c0))
                 if hyp is None:
                     rejected += 1
                     continue
-                found.append((hyp, iid))
                 # Points the pose explains belong to it; a large unexplained remainder is another object
                 # (stacked / nested / touching items that segmentation could not separate).
                 explained = self._explained(hyp, m.points[sel])
+                found.append((hyp, iid, sel[explained]))
                 rest = sel[~explained]
                 if splits < self.settings.max_splits and len(rest) >= 60:
                     for part in _clusters(m.points[rest], 1.5 * vox, 60, vox / 2):
@@ -151,22 +159,71 @@ class Perceiver:
                         queue.append(next_id)
                         next_id += 1
                         splits += 1
-            # One object, one pose: a pose whose explained map points are mostly claimed by a better-scoring
-            # pose is a duplicate (the same object reached from two instances or a split remainder).
-            claimed = np.zeros(len(m.points), bool)
-            tree = cKDTree(m.points) if len(m.points) else None
-            for hyp, iid in sorted(found, key=lambda t: -t[0].score):
-                model = self.inventory[hyp.obj_id]
-                near = np.array(tree.query_ball_point(hyp.T_base_obj[:3, 3], model.diameter / 2 + 2 * vox), int)
-                expl = near[self._explained(hyp, m.points[near])] if len(near) else near
-                if len(expl) == 0 or claimed[expl].mean() > 0.5:
+            # One object, one pose: a pose whose own points (those of its instance it explains) are mostly
+            # explained by a better-scoring pose is a duplicate (one object reached from two instances).
+            # Two poses of one model at one place (not stacked along the axis) are one object fitted twice,
+            # e.g. a mug fitted with the wrong yaw and its unexplained handle fitted again: both are re-scored
+            # on their joint points and the better one stays.
+            kept: list[list] = []  # [hyp, iid, own]
+            for hyp, iid, own in sorted(found, key=lambda t: -t[0].score):
+                P = m.points[own]
+                if len(P) == 0:
                     continue
-                claimed[expl] = True
-                ids_out[expl] = iid
-                poses.append(ObjectPose(hyp.obj_id, model.cls, hyp.T_base_obj, hyp.score, m.points[expl], iid,
+                twin = next((k for k in kept if self._same_place(k[0], hyp)), None)
+                if twin is not None:
+                    joint = np.union1d(twin[2], own)
+                    scorer = Scorer(db[hyp.obj_id], _voxel_centres(m.points[joint], vox), views, vox,
+                                    inside_solid=self._inside_solid(getattr(self.detector, "support_normal", None)
+                                                                    if self.cell is None else None))
+                    if scorer(hyp.T_base_obj)[0] > scorer(twin[0].T_base_obj)[0]:
+                        twin[0] = hyp
+                    twin[2] = joint
+                    continue
+                taken = np.zeros(len(P), bool)
+                for k in kept:
+                    taken |= self._explained(k[0], P)
+                if taken.mean() > 0.6:
+                    continue
+                kept.append([hyp, iid, own])
+            for hyp, iid, own in kept:
+                ids_out[own] = iid
+                model = self.inventory[hyp.obj_id]
+                poses.append(ObjectPose(hyp.obj_id, model.cls, hyp.T_base_obj, hyp.score, m.points[own], iid,
                                         hyp.visible_fraction))
         m = InstanceMap(m.points, ids_out, m.view, m.pixel, m.cam_centres)
-        return PerceptionResult(poses, m, dets, timings, pose_ms, rejected, list(views))
+        return PerceptionResult(poses, m, dets, timings, pose_ms, rejected, list(views), cpu, pose_cpu_ms)
+
+    def _inside_solid(self, up: np.ndarray | None):
+        """Test for points inside known solid matter: the cell's boxes (deeper than 5 mm; the counter and the
+        basin extended downwards), or in plane mode more than 1 cm below the support plane."""
+        if self.cell is not None:
+            lo = np.array([b.lower for b in self.cell.boxes]) + 0.005
+            hi = np.array([b.upper for b in self.cell.boxes]) - 0.005
+            # Under the counter and the basin is cabinet: nothing the cameras could see rests there.
+            lo[[b.kind in ("counter", "sink") for b in self.cell.boxes], 2] = -10.0
+
+            def inside(P: np.ndarray) -> np.ndarray:
+                return np.any(np.all((P[:, None] > lo) & (P[:, None] < hi), axis=2), axis=1)
+
+            return inside
+        det = self.detector
+        if up is None or getattr(det, "support_offset", None) is None:
+            return None
+        d = det.support_offset
+        return lambda P: P @ up + d < -0.01
+
+    def _same_place(self, a: Hypothesis, b: Hypothesis) -> bool:
+        """Same model, axes within 30 deg, centres closer than 0.2 diameter across and 0.12 height along."""
+        if a.obj_id != b.obj_id:
+            return False
+        model = self.inventory[a.obj_id]
+        z = a.T_base_obj[:3, 2]
+        if abs(z @ b.T_base_obj[:3, 2]) < np.cos(np.radians(30)):
+            return False
+        d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
+        along = abs(d @ z)
+        across = np.linalg.norm(d - (d @ z) * z)
+        return across < 0.2 * model.diameter and along < 0.12 * float(model.extents[2])
 
     def _explained(self, hyp: Hypothesis, points: np.ndarray) -> np.ndarray:
         """Which points lie on the posed model's surface (within 1.5 voxels)."""
@@ -177,8 +234,9 @@ class Perceiver:
                                                      distance_upper_bound=1.5 * self.settings.voxel_size)
         return np.isfinite(d)
 
-    def estimate(self, inst: InstanceMap, views: list[View]) -> tuple[Hypothesis | None, FusedCloud]:
-        """Class and pose of one instance (its map points), or None when no model explains it."""
+    def estimate(self, inst: InstanceMap, views: list[View], found: list[Hypothesis] = ()) -> tuple[Hypothesis | None, FusedCloud]:
+        """Class and pose of one instance (its map points), or None when no model explains it. `found`: poses
+        already estimated nearby, whose stacking positions (same model shifted along its axis) are tried too."""
         st = self.settings
         masks: list[np.ndarray | None] = []
         for k, v in enumerate(views):
@@ -195,19 +253,53 @@ class Perceiver:
             return None, query
         cands = propose(query, self.database, st.top_k, st.candidate_threshold)
         up = getattr(self.detector, "support_normal", None) if self.cell is None else None
-        best: Hypothesis | None = None
+        # Screen every candidate's hypotheses, then refine the best few over all candidates. Appearance must
+        # agree too: geometry alone confuses e.g. two nested cups with one glass.
+        screened = []
+        scorers = {}
         for oid, _sim, img_sim in cands:
             entry = self.database[oid]
-            scorer = Scorer(entry, query.points, views, st.voxel_size)
-            h = register_candidate(query, entry, self.inventory[oid], scorer, self.reg_cfg, up)
-            if np.isfinite(img_sim):
-                # Appearance must agree too: geometry alone confuses e.g. two nested cups with one glass.
-                h.score *= 0.6 + 0.4 * max(0.0, img_sim)
+            scorers[oid] = Scorer(entry, query.points, views, st.voxel_size, inside_solid=self._inside_solid(up))
+            w = 0.6 + 0.4 * max(0.0, img_sim) if np.isfinite(img_sim) else 1.0
+            stack = [h.T_base_obj for h in found if h.obj_id == oid and
+                     np.linalg.norm(h.T_base_obj[:3, 3] - query.points.mean(axis=0)) < self.inventory[oid].diameter]
+            for sc, name, T in screen_candidate(query, entry, self.inventory[oid], scorers[oid], self.reg_cfg, up,
+                                                stack)[:2]:
+                screened.append((sc * w, oid, name, T, w))
+        screened.sort(key=lambda t: -t[0])
+        best: Hypothesis | None = None
+        for _, oid, name, T, w in screened[: self.reg_cfg.keep_for_refine + 1]:
+            h = refine(query, self.database[oid], scorers[oid], T, self.reg_cfg, name)
+            h.score *= w
             if best is None or h.score > best.score:
                 best = h
+        # Gravity prior: dishware rests on surfaces, so an upright / upside-down pose of the best model that
+        # explains the data about as well as a tilted one wins (tilted fits of stacks explain two items badly).
+        up_vec = np.array([0.0, 0.0, 1.0]) if up is None else up
+        if best is not None and abs(best.T_base_obj[:3, 2] @ up_vec) < 0.995:
+            oid = best.obj_id
+            w = best.score / max(scorers[oid](best.T_base_obj)[0], 1e-9)
+            starts = [best.T_base_obj] + [T for _, o, _, T, _ in screened if o == oid][:3]
+            for T in starts:
+                if abs(T[:3, 2] @ up_vec) < np.cos(np.radians(35)):
+                    continue
+                h = refine(query, self.database[oid], scorers[oid], snap_upright(T, up_vec), self.reg_cfg,
+                           best.source, upright=True)
+                h.score *= w
+                if h.score >= best.score - 0.03:
+                    best = h
+                    break
         if best is None or best.score < st.min_overlap:
             return None, query
         return best, query
+
+
+def _voxel_centres(points: np.ndarray, voxel: float) -> np.ndarray:
+    key = np.floor(points / voxel).astype(np.int64)
+    _, inv_, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    out = np.zeros((len(cnt), 3))
+    np.add.at(out, inv_.reshape(-1), points)
+    return out / cnt[:, None]
 
 
 def _clusters(points: np.ndarray, eps: float, min_points: int, grid: float) -> list[np.ndarray]:

@@ -20,6 +20,7 @@ Candidates scoring below ``min_overlap`` are rejected: unknown objects are never
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import open3d as o3d
@@ -102,7 +103,11 @@ def _rot_from_z(axis: np.ndarray) -> np.ndarray:
 class Scorer:
     """Overlap ratios of a posed model against the query points and the views' depth."""
 
-    def __init__(self, entry: ModelEntry, query_points: np.ndarray, views: list[View], eps: float, n_model: int = 800):
+    def __init__(self, entry: ModelEntry, query_points: np.ndarray, views: list[View], eps: float, n_model: int = 800,
+                 inside_solid: Callable[[np.ndarray], np.ndarray] | None = None):
+        """`inside_solid(P)`: which base-frame points lie inside known solid matter (the cell's counter and sink
+        walls, or below the support plane); a pose that puts the model there is penalised."""
+        self.inside_solid = inside_solid
         step = max(1, len(entry.dense_points) // n_model)
         self.mp = entry.dense_points[::step].astype(np.float64)
         self.mn = entry.dense_normals[::step].astype(np.float64)
@@ -113,25 +118,29 @@ class Scorer:
         self.depths = [np.nan_to_num(np.asarray(v.depth, np.float64), nan=0.0) for v in views]
         self.eps = eps
 
-    def __call__(self, T_base_obj: np.ndarray) -> tuple[float, float, float, float, float]:
-        """(score, or_query, or_model, free_space, visible_fraction)."""
+    def __call__(self, T_base_obj: np.ndarray, coarse: bool = False) -> tuple[float, float, float, float, float]:
+        """(score, or_query, or_model, free_space, visible_fraction); `coarse` uses a third of the points."""
+        k = 3 if coarse else 1
         Ti = inv(T_base_obj)
-        q_obj = self.q @ Ti[:3, :3].T + Ti[:3, 3]
+        q = self.q[::k]
+        q_obj = q @ Ti[:3, :3].T + Ti[:3, 3]
         d, _ = self.model_tree.query(q_obj, distance_upper_bound=self.eps)
         or_q = float(np.mean(np.isfinite(d))) if len(d) else 0.0
-        P = self.mp @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
-        N = self.mn @ T_base_obj[:3, :3].T
+        P = self.mp[::k] @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
+        N = self.mn[::k] @ T_base_obj[:3, :3].T
         support = np.zeros(len(P), bool)
         violate = np.zeros(len(P), bool)
         tol = max(self.eps, 0.006)
         for v, D in zip(self.views, self.depths):
-            facing = np.einsum("ij,ij->i", N, v.T_base_cam[:3, 3] - P) > 0
+            # Facing the camera clearly (< ~70 deg): grazing points sit on silhouettes, where depth is least sure.
+            ray = v.T_base_cam[:3, 3] - P
+            facing = np.einsum("ij,ij->i", N, ray) > 0.35 * np.linalg.norm(ray, axis=1)
             rc, z, inside = project_pixels(v, P)
             obs = D[rc[:, 0], rc[:, 1]]
             idx = np.nonzero(inside)[0]
             known = (obs > 0) & facing[idx]
             support[idx[known & (np.abs(z - obs) <= tol)]] = True
-            violate[idx[known & (z < obs - tol)]] = True
+            violate[idx[known & (z < obs - 2 * tol)]] = True  # clearly in front of what the camera saw
         violate &= ~support
         n_vis = support.sum() + violate.sum()
         if n_vis == 0:
@@ -141,7 +150,10 @@ class Scorer:
         near = np.isfinite(dq).sum()
         or_m = float(near / n_vis)
         fs = float(violate.sum() / n_vis)
-        return 0.5 * (or_q + or_m), or_q, or_m, fs, float(near / len(P))
+        score = 0.5 * (or_q + or_m)
+        if self.inside_solid is not None:
+            score -= 2.0 * float(np.mean(self.inside_solid(P)))
+        return max(score, 0.0), or_q, or_m, fs, float(near / len(P))
 
 
 def _exp_se3_small(x: np.ndarray) -> np.ndarray:
@@ -160,16 +172,21 @@ def _exp_se3_small(x: np.ndarray) -> np.ndarray:
 
 
 def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...],
-                 iters: int = 10) -> np.ndarray:
+                 iters: int = 10, coarse: bool = False, upright: bool = False) -> np.ndarray:
     """Point-to-plane ICP of query points (base frame) onto the model surface; returns T_obj_base.
 
     Hand-written (numpy + the model's prebuilt KD-tree) because Open3D's registration_icp rebuilds the target
     KD-tree on every call, and one object needs dozens of ICP runs against the same model: this is ~10x
     faster at these sizes. Gauss-Newton on the linearised point-to-plane residual; correspondences farther
-    than the current distance are dropped.
+    than the current distance are dropped. `upright`: only translation and the rotation about the object's
+    z axis are free (the axis stays where it is: gravity-aligned hypotheses stay gravity-aligned).
     """
+    free = np.array([2, 3, 4, 5]) if upright else np.arange(6)
     T = T_obj_base.copy()
-    tree, mp, mn = entry.tree, entry.dense_points, entry.dense_normals
+    if coarse:  # voxel-level model points: a smaller tree, good enough to screen hypotheses
+        tree, mp, mn = entry.ref_tree, entry.ref.points, entry.ref.normals
+    else:
+        tree, mp, mn = entry.tree, entry.dense_points, entry.dense_normals
     for dmax in dists:
         for _ in range(iters):
             p = q @ T[:3, :3].T + T[:3, 3]
@@ -184,7 +201,9 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
             J[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
             J[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
             J[:, 3:] = n
-            x = -np.linalg.solve(J.T @ J + 1e-6 * np.eye(6), J.T @ r)
+            Jf = J[:, free]
+            x = np.zeros(6)
+            x[free] = -np.linalg.solve(Jf.T @ Jf + 1e-6 * np.eye(len(free)), Jf.T @ r)
             dT = _exp_se3_small(x)
             T = dT @ T
             if np.linalg.norm(x[:3]) < 1e-4 and np.linalg.norm(x[3:]) < 1e-5:
@@ -234,23 +253,33 @@ def _pose(axis: np.ndarray, yaw: float, centre: np.ndarray) -> np.ndarray:
     return make_T(_rot_from_z(axis) @ Rz, centre)
 
 
-def register_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, scorer: Scorer,
-                       cfg: RegistrationConfig, up: np.ndarray | None = None) -> Hypothesis:
+def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, scorer: Scorer,
+                     cfg: RegistrationConfig, up: np.ndarray | None = None,
+                     stacked_on: list[np.ndarray] = ()) -> list[tuple[float, str, np.ndarray]]:
+    """Hypotheses for one candidate model, each after a quick ICP, with a quick score; best first.
+    `stacked_on`: poses of the same model found nearby; nested/stacked copies along their axis are tried."""
     v = cfg.voxel
     up = np.array([0.0, 0.0, 1.0]) if up is None else up
-    src = _pcd(query.points, query.normals)
-    dst = _pcd(entry.ref.points, entry.ref.normals)
-    scored: list[tuple[float, str, np.ndarray, tuple]] = []
+    qs = query.points[:: max(1, len(query.points) // 200)]  # screening runs on <= ~200 points
+    scored: list[tuple[float, str, np.ndarray]] = []
 
-    qs = query.points[:: max(1, len(query.points) // 300)]  # screening runs on <= ~300 points
-
-    def screen(name: str, T: np.ndarray) -> None:
+    def screen(name: str, T: np.ndarray, keep_axis: bool = False) -> None:
         # Coarse ICP estimates T_obj_base (query points -> model frame), then the pose is scored.
-        Tb = inv(icp_to_model(qs, entry, inv(T), (3 * v, 1.5 * v), iters=6))
-        scored.append((scorer(Tb)[0], name, Tb, ()))
+        Tb = inv(icp_to_model(qs, entry, inv(T), (5 * v, 3 * v, 1.5 * v), iters=5, coarse=True, upright=keep_axis))
+        scored.append((scorer(Tb, coarse=True)[0], name, Tb))
+
+    # (0) stacking: the same model nested in / stacked on one already found, shifted along its axis.
+    height = float(model.extents[2])
+    for T in stacked_on:
+        for f in (-0.8, -0.5, -0.25, 0.25, 0.5, 0.8):
+            Ts = T.copy()
+            Ts[:3, 3] += f * height * T[:3, 2]
+            screen("stack", Ts, keep_axis=True)
 
     # (1) fused-feature RANSAC: query -> model frame.
     if len(query.points) >= 6 and cfg.ransac_runs > 0:
+        src = _pcd(query.points, query.normals)
+        dst = _pcd(entry.ref.points, entry.ref.normals)
         fq, fr = _feature(query.fused), _feature(entry.ref.fused)
         for _ in range(cfg.ransac_runs):
             res = reg.registration_ransac_based_on_feature_matching(
@@ -259,26 +288,56 @@ def register_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel,
                 reg.RANSACConvergenceCriteria(cfg.ransac_iterations, 0.999))
             if res.fitness > 0:
                 screen("ransac", inv(res.transformation))
-    # (2) gravity priors: axis hypotheses (yaw 0), then yaws around the best axes when yaw matters.
+    # (2) gravity priors: axis hypotheses (yaw 0) at each seed, then yaws around the best axes when yaw matters.
     r = 0.5 * model.diameter
     for k, c in enumerate(seeds(query.points, model.diameter)):
         local = query.points if k == 0 else query.points[np.linalg.norm(query.points - c, axis=1) < r]
         for a in gravity_axes(local, up):
             screen("gravity", _pose(a, 0.0, c))
     if not model.is_rotationally_symmetric and cfg.n_yaw > 1:
-        grav = sorted([t for t in scored if t[1] == "gravity"], key=lambda t: -t[0])[:2]
-        for _, _, Tb, _ in grav:
-            a = Tb[:3, 2]
+        # Yaw matters (a mug's handle): every yaw upright and upside down at the centroid, and around the
+        # best-scoring other axis.
+        c0 = query.points.mean(axis=0)
+        grav = [(0.0, "", _pose(up, 0.0, c0)), (0.0, "", _pose(-up, 0.0, c0))]
+        grav += sorted([t for t in scored if t[1] == "gravity" and abs(t[2][:3, 2] @ up) < 0.9],
+                       key=lambda t: -t[0])[:1]
+        for _, _, Tb in grav:
             for y in np.linspace(0, 2 * np.pi, cfg.n_yaw, endpoint=False)[1:]:
                 screen("gravity-yaw", make_T(Tb[:3, :3] @ _pose(np.array([0, 0, 1.0]), y, np.zeros(3))[:3, :3],
                                              Tb[:3, 3]))
     scored.sort(key=lambda t: -t[0])
-    # (3) fine refinement of the best few.
+    return scored
+
+
+def refine(query: FusedCloud, entry: ModelEntry, scorer: Scorer, T_base_obj: np.ndarray, cfg: RegistrationConfig,
+           source: str = "", upright: bool = False) -> Hypothesis:
+    """Fine ICP against the dense model surface (<= ~600 query points) and the full score."""
+    v = cfg.voxel
+    q = query.points[:: max(1, len(query.points) // 600)]
+    dists = (3 * v, 1.5 * v, v, 0.6 * v) if upright else (2 * v, v, 0.6 * v)
+    Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=10, upright=upright))
+    return Hypothesis(entry.obj_id, Tb, *scorer(Tb), source=source + ("-upright" if upright else ""))
+
+
+def snap_upright(T_base_obj: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The pose with its z axis turned onto +up or -up (whichever is nearer), keeping the position."""
+    z = T_base_obj[:3, 2]
+    a = up if z @ up >= 0 else -up
+    R = _rot_from_z(a)
+    # Keep the yaw: align the rotated x axis with the original one projected onto the plane.
+    x = T_base_obj[:3, 0] - a * (T_base_obj[:3, 0] @ a)
+    if np.linalg.norm(x) > 1e-6:
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(a, x), a], axis=1)
+    return make_T(R, T_base_obj[:3, 3])
+
+
+def register_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, scorer: Scorer,
+                       cfg: RegistrationConfig, up: np.ndarray | None = None) -> Hypothesis:
+    """Screen hypotheses for one model, refine the best few, return the best."""
     best = None
-    for _, name, Tb, _ in scored[: cfg.keep_for_refine]:
-        Tb = inv(icp_to_model(query.points, entry, inv(Tb), (v, 0.6 * v), iters=10))
-        s = scorer(Tb)
-        h = Hypothesis(entry.obj_id, Tb, *s, source=name)
+    for _, name, Tb in screen_candidate(query, entry, model, scorer, cfg, up)[: cfg.keep_for_refine]:
+        h = refine(query, entry, scorer, Tb, cfg, name)
         if best is None or h.score > best.score:
             best = h
     return best if best is not None else Hypothesis(entry.obj_id, np.eye(4))

@@ -31,6 +31,7 @@ class GeometricSegmenterConfig:
     above_rim: float = 0.30  # m: how far above the counter an item in the sink may reach
     link_distance: float = 0.010  # m: neighbouring pixels farther apart than this (3D) are not connected
     min_pixels: int = 120  # at full resolution
+    max_gap: int = 3  # (strided) pixels of unknown depth bridged between two parts of one surface
     stride: int = 2  # segment every 2nd row/column (the map samples the same grid), masks at full size
     min_extent: float = 0.012  # m: components smaller than this in every direction are noise
 
@@ -56,8 +57,11 @@ def foreground_mask(view: View, cell: Cell, cfg: GeometricSegmenterConfig, pts: 
     return ok
 
 
-def components(pts: np.ndarray, fg: np.ndarray, link: float) -> tuple[np.ndarray, int]:
-    """Label image (-1 = background) of 3D-connected foreground pixels (8-neighbourhood)."""
+def components(pts: np.ndarray, fg: np.ndarray, link: float, max_gap: int = 10, px_angle: float = 0.0,
+               cam_z: float = 0.0) -> tuple[np.ndarray, int]:
+    """Label image (-1 = background) of 3D-connected foreground pixels (8-neighbourhood, and across gaps of
+    up to `max_gap` pixels without depth; `px_angle` = radians per pixel, `cam_z` = camera height, used to
+    bound how far apart the two sides of a gap may be)."""
     h, w = fg.shape
     ids = np.full((h, w), -1, np.int64)
     n = int(fg.sum())
@@ -73,6 +77,23 @@ def components(pts: np.ndarray, fg: np.ndarray, link: float) -> tuple[np.ndarray
         close = d < link * (1.4 if dr and dc else 1.0)
         rows.append(a[both][close])
         cols.append(b[both][close])
+    # Bridge short runs of unknown depth (stereo holes, NaN bands): pixels k apart along a row or column,
+    # with no depth in between, are linked when their 3D distance is consistent with one smooth surface.
+    valid = np.all(np.isfinite(pts), axis=2)
+    for k in range(2, max_gap + 1):
+        for dr, dc in ((0, k), (k, 0)):
+            a = ids[: h - dr, : w - dc]
+            b = ids[dr:, dc:]
+            mid = valid[dr // 2: h - dr + dr // 2, dc // 2: w - dc + dc // 2]
+            both = (a >= 0) & (b >= 0) & ~mid
+            if not both.any():
+                continue
+            pa, pb = pts[: h - dr, : w - dc][both], pts[dr:, dc:][both]
+            # A surface seen at up to ~60 deg spans at most ~2 pixel footprints per pixel.
+            foot = 2.0 * k * np.abs(pa[:, 2] - cam_z) * px_angle if px_angle else 0.0
+            close = np.linalg.norm(pa - pb, axis=1) < link + foot
+            rows.append(a[both][close])
+            cols.append(b[both][close])
     r, c = np.concatenate(rows), np.concatenate(cols)
     graph = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
     k, lab = connected_components(graph, directed=False)
@@ -81,13 +102,13 @@ def components(pts: np.ndarray, fg: np.ndarray, link: float) -> tuple[np.ndarray
     return out, k
 
 
-def plane_foreground(view: View, cfg: GeometricSegmenterConfig, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+def plane_foreground(view: View, cfg: GeometricSegmenterConfig, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, float]:
     """Without a known cell: pixels above the dominant plane (RANSAC, Open3D), and that plane's normal
     (base frame, towards the camera)."""
     ok = np.all(np.isfinite(pts), axis=2)
     P = pts[ok]
     if len(P) < 100:
-        return np.zeros_like(ok), None
+        return np.zeros_like(ok), None, 0.0
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P[:: max(1, len(P) // 20000)]))
     plane, _ = pc.segment_plane(distance_threshold=0.006, ransac_n=3, num_iterations=300)
     n, d = np.asarray(plane[:3], float), float(plane[3])
@@ -96,7 +117,7 @@ def plane_foreground(view: View, cfg: GeometricSegmenterConfig, pts: np.ndarray)
     with np.errstate(invalid="ignore"):
         h = pts @ n + d
         fg = ok & (h > cfg.surface_margin + 0.002) & (h < cfg.above_rim)
-    return fg, n
+    return fg, n, d
 
 
 class GeometricSegmenter:
@@ -106,19 +127,20 @@ class GeometricSegmenter:
     def __init__(self, cell: Cell | None, cfg: GeometricSegmenterConfig | None = None):
         self.cell = cell
         self.cfg = cfg or GeometricSegmenterConfig()
-        self.support_normal: np.ndarray | None = None  # plane mode: 'up' of the last view (base frame)
+        self.support_normal: np.ndarray | None = None  # plane mode: 'up' of the last view (base frame) ...
+        self.support_offset: float | None = None  # ... and the plane's offset: p . n + d = 0
 
     def detect(self, view: View) -> list[Detection]:
         cfg = self.cfg
         s = cfg.stride
         pts = point_map(view, s)
         if self.cell is None:
-            fg, self.support_normal = plane_foreground(view, cfg, pts)
+            fg, self.support_normal, self.support_offset = plane_foreground(view, cfg, pts)
         else:
             fg = foreground_mask(view, self.cell, cfg, pts)
         if not fg.any():
             return []
-        lab, k = components(pts, fg, cfg.link_distance)
+        lab, k = components(pts, fg, cfg.link_distance, cfg.max_gap, s / view.K[0, 0], view.T_base_cam[2, 3])
         counts = np.bincount(lab[fg], minlength=k)
         h, w = view.depth.shape
         out = []
