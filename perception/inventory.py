@@ -28,7 +28,7 @@ import numpy as np
 import open3d as o3d
 
 from kitchenbot.perception.dishware import BUILTIN_DISHES, build_mesh
-from kitchenbot.transforms import check_rigid, make_T
+from kitchenbot.transforms import check_rigid, make_T, rot_x
 
 GRIPPER_MAX_OPENING = 0.10  # m, Fin-Ray pads fully open
 PAD_DEPTH = 0.035  # m, how far the pads reach past the TCP along the approach axis
@@ -356,6 +356,12 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
         pos = axis + radial * (r_rim - 0.004) + np.array([0, 0, z_top - bite])
         T = _tcp_frame(np.array([0, 0, -1.0]), radial, pos)
         grasps.append(("rim", k, T))
+        if model.cls in ("plate", "bowl"):
+            # A plate or bowl lying on a flat floor leaves no room for a pad under a vertical pinch; tilt the
+            # approach inwards (gripper outside the rim, one pad under the lip, one on top of it).
+            edge = axis + radial * (r_rim - 0.003) + np.array([0, 0, z_top - 0.005])
+            for tilt in (np.radians(45), np.radians(60)):
+                grasps.append((f"rimtilt{int(round(np.degrees(tilt)))}", k, _tcp_frame(np.array([0, 0, -1.0]), radial, edge) @ rot_x(tilt)))
     if model.cls in ("cup", "mug", "glass", "bowl"):
         z_mid = V[:, 2].min() + 0.55 * (z_top - V[:, 2].min())
         for k in range(n_around):
@@ -373,8 +379,8 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
             continue
         out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=min(GRIPPER_MAX_OPENING, w + 0.03), width=w))
     # A rim pinch that also takes in something else (the root of a mug's handle) is not a rim pinch.
-    rim_w = [g.width for g in out if g.name.startswith("rim")]
+    rim_w = [g.width for g in out if g.name.startswith("rim_")]
     if rim_w:
         limit = 2.0 * float(np.median(rim_w))
-        out = [g for g in out if not (g.name.startswith("rim") and g.width > limit)]
+        out = [g for g in out if not (g.name.startswith("rim_") and g.width > limit)]
     return out
