@@ -213,6 +213,7 @@ class TaskRunner:
         self.failure: Failure | None = None
         self.tried: list[_Tried] = []
         self.unverified: list[str] = []  # gone from the sink but not seen at the target
+        self.unplannable: list[ObjectPose] = []
         self.staged: list = []  # tasks.Placed: objects set down on the counter for a regrasp
         self.current_staged = None
         self.staging = False
@@ -505,6 +506,7 @@ class TaskRunner:
         if self.fault_hook is not None:
             poses = self.fault_hook(poses)
         self.poses = poses
+        self.unplannable: list[ObjectPose] = []  # failed to plan with these poses
         self.map_points = getattr(res, "map_points", None)
         self._log("result", "perceive", objects=[{"obj_id": p.obj_id, "cls": p.cls, "xyz": p.T_base_obj[:3, 3],
                                                   "score": p.score} for p in poses])
@@ -536,12 +538,15 @@ class TaskRunner:
             return t
         return None
 
-    def _candidates(self) -> list[ObjectPose]:
+    def _candidates(self, this_scan: bool = False) -> list[ObjectPose]:
+        """Objects with attempts left; `this_scan`: also not yet failed to plan with the current perception
+        (the same poses give the same answer: try the others first, this one again after the next scan)."""
         out = []
         for p in self.task.remaining(self.poses):
             t = self._tried_for(p)
             if t is None or t.count < M.MAX_ATTEMPTS_PER_OBJECT:
-                out.append(p)
+                if not (this_scan and any(p is q for q in self.unplannable)):
+                    out.append(p)
         return out
 
     def _do_select_grasp(self) -> str:
@@ -559,7 +564,7 @@ class TaskRunner:
             self.current, self.targets, self.current_staged = obj, targets, st
             self._log("note", "selected", obj_id=obj.obj_id, cls=obj.cls, xyz=obj.T_base_obj[:3, 3], staged=True)
             return "selected"
-        for obj in self._candidates():
+        for obj in self._candidates(this_scan=True):
             targets = self.task.targets(obj)
             if isinstance(targets, NoFreeSlot):
                 t = self._tried_for(obj, create=True)
@@ -699,8 +704,12 @@ class TaskRunner:
             return "next_object"
         left = self.task.remaining(self.poses)
         if left:
-            self.report.message = f"{len(left)} object(s) left after {M.MAX_ATTEMPTS_PER_OBJECT} attempts each: " + \
-                ", ".join(sorted(p.cls for p in left))
+            why = []
+            for q in left:
+                t = self._tried_for(q)
+                rs = sorted(set(t.reasons)) if t is not None else []
+                why.append(f"{q.cls} ({', '.join(rs) or 'no attempts left'})")
+            self.report.message = f"{len(left)} object(s) left in the sink: " + "; ".join(why)
             self.report.safe = self._make_safe()
             return "give_up"
         self.empty_scans += 1
@@ -744,9 +753,13 @@ class TaskRunner:
         if f.state in ("plan", "select_grasp") and self.current is not None:
             t = self._tried_for(self.current, create=True)  # counts towards skipping this object
             t.count += 1
-            t.reasons.append(f.kind)
+            t.reasons.append(f.details.get("planning_kind", f.kind))
+        elif f.state in ("execute", "verify") and self.current is not None:
+            self._tried_for(self.current, create=True).reasons.append(f.kind)  # counted when executed
         if f.kind == "planning" and f.state == "plan":
-            return "retry"  # the next object (or this one again) with the same perception
+            if self.current is not None and self.current_staged is None:
+                self.unplannable.append(self.current)
+            return "retry"  # the next object with the same perception; this one again after the next scan
         if self._holding():
             self._put_down_held()
         self._back_out()
