@@ -20,19 +20,20 @@ from transitions import Machine
 @dataclass(frozen=True)
 class StateSpec:
     name: str
-    timeout_s: float | None  # wall/driver seconds a single visit may take (None: unbounded)
+    timeout_s: float | None  # seconds a single visit may take (None: unbounded); in simulation wall + simulated
+    #                          seconds. Generous: they catch hangs, not slowness (verify = a scan + perception).
     doc: str
 
 
 #: The states. Timeouts bound one visit (execute: per motion segment they are also derived from durations).
 STATES: tuple[StateSpec, ...] = (
     StateSpec("idle", None, "nothing running"),
-    StateSpec("scan", 60.0, "visit the scan waypoints, capture a view at each"),
-    StateSpec("perceive", 120.0, "views -> object poses in the base frame"),
+    StateSpec("scan", 90.0, "visit the scan waypoints, capture a view at each"),
+    StateSpec("perceive", 180.0, "views -> object poses in the base frame"),
     StateSpec("select_grasp", 10.0, "choose the next object (task order) and its target place"),
     StateSpec("plan", 60.0, "plan pick (approach, grasp-in, lift) and place (transfer, lower, retreat)"),
     StateSpec("execute", 120.0, "run the plan with asynchronous moves and polling; gripper checks"),
-    StateSpec("verify", 90.0, "re-scan: gone from the sink, present at the target"),
+    StateSpec("verify", 240.0, "re-scan: gone from the sink, present at the target"),
     StateSpec("recover", 120.0, "clear the fault, back out, decide: re-scan, next grasp/object, give up"),
     StateSpec("paused", None, "holding still at a safe point until resumed"),
     StateSpec("stopped", None, "stopped on request (terminal)"),

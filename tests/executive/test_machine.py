@@ -58,3 +58,10 @@ def test_timeouts_are_positive_for_working_states():
         assert M.timeout_of(s) and M.timeout_of(s) > 0
     with pytest.raises(KeyError):
         M.timeout_of("nope")
+
+
+def test_docs_show_the_current_diagram():
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "executive.md").read_text()
+    assert M.mermaid() in doc, "docs/executive.md is stale: paste `kitchenbot run --diagram` into it"
