@@ -105,3 +105,40 @@ def test_unknown_task_is_a_clear_error(small_config):
 
     with pytest.raises(ValueError, match="unknown task 'dishes'"):
         run_task(small_config(), "dishes", 0, progress=False, journal_path=False)
+
+
+def test_regrasp_stages_upright_on_the_counter_then_picks_again(make_runner, safe_end):
+    """A planner that finds no grasp of the cup *in the sink* reaching an inverted rack pose (as for a cup whose
+    side grasps collide with the sink walls): the executive stages it upright in the drop zone, verifies it
+    there, and picks it again from the counter."""
+    from kitchenbot.planning.types import NoFeasiblePlacement
+
+    runner, world = make_runner(task="sink-to-dishwasher")
+    real = runner.planner
+    refused = []
+
+    class SinkBlocksInversion:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_pick(self, q, objects, *, target=None, place_target=None, **kw):
+            targets = place_target if isinstance(place_target, list) else [place_target]
+            if target is not None and runner.cell_in_sink(target) and any(t.T_base_obj[2, 2] < 0.9 for t in targets):
+                refused.append(target.cls)
+                return NoFeasiblePlacement("test: no grasp in the sink reaches the inverted pose")
+            return real.plan_pick(q, objects, target=target, place_target=place_target, **kw)
+
+    runner.cell_in_sink = lambda p: bool(runner.robot.cell.in_sink(p.T_base_obj[:3, 3])[0])
+    runner.planner = SinkBlocksInversion()
+    report = runner.run()
+    safe_end(runner, world)
+    notes = [e["name"] for e in runner.journal.events(runner.run_id, kind="note")]
+    assert refused == ["cup"] and "staged for a regrasp" in notes
+    staged_selected = [e for e in runner.journal.events(runner.run_id, kind="note")
+                       if e["name"] == "selected" and e["payload"].get("staged")]
+    assert staged_selected, "the staged cup is picked again from the counter"
+    assert report.truth["end"]["in_sink"] == 0
+    if report.status == "succeeded":
+        assert report.truth["end"]["delivered"] == 1
+    else:  # the planner could not invert it from the counter either: it is left staged, and the report says so
+        assert "counter" in report.message and report.objects_done == 0
