@@ -432,8 +432,10 @@ class TaskRunner:
         self._check_deadline()
         self._cmd("arm.execute_trajectory", name=traj.name, n=len(traj), duration=traj.duration,
                   q_start=traj.q[0], q_end=traj.q[-1])
+        t0 = time.perf_counter()
         with self._arm_lock:
             self.arm.execute_trajectory(traj.times, traj.q, asynchronous=True)
+        self._motion_wall += time.perf_counter() - t0  # the (simulated) controller's work, not ours
         self._wait_motion(f"trajectory {traj.name}", traj.duration)
         self._log("result", "arm.execute_trajectory", name=traj.name, q=self.arm.joint_positions())
 
