@@ -201,3 +201,24 @@ def test_sweep_runs_available_combinations_and_reports_the_rest(tmp_path, monkey
     sweep.write_csv(rows, tmp_path / "t.csv")
     lines = (tmp_path / "t.csv").read_text().splitlines()
     assert len(lines) == 1 + 27 and lines[0].startswith("detector,segmenter,image_encoder,point_encoder,fusion,status")
+
+
+def test_learned_boxes_filter_geometric_masks():
+    from kitchenbot.perception.detect import Detection
+    from kitchenbot.perception.hf_detectors import BoxFilteredGeometric
+
+    a = np.zeros((100, 100), bool)
+    a[10:30, 10:30] = True
+    b = np.zeros((100, 100), bool)
+    b[60:90, 50:95] = True
+
+    class Geo:
+        def detect(self, view):
+            return [Detection(np.zeros(4), 1.0, a), Detection(np.zeros(4), 1.0, b)]
+
+    seg = BoxFilteredGeometric(Geo())
+    out = seg.segment(None, [Detection(np.array([5.0, 5, 25, 25]), 0.7, label="dishware")])  # 64 % of a inside
+    assert len(out) == 1 and out[0].mask is a and out[0].score == 0.7 and out[0].label == "dishware"
+    np.testing.assert_array_equal(out[0].box, [10, 10, 30, 30])
+    assert seg.segment(None, [Detection(np.array([5.0, 5, 18, 18]), 0.7)]) == []  # 16 % inside: not this object
+    assert seg.segment(None, []) == []
