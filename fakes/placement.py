@@ -1,50 +1,141 @@
-"""Physics-free resting poses: put an object down so it touches what is below it without sinking in.
+"""Physics-free resting poses: put an object down so it touches what is below it without sinking in, and
+let it tip over its support until it is statically stable.
 
 Contact is found on a height field: on a grid over the object's footprint, the object's underside b(x, y)
-(rays cast up into the object) and the top of everything else h(x, y) (rays cast down from the underside)
+(rays cast up into the object) and the top of everything else h(x, y) (rays cast down from above the object)
 give the largest drop that keeps b >= h everywhere. That handles plates on plates, cups nested in cups and
-items resting on rims. No toppling, no friction: an object rests where it first touches.
+items resting on rims. `settle` then rotates the object about its support (a point or an edge) in small
+steps, dropping it again after each, until its centre of mass lies over the support polygon: a quasi-static
+stand-in for toppling, with no friction and no sliding. Written by hand because no library here does
+quasi-static rigid-body settling on triangle meshes; all geometry queries go through Open3D raycasting.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import open3d as o3d
+from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial.transform import Rotation
 
 from kitchenbot.fakes.geometry import build_scene, cast_vertical
+from kitchenbot.transforms import make_T
 
 GRID = 0.003  # m
+CONTACT_TOL = 0.0015  # m: grid cells this close to the deepest contact count as touching
 
 
-def _underside(mesh: o3d.geometry.TriangleMesh, grid: float) -> tuple[np.ndarray, np.ndarray]:
-    """(xy, z) of the lowest surface of `mesh` on a grid over its footprint."""
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    bb = mesh.get_axis_aligned_bounding_box()
-    lo, hi = bb.get_min_bound(), bb.get_max_bound()
-    xs = np.arange(lo[0] + grid / 2, hi[0], grid)
-    ys = np.arange(lo[1] + grid / 2, hi[1], grid)
-    X, Y = np.meshgrid(xs, ys)
-    xy = np.column_stack([X.ravel(), Y.ravel()])
-    z = cast_vertical(scene, xy, lo[2] - 0.01, down=False)
-    ok = np.isfinite(z)
-    return xy[ok], z[ok]
+@dataclass
+class _Body:
+    """An object's mesh in its own frame, ready for repeated underside queries."""
+
+    scene: o3d.t.geometry.RaycastingScene
+    vertices: np.ndarray
+    com: np.ndarray  # centre of mass (uniform solid), object frame
+
+    @classmethod
+    def of(cls, mesh: o3d.geometry.TriangleMesh) -> "_Body":
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+        V = np.asarray(mesh.vertices)
+        F = np.asarray(mesh.triangles)
+        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+        vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0  # signed tetrahedra with the origin
+        com = (vol[:, None] * (a + b + c) / 4.0).sum(0) / vol.sum() if abs(vol.sum()) > 1e-12 else V.mean(0)
+        return cls(scene, V, com)
+
+    def underside(self, T: np.ndarray, grid: float = GRID) -> tuple[np.ndarray, np.ndarray]:
+        """(xy, z) of the lowest surface of the posed object on a base-frame grid over its footprint."""
+        Vw = self.vertices @ T[:3, :3].T + T[:3, 3]
+        lo, hi = Vw.min(0), Vw.max(0)
+        xs = np.arange(lo[0] + grid / 2, hi[0], grid)
+        ys = np.arange(lo[1] + grid / 2, hi[1], grid)
+        X, Y = np.meshgrid(xs, ys)
+        xy = np.column_stack([X.ravel(), Y.ravel()])
+        origins = np.column_stack([xy, np.full(len(xy), lo[2] - 0.01)])
+        R = T[:3, :3]
+        o_obj = (origins - T[:3, 3]) @ R  # into the object frame
+        d_obj = np.broadcast_to(R.T @ np.array([0.0, 0.0, 1.0]), o_obj.shape)
+        rays = np.hstack([o_obj, d_obj]).astype(np.float32)
+        t = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        ok = np.isfinite(t)
+        return xy[ok], origins[ok, 2] + t[ok]
+
+
+def _drop(body: _Body, T: np.ndarray, scene, floor_z: float) -> tuple[np.ndarray, np.ndarray]:
+    """(T moved vertically to touch the scene, contact points (N, 3) in the base frame)."""
+    xy, b = body.underside(T)
+    if len(xy) == 0:
+        return T, np.zeros((0, 3))
+    top = float((body.vertices @ T[:3, :3].T + T[:3, 3])[:, 2].max())
+    # Cast from the object's top so that anything it already intersects counts as "below".
+    h = cast_vertical(scene, xy, top + 0.001, down=True)
+    h = np.where(np.isfinite(h), h, floor_z)
+    gap = h - b
+    dz = float(gap.max())
+    T = np.array(T, float)
+    T[2, 3] += dz
+    touching = gap >= dz - CONTACT_TOL
+    return T, np.column_stack([xy[touching], h[touching]])
 
 
 def drop_onto(world, uid: int, T_base_obj: np.ndarray, floor_z: float = -1.0) -> np.ndarray:
     """T_base_obj moved straight down (or up, if it intersects) until it rests on the rest of the world."""
-    obj = world.objects[uid]
-    mesh = o3d.geometry.TriangleMesh(obj.model.mesh)
-    mesh.transform(T_base_obj)
-    xy, b = _underside(mesh, GRID)
-    if len(xy) == 0:
-        return T_base_obj
+    body = _Body.of(world.objects[uid].model.mesh)
     scene, _ = build_scene(world, exclude=(uid,))
-    top = float(mesh.get_axis_aligned_bounding_box().get_max_bound()[2])
-    # Cast from the object's top so that anything it already intersects counts as "below".
-    h = cast_vertical(scene, xy, top + 0.001, down=True)
-    h = np.where(np.isfinite(h), h, floor_z)
-    dz = float(np.max(h - b))
-    T = np.array(T_base_obj, float)
-    T[2, 3] += dz
+    return _drop(body, T_base_obj, scene, floor_z)[0]
+
+
+def _support_pivot(contacts: np.ndarray, com_xy: np.ndarray, margin: float) -> np.ndarray | None:
+    """None when the centre of mass is over the support polygon; else the support point nearest to it."""
+    pts = contacts[:, :2]
+    if len(pts) > 400:  # the contact patch is a dense grid; a strided subset has the same hull to ~a cell
+        pts = pts[:: len(pts) // 400 + 1]
+        contacts = contacts[:: len(contacts) // 400 + 1]
+    if len(pts) >= 3:
+        try:
+            hull = ConvexHull(pts)
+            # Inside when every facet's signed distance is <= -margin.
+            if np.all(hull.equations[:, :2] @ com_xy + hull.equations[:, 2] <= -margin):
+                return None
+        except QhullError:
+            pass  # collinear contacts: an edge, handled below
+    # Nearest point of the support set to the centre of mass (the contacts are dense on a grid, so the
+    # nearest contact approximates the nearest point of the hull boundary).
+    k = int(np.argmin(np.linalg.norm(pts - com_xy, axis=1)))
+    return contacts[k]
+
+
+def settle(world, uid: int, T_base_obj: np.ndarray, step_deg: float = 4.0, max_deg: float = 80.0,
+           floor_z: float = -1.0, keep_inside: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Drop the object and tip it over its support until its centre of mass is supported.
+
+    `keep_inside` (lower, upper corners): stop tipping before any vertex leaves this box in x/y (the object
+    then leans on whatever bounds it, e.g. a basin wall).
+    """
+    body = _Body.of(world.objects[uid].model.mesh)
+    scene, _ = build_scene(world, exclude=(uid,))
+    T, contacts = _drop(body, T_base_obj, scene, floor_z)
+    turned = 0.0
+    while turned < max_deg and len(contacts):
+        com = T[:3, :3] @ body.com + T[:3, 3]
+        pivot = _support_pivot(contacts, com[:2], margin=0.002)
+        if pivot is None:
+            break
+        d = com[:2] - pivot[:2]
+        if np.linalg.norm(d) < 1e-6:
+            break
+        axis = np.cross([0.0, 0.0, 1.0], [d[0], d[1], 0.0])
+        axis /= np.linalg.norm(axis)
+        R = Rotation.from_rotvec(axis * np.radians(step_deg)).as_matrix()
+        T_new = make_T(R, pivot - R @ pivot) @ T
+        T_new, c_new = _drop(body, T_new, scene, floor_z)
+        if keep_inside is not None:
+            Vw = body.vertices @ T_new[:3, :3].T + T_new[:3, 3]
+            lo, hi = keep_inside
+            if np.any(Vw[:, :2] < lo[:2]) or np.any(Vw[:, :2] > hi[:2]):
+                break
+        T, contacts = T_new, c_new
+        turned += step_deg
     return T

@@ -1,8 +1,8 @@
 """Random sink scenes from a seed: 3-10 dishware items with clutter, stacks, leaning plates and occlusion.
 
 Items are placed largest first (plates, then bowls, then cups), each in a random resting mode (upright,
-upside down, on its side, leaning on a basin wall, stacked/nested on one of its kind) and dropped onto what
-is already there (fakes/placement.py). Two kitchen styles: stainless and white ceramic sinks.
+upside down, on its side, leaning on a basin wall, stacked/nested on one of its kind), dropped onto what
+is already there and tipped over their support until stable (fakes/placement.py). Two kitchen styles: stainless and white ceramic sinks.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kitchenbot.fakes.placement import drop_onto
+from kitchenbot.fakes.placement import drop_onto, settle
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.cell import Cell, CellSpec
 from kitchenbot.perception.inventory import Inventory, ObjectModel
@@ -119,7 +119,8 @@ def generate_scene(
             if stacked:
                 base_T, mode = prev[1], prev[2]
                 T = base_T.copy()
-                T[:2, 3] += rng.normal(0, 0.004, 2)
+                # Stacks in a sink are messy: plates and bowls land off-centre (and then tip), cups nest.
+                T[:2, 3] += rng.normal(0, 0.012 if model.cls in ("plate", "bowl") else 0.004, 2)
                 T = T @ rot_z(rng.uniform(0, 2 * np.pi)) if model.is_rotationally_symmetric else T
                 T[2, 3] = base_T[2, 3] + 0.25
             elif model.cls == "plate" and rng.random() < options.lean_probability:
@@ -133,7 +134,10 @@ def generate_scene(
                     continue
                 T = make_T(R[:3, :3], (xy[0], xy[1], 0.3))
             uid = world.add_object(model, T)
-            T_rest = drop_onto(world, uid, T)
+            if mode == "leaning":
+                T_rest = drop_onto(world, uid, T)  # posed against the wall already
+            else:
+                T_rest = settle(world, uid, T, keep_inside=world.cell.sink_interior)
             V = np.asarray(model.mesh.vertices) @ T_rest[:3, :3].T + T_rest[:3, 3]
             lo, hi = world.cell.sink_interior
             inside = np.all(V[:, :2] >= lo[:2] - 1e-3) and np.all(V[:, :2] <= hi[:2] + 1e-3)
