@@ -59,13 +59,16 @@ def closing_volume(opening: float, pad_width: float, pad_root: float, pad_tip: f
     return coal.Box(pad_width, max(opening, 1e-3), pad_tip - pad_root), make_T(t=(0.0, 0.0, (pad_root + pad_tip) / 2))
 
 
-TILTS = (np.radians(30.0), np.radians(-30.0), np.radians(50.0), np.radians(-50.0))
+# +-5 deg: nearly level, but the wrist rides ~2 cm higher (clears a counter the item stands on) and the approach
+# still counts as from above when the item is turned upside down (sin 5 deg < max_approach_up 0.1);
+# +-30/50 deg: from above into a sink, where a 20 cm tool cannot come in level below the counter top.
+TILTS = tuple(np.radians(a) for a in (5.0, -5.0, 30.0, -30.0, 50.0, -50.0))
 _expanded: dict[int, list] = {}
 
 
 def expand_grasps(model) -> list:
-    """The model's predefined grasps plus, for rotationally symmetric items, each side grasp (approach
-    perpendicular to the symmetry axis) tilted about its closing axis by +-30 and +-50 degrees.
+    """The model's predefined grasps plus each side grasp (approach perpendicular to the item's axis) tilted
+    about its closing axis by +-5 degrees, and for rotationally symmetric items also +-30 and +-50 degrees.
 
     The closing axis and the TCP point stay, so the pads pinch the same diameter; only the direction the
     gripper comes from changes (from above at an angle, not level: a 20 cm tool cannot come in level below
@@ -77,14 +80,15 @@ def expand_grasps(model) -> list:
     if key in _expanded:
         return _expanded[key]
     out = list(model.grasps)
-    if model.is_rotationally_symmetric:
-        axis = np.asarray(model.symmetries_continuous[0]["axis"], float)
-        axis /= np.linalg.norm(axis)
-        for g in model.grasps:
-            if abs(float(g.T_obj_tcp[:3, 2] @ axis)) > 0.2:
-                continue  # not a side grasp
-            for t in TILTS:
-                out.append(GraspSpec(f"{g.name}_tilt{np.degrees(t):+.0f}", g.T_obj_tcp @ rot_y(t), g.opening, g.width))
+    sym = model.is_rotationally_symmetric
+    axis = np.asarray(model.symmetries_continuous[0]["axis"], float) if sym else np.array([0.0, 0.0, 1.0])
+    axis /= np.linalg.norm(axis)
+    for g in model.grasps:
+        if abs(float(g.T_obj_tcp[:3, 2] @ axis)) > 0.2:
+            continue  # not a side grasp
+        # a non-symmetric item (a mug: its handle) only gets the nearly level variants
+        for t in TILTS if sym else TILTS[:2]:
+            out.append(GraspSpec(f"{g.name}_tilt{np.degrees(t):+.0f}", g.T_obj_tcp @ rot_y(t), g.opening, g.width))
     _expanded[key] = out
     return out
 

@@ -374,7 +374,8 @@ class Planner:
         for tgt in targets:
             options = self._place_tcp_options(tgt, grasp.T_obj_tcp, q0, release_scene, obj_id=grasp.obj.obj_id)
             if not options:
-                last = NoFeasiblePlacement(f"no reachable release pose for target {tgt.slot or tgt.kind}")
+                if last is None or last.kind == "no_feasible_placement":  # keep a more specific failure
+                    last = NoFeasiblePlacement(f"no reachable release pose for target {tgt.slot or tgt.kind}")
                 continue
             for T_obj, T_tcp, q_place in options[:4]:
                 up = tgt.approach_distance if tgt.approach_distance is not None else s.approach_distance
@@ -398,8 +399,11 @@ class Planner:
                 placed = ObjectPose(grasp.obj.obj_id, grasp.obj.cls, T_obj, 1.0, instance_id=PLACED_ID)
                 after = self.scene([*objects, placed], None, exclude=grasp.obj, opening=grasp.spec.opening)
                 after_scene = after.for_grasp(object_name(placed, 0))
-                T_back = T_tcp @ trans(0.0, 0.0, -up)
-                r = self._line(after_scene, q_rel, T_back, "retreat", check_start=False)
+                # back out along the approach; if that line is blocked or singular, straight up instead
+                for T_back in (T_tcp @ trans(0.0, 0.0, -up), trans(0.0, 0.0, up) @ T_tcp):
+                    r = self._line(after_scene, q_rel, T_back, "retreat", check_start=False)
+                    if not isinstance(r, PlanningFailure):
+                        break
                 if isinstance(r, PlanningFailure):
                     last = r
                     continue
