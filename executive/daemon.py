@@ -225,7 +225,12 @@ def create_app(config, *, token: str, journal: Journal | None = None, runner_fac
     def home():
         if d.busy:
             raise HTTPException(409, "a run is in progress; stop it first")
-        d.home_action()
+        from kitchenbot.drivers.errors import DriverError
+
+        try:
+            d.home_action()
+        except DriverError as e:  # the arm could not be reached / moved: say so, stay un-homed
+            raise HTTPException(503, f"homing failed: {type(e).__name__}: {e}") from None
         d.interrupted = []
         return {"homed": True}
 

@@ -129,3 +129,21 @@ def test_token_sources(tmp_path, monkeypatch):
     f.write_text("  \n")
     with pytest.raises(ValueError, match="empty"):
         load_token(f)
+
+
+def test_home_failure_is_a_503_and_stays_unhomed(make_runner, small_config, tmp_path):
+    from kitchenbot.drivers.errors import DeviceNotConnectedError
+
+    journal = Journal(tmp_path / "j.sqlite")
+    journal.begin_run("sink-pick", 0)
+    journal.recover()
+
+    def broken_home():
+        raise DeviceNotConnectedError("arm: no answer from 192.168.1.10")
+
+    app = create_app(small_config(), token=TOKEN, journal=journal, runner_factory=lambda *a: None,
+                     home_action=broken_home)
+    c = TestClient(app)
+    r = c.post("/home", headers=AUTH)
+    assert r.status_code == 503 and "no answer" in r.json()["detail"]
+    assert not journal.homed and c.get("/status").json()["interrupted_runs"]
