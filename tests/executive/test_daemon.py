@@ -135,8 +135,7 @@ def test_home_failure_is_a_503_and_stays_unhomed(make_runner, small_config, tmp_
     from kitchenbot.drivers.errors import DeviceNotConnectedError
 
     journal = Journal(tmp_path / "j.sqlite")
-    journal.begin_run("sink-pick", 0)
-    journal.recover()
+    journal.begin_run("sink-pick", 0)  # the daemon finds it interrupted at start-up
 
     def broken_home():
         raise DeviceNotConnectedError("arm: no answer from 192.168.1.10")
