@@ -13,13 +13,14 @@ class LiveProgress:
         self.console = console or Console(stderr=True)
         self.last = ""
         self.done, self.total = 0, 0
+        self.obj = ""
         self.live = Live(self._render(), console=self.console, refresh_per_second=8, transient=False)
 
     def _render(self) -> Table:
         r = self.runner
         t = Table(show_header=False, box=None, title=f"kitchenbot {r.task.name}")
         t.add_row("state", f"[bold]{r.state}[/bold]")
-        t.add_row("objects", f"{self.done} of {self.total} placed")
+        t.add_row("objects", f"{self.done} of {self.total} placed" + (f" (now: {self.obj})" if self.obj else ""))
         t.add_row("attempts / recoveries", f"{r.report.attempts} / {r.report.recoveries}")
         t.add_row("last", self.last)
         return t
@@ -32,6 +33,8 @@ class LiveProgress:
             self.last = f"{ev['source']} -> {ev['dest']} ({ev['trigger']})"
         elif kind == "fault":
             self.last = f"[red]fault {ev['kind']}[/red]: {ev['message'][:80]}"
+        elif kind == "progress" and ev.get("object"):
+            self.obj = ev["object"]
         elif kind == "placed":
             self.last = f"[green]placed {ev['object']}[/green]"
         self.live.update(self._render())
