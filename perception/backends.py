@@ -214,11 +214,11 @@ def backend_available(name: str, weights_dir: str | Path) -> tuple[bool, str]:
     """(usable here, why not) for any backend name of any role."""
     if name not in CHECKPOINTS:
         return True, ""
-    why = learned_available()
-    if why:
-        return False, why
     problem = _weights_problem(CHECKPOINTS[name], weights_dir)
-    return (problem is None), (f"weights missing: {problem}" if problem else "")
+    if problem:
+        return False, f"weights missing: {problem}"
+    why = learned_available()
+    return (why is None), (why or "")
 
 
 def backend_status(weights_dir: str | Path) -> list[BackendStatus]:

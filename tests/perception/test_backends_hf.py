@@ -282,9 +282,10 @@ def test_patch_tokens_land_in_the_right_voxels(weights):
     assert abs(edge - split) < tokens_px
 
 
-def test_learned_backends_in_the_perceiver(weights):
+def test_learned_backends_in_the_perceiver(weights, inventory):
     from kitchenbot.perception.pipeline import Perceiver
 
-    p = Perceiver(_settings(weights, detector="llmdet", segmenter="sam2", image_encoder="clip", fusion=False), use_cell=False)
+    p = Perceiver(_settings(weights, detector="llmdet", segmenter="sam2", image_encoder="clip", fusion=False), inventory,
+                  use_cell=False)
     assert isinstance(p.detector, GroundedDetector) and isinstance(p.segmenter, Sam2Segmenter)
     assert isinstance(p.img_enc, ClassTokenOnly) and p.img_enc.inner.backend == "clip"

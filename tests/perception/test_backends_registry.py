@@ -150,10 +150,11 @@ def test_plugin_by_registration_and_entry_point(plugin_path, tmp_path, monkeypat
     assert load_point_encoder("radial-ep").dim == 8
 
 
-def test_plugin_in_the_perceiver_and_fusion(plugin_path):
+def test_plugin_in_the_perceiver_and_fusion(plugin_path, inventory):
     from kitchenbot.perception.pipeline import Perceiver
 
-    p = Perceiver(PerceptionSettings(point_encoder="example_point_plugin:RadialHistogramEncoder"), use_cell=False)
+    p = Perceiver(PerceptionSettings(point_encoder="example_point_plugin:RadialHistogramEncoder"), inventory,
+                  use_cell=False)
     assert p.pt_enc.name == "radial-hist"
     P, N = _cloud()
     rgb = np.full((10, 10, 3), 128, np.uint8)
