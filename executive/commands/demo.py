@@ -94,15 +94,14 @@ def run(args: argparse.Namespace) -> int:
               "objects": [o.model.name for o in world.objects.values()], "views": views}
     status = 0
     if not args.scan_only:
-        try:
-            from kitchenbot.executive.runner import run_task
-        except ModuleNotFoundError:
-            run_task = None
-        if run_task is not None:
-            cell.disconnect()
-            task_report = run_task(cfg, "sink-to-dishwasher", args.seed, report_path=out / "run_report.json")
-            report["task"] = task_report.to_dict() if hasattr(task_report, "to_dict") else task_report
-            status = 0 if report["task"].get("status") == "succeeded" else 1
+        from kitchenbot.executive.runner import run_task
+
+        cell.disconnect()
+        console.print("running [bold]sink-to-dishwasher[/] on the same scene")
+        task_report = run_task(cfg, "sink-to-dishwasher", args.seed, report_path=out / "run_report.json",
+                               journal_path=out / "journal.sqlite")
+        report["task"] = task_report.to_dict()
+        status = 0 if report["task"].get("status") == "succeeded" else 1
     (out / "report.json").write_text(json.dumps(report, indent=1))
     console.print(f"report: {out / 'report.json'}")
     return status
