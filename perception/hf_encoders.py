@@ -60,9 +60,13 @@ def pca_reconstruct(tokens: np.ndarray, weights: np.ndarray, rank: int) -> np.nd
     X = tokens[fit]
     w = weights[fit, None] / weights[fit].sum()
     mu = (X * w).sum(axis=0)
-    # SVD of the weighted, centred tokens: numerically the well-kept way to get principal axes.
-    _, _, Vt = np.linalg.svd((X - mu) * np.sqrt(w), full_matrices=False)
-    V = Vt[:rank].T
+    Xw = (X - mu) * np.sqrt(w)  # (n, D), n = patches (256) < D (384-1024)
+    # Principal axes from the small n x n Gram matrix (eigh) instead of an SVD of the n x D matrix: same axes,
+    # ~50x cheaper here. Axes with (numerically) zero variance are dropped.
+    lam, U = np.linalg.eigh(Xw @ Xw.T)
+    top = np.argsort(lam)[::-1][:rank]
+    top = top[lam[top] > 1e-12 * max(lam.max(), 1e-300)]
+    V = (Xw.T @ U[:, top]) / np.sqrt(lam[top])  # (D, k) orthonormal
     return mu + ((tokens - mu) @ V) @ V.T
 
 
