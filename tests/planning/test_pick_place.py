@@ -78,3 +78,20 @@ def test_plan_move_to_scan_waypoints(planner, cfg, home, checker):
         assert res.ok, res
         planner.limits.check_trajectory(planner.robot.ur, res.trajectory.times, res.trajectory.q)
         assert checker.check_path(res.trajectory.q[:: max(1, len(res.trajectory.q) // 50)], step=0.004).ok
+
+
+def test_cup_staged_upright_on_the_counter_goes_inverted_into_the_rack(planner, home, resting, checker):
+    """The regrasp route for an upright cup: on the counter a nearly level side grasp (5 degrees from above)
+    keeps the wrist clear of the counter and still approaches from above once the cup is upside down
+    (released a few centimetres over the rack rails)."""
+    cup = resting("cup", (0.12, 0.62), 1, z_floor=0.0)
+    targets = SlotBook(planner.cell).targets_for(planner.inventory[cup.obj_id])[:3]
+    pick = planner.plan_pick(home, [cup], place_target=targets)
+    assert pick.ok, pick
+    place = planner.plan_place(pick.end, pick.grasp, targets)
+    assert place.ok, place
+    assert place.T_base_obj[2, 2] < -0.99
+    drop = place.T_base_obj[2, 3] - place.target.T_base_obj[2, 3]
+    assert 0.0 <= drop <= planner.settings.max_release_drop + 1e-9
+    for name, r in verify_place(checker, planner, place, pick.grasp, [cup], step=0.004):
+        assert r.ok, (name, str(r))
