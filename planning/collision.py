@@ -143,6 +143,24 @@ def mesh_bvh(vertices: np.ndarray, triangles: np.ndarray) -> coal.BVHModelOBBRSS
     return bvh
 
 
+def tcp_positions(robot: RobotModel, Q: np.ndarray) -> np.ndarray:
+    """TCP positions (N, 3) for joint rows Q (N, 6): the DH chain, vectorised over the rows."""
+    ur = robot.ur
+    n = len(Q)
+    T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    for i in range(6):
+        th = Q[:, i]
+        ct, st = np.cos(th), np.sin(th)
+        ca, sa = np.cos(ur.alpha[i]), np.sin(ur.alpha[i])
+        A = np.zeros((n, 4, 4))
+        A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, ur.a[i] * ct
+        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, ur.a[i] * st
+        A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, ur.d[i]
+        A[:, 3, 3] = 1.0
+        T = T @ A
+    return (T @ robot.T_flange_tcp[:, 3])[:, :3]
+
+
 # ---- the world ---------------------------------------------------------------------------------------------
 
 ROBOT_GROUP = "robot"
@@ -260,7 +278,7 @@ class Scene:
         self.objects = objects
         self.voxels = np.asarray(voxels, float).reshape(-1, 3)
         self.held = held
-        self.opening = float(held.width if held is not None else opening)
+        self._shared = {"opening": float(held.width if held is not None else opening), "version": 0}
         robot = world.robot
         self.model = robot.model
         self.data = robot.model.createData()
@@ -327,19 +345,26 @@ class Scene:
                 gm.addCollisionPair(pin.CollisionPair(i, j))
         self.gd = pin.GeometryData(gm)
         self._bp = None
+        self._pool_obj, self._pool_version = None, -1
         self._tcp_in_j6 = robot.model.frames[robot.tcp_id].placement.translation.copy()
         self._ws_lo = np.asarray(robot.limits.workspace.lower, float)
         self._ws_hi = np.asarray(robot.limits.workspace.upper, float)
         self.pair_names = [(self.names[p.first], self.names[p.second]) for p in gm.collisionPairs]
         self._set_margins({}, world.margin)
 
+    @property
+    def opening(self) -> float:
+        return self._shared["opening"]
+
     def set_opening(self, opening: float) -> None:
-        """Move the finger pads to `opening` (shared by this scene's grasp/release variants)."""
-        if abs(opening - self.opening) < 1e-9:
+        """Move the finger pads to `opening` (the geometry model is shared by this scene's grasp/release
+        variants, so it moves for all of them)."""
+        if abs(opening - self._shared["opening"]) < 1e-9:
             return
-        self.opening = float(opening)
+        self._shared["opening"] = float(opening)
+        self._shared["version"] += 1
         robot = self.world.robot
-        for tb in self.world.gripper.pads(robot.T_flange_tcp, self.opening):
+        for tb in self.world.gripper.pads(robot.T_flange_tcp, float(opening)):
             gid = self.names.index(tb.name)
             self.gm.geometryObjects[gid].placement = pin.SE3(self._T_j6_flange @ tb.T_flange_box)
 
@@ -361,6 +386,7 @@ class Scene:
         other.data = self.model.createData()
         other.gd = pin.GeometryData(self.gm)
         other._bp = None
+        other._pool_obj, other._pool_version = None, -1
         allowed: dict[tuple[str, str], bool] = {}
         if target_name is not None:
             tgt = f"obj:{target_name}"
@@ -399,15 +425,41 @@ class Scene:
         p = self.data.oMi[6].act(self._tcp_in_j6)
         return not ((p < self._ws_lo).any() or (p > self._ws_hi).any())
 
-    def valid_batch(self, Q: np.ndarray) -> np.ndarray:
-        """Validity of each row of Q (N, 6)."""
-        return np.array([self.valid(q) for q in np.asarray(Q, float)], bool)
+    def _pool(self):
+        """Pinocchio's batch checker (C++ loop over configurations, same broad phase, this scene's pair
+        activation and margins); rebuilt when the pads moved."""
+        if self._pool_obj is None or self._pool_version != self._shared["version"]:
+            pool = pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager(self.model, self.gm, 1)
+            gd = pool.getGeometryDatas()[0]
+            for k in range(len(self.pair_names)):
+                gd.collisionRequests[k].security_margin = self.gd.collisionRequests[k].security_margin
+                if self.gd.activeCollisionPairs[k]:
+                    gd.activateCollisionPair(k)
+                else:
+                    gd.deactivateCollisionPair(k)
+            self._pool_obj, self._pool_version = pool, self._shared["version"]
+        return self._pool_obj
 
-    def first_invalid(self, Q: np.ndarray) -> int:
-        """Index of the first invalid row of Q, or -1 when all are valid."""
-        for k, q in enumerate(np.asarray(Q, float)):
-            if not self.valid(q):
-                return k
+    def valid_batch(self, Q: np.ndarray) -> np.ndarray:
+        """Validity of each row of Q (N, 6): limits, workspace (vectorised DH FK) and collisions (batch)."""
+        Q = np.asarray(Q, float).reshape(-1, 6)
+        robot = self.world.robot
+        ok = np.all((Q >= robot.lower - 1e-9) & (Q <= robot.upper + 1e-9), axis=1)
+        p = tcp_positions(robot, Q)
+        ok &= np.all((p >= self._ws_lo) & (p <= self._ws_hi), axis=1)
+        if ok.any():
+            idx = np.flatnonzero(ok)
+            hit = np.asarray(pin.computeCollisionsInParallel(1, self._pool(), np.ascontiguousarray(Q[idx].T), True, False), bool)
+            ok[idx[hit]] = False
+        return ok
+
+    def first_invalid(self, Q: np.ndarray, chunk: int = 128) -> int:
+        """Index of the first invalid row of Q, or -1 when all are valid (checked in chunks, stops early)."""
+        Q = np.asarray(Q, float).reshape(-1, 6)
+        for s in range(0, len(Q), chunk):
+            v = self.valid_batch(Q[s : s + chunk])
+            if not v.all():
+                return s + int(np.argmin(v))
         return -1
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:

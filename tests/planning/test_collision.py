@@ -79,3 +79,19 @@ def test_check_time_per_configuration(planner, home, resting):
     rng = np.random.default_rng(5)
     v = scene.valid_batch(np.clip(home + rng.uniform(-1, 1, (1000, 6)), planner.robot.lower, planner.robot.upper))
     assert 0 < v.sum() < 1000
+
+
+def test_batch_check_agrees_with_single_checks(planner, home, resting):
+    """valid_batch (Pinocchio's C++ batch loop + vectorised FK) == valid, with allowed contacts and pad moves."""
+    cup = resting("cup", (0.5, 0.0), 1)
+    base = planner.scene([cup])
+    grasp = base.for_grasp("1")
+    rng = np.random.default_rng(7)
+    Q = np.clip(home + rng.uniform(-1.5, 1.5, (600, 6)), planner.robot.lower, planner.robot.upper)
+    for scene in (base, grasp):
+        for opening in (0.1, 0.03):
+            scene.set_opening(opening)
+            single = np.array([scene.valid(q) for q in Q])
+            np.testing.assert_array_equal(scene.valid_batch(Q), single)
+            k = scene.first_invalid(Q)
+            assert k == (int(np.argmin(single)) if not single.all() else -1)
