@@ -71,9 +71,21 @@ def mean_std(pp: dict[str, Any], default=(IMAGENET_MEAN, IMAGENET_STD)) -> tuple
     return mean, std
 
 
-def to_chw(rgb: np.ndarray, size_hw: tuple[int, int], mean: np.ndarray, std: np.ndarray) -> np.ndarray:
-    """uint8 (H, W, 3) -> float32 (3, h, w): bilinear resize (area when shrinking), /255, normalise."""
+# PIL resample codes in preprocessor_config.json -> OpenCV flags
+_RESAMPLE = {0: cv2.INTER_NEAREST, 1: cv2.INTER_LANCZOS4, 2: cv2.INTER_LINEAR, 3: cv2.INTER_CUBIC}
+
+
+def resample_flag(pp: dict[str, Any]) -> int | None:
+    """The OpenCV interpolation matching the checkpoint's `resample` (None: bilinear / area)."""
+    return _RESAMPLE.get(pp.get("resample")) if isinstance(pp.get("resample"), int) else None
+
+
+def to_chw(rgb: np.ndarray, size_hw: tuple[int, int], mean: np.ndarray, std: np.ndarray,
+           interp: int | None = None) -> np.ndarray:
+    """uint8 (H, W, 3) -> float32 (3, h, w): resize (`interp`, default bilinear or area when shrinking), /255,
+    normalise."""
     h, w = size_hw
-    interp = cv2.INTER_AREA if (h < rgb.shape[0] and w < rgb.shape[1]) else cv2.INTER_LINEAR
+    if interp is None:
+        interp = cv2.INTER_AREA if (h < rgb.shape[0] and w < rgb.shape[1]) else cv2.INTER_LINEAR
     x = cv2.resize(np.ascontiguousarray(rgb, np.uint8), (w, h), interpolation=interp).astype(np.float32) / 255.0
     return ((x - mean) / std).transpose(2, 0, 1)

@@ -2,7 +2,8 @@
 and patch tokens of an instance crop, in the ``ImageEncoder`` protocol of features.py.
 
 Per crop (Alg. 1 lines 3-6): background removed (pixels outside the mask set to black), the crop padded to a
-square (so the model sees the object undistorted) and resized to the model's input size, one batched forward
+square (so the model sees the object undistorted) and resized straight to the model's input size (no centre
+crop, which would cut the object; interpolation and mean/std from the checkpoint), one batched forward
 pass, then the patch-token grid is resampled onto a 224 x 224 grid covering exactly the crop (bilinear,
 `torch.nn.functional.grid_sample`), so patch (i, j) of the result covers crop pixels
 [i*H/224, (i+1)*H/224) x [j*W/224, (j+1)*W/224) as the protocol says, and reduced by PCA.
@@ -21,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from kitchenbot.perception.features import ImageEncoder, l2n
-from kitchenbot.perception.hf_common import IMAGENET_MEAN, IMAGENET_STD, load_model, mean_std, preprocessor_config, to_chw
+from kitchenbot.perception.hf_common import (IMAGENET_MEAN, IMAGENET_STD, load_model, mean_std, preprocessor_config,
+                                             resample_flag, to_chw)
 
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
@@ -87,6 +89,7 @@ class HFImageEncoder:
         cfg = self.model.config
         pp = preprocessor_config(folder)
         self.mean, self.std = mean_std(pp, FAMILY_NORM[backend])
+        self.interp = resample_flag(pp)  # e.g. bicubic for DINOv2 and CLIP
         self.patch = int(cfg.patch_size)
         size = input_size or _pp_size(pp) or 224
         self.input_size = max(self.patch, (size // self.patch) * self.patch)
@@ -119,7 +122,7 @@ class HFImageEncoder:
             r0, r1, c0, c1 = (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1) if len(rows) else \
                 (0, mask.shape[0], 0, mask.shape[1])
             sq, m, (L, pr, pc) = pad_to_square(rgb[r0:r1, c0:c1], mask[r0:r1, c0:c1])
-            batch.append(to_chw(sq, (S, S), self.mean, self.std))
+            batch.append(to_chw(sq, (S, S), self.mean, self.std, self.interp))
             geo.append((mask.shape, (L, pr - r0, pc - c0)))  # input pixel (y, x) -> square (y + pr - r0, ...)
             # fraction of each patch inside the mask: weights for the PCA fit
             pmask.append(cv2_area(m.astype(np.float32), g))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -67,7 +68,7 @@ def _encoders(root):
     torch.manual_seed(0)
     Dinov2Model(Dinov2Config(patch_size=14, **small)).save_pretrained(root / CHECKPOINTS["dinov2"].folder)
     (root / CHECKPOINTS["dinov2"].folder / "preprocessor_config.json").write_text(json.dumps(
-        {"crop_size": {"height": 224, "width": 224}, "image_mean": [0.485, 0.456, 0.406],
+        {"crop_size": {"height": 224, "width": 224}, "resample": 3, "image_mean": [0.485, 0.456, 0.406],
          "image_std": [0.229, 0.224, 0.225]}))
     BeitModel(BeitConfig(patch_size=16, use_mean_pooling=True, **small)).save_pretrained(root / CHECKPOINTS["beit"].folder)
     CLIPVisionModel(CLIPVisionConfig(patch_size=16, **small)).save_pretrained(root / CHECKPOINTS["clip"].folder)
@@ -182,7 +183,8 @@ def test_sam2_boxes_to_masks_to_association(weights):
 def test_image_encoder_shapes(weights, backend, model_cls):
     enc = make_image_encoder(_settings(weights, image_encoder=backend))
     assert isinstance(enc, HFImageEncoder) and type(enc.model).__name__ == model_cls
-    assert enc.dim == 32 and enc.input_size == (224 if backend != "dinov2" else 224)
+    assert enc.dim == 32 and enc.input_size == 224
+    assert enc.interp == (cv2.INTER_CUBIC if backend == "dinov2" else None)  # from preprocessor_config.json
     rng = np.random.default_rng(3)
     rgb = (rng.random((60, 90, 3)) * 255).astype(np.uint8)
     mask = np.zeros((60, 90), bool)
