@@ -1,6 +1,8 @@
 """Grasp selection (paper sec. III-D): predefined grasps per CAD model, filtered and ranked.
 
-For every perceived object: drop it when it is hidden more than ``settings.max_occlusion``; express each
+For every perceived object: drop it when it is hidden more than ``settings.max_occlusion`` (hidden = 1 -
+visible_fraction / settings.visible_fraction_unoccluded: perception's visible_fraction is the share of all
+model points its views confirmed, about 0.5 at best from above); express each
 predefined grasp of its model in the base frame (``T_base_tcp = T_base_obj @ T_obj_tcp``); keep those that
 approach from above-ish (TCP z, the approach, must not point up by more than ``settings.max_approach_up``),
 that take in no other object between the pads (multi-object grasps), that have IK for the grasp and pre-grasp
@@ -131,7 +133,8 @@ def select_grasps(
     # Phase 1: cheap filters (occlusion, approach from above, reach) over every (object, grasp) pair.
     pending = []
     for k, o in cands:
-        if 1.0 - float(o.visible_fraction) > max_hidden:
+        hidden = 1.0 - min(1.0, float(o.visible_fraction) / settings.visible_fraction_unoccluded)
+        if hidden > max_hidden:
             st.occluded += 1
             continue
         try:

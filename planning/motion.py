@@ -206,6 +206,12 @@ def _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolutio
     return path, (t1 - t0) * 1e3, (t2 - t1) * 1e3
 
 
+def _line_collides(scene: Scene, q: np.ndarray, at: float | None) -> CartesianPathFailed:
+    pairs = scene.colliding_pairs(q)
+    what = ", ".join(f"{a}/{b}" for a, b in pairs[:4]) or "TCP leaves the workspace"
+    return CartesianPathFailed(f"straight line collides ({what})", {"pairs": pairs, "q": np.asarray(q).tolist()})
+
+
 # ---- straight Cartesian segments ----------------------------------------------------------------------------------
 def cartesian_line(
     robot: RobotModel,
@@ -260,11 +266,11 @@ def cartesian_line(
         bad = check_segment(start_scene, Q[: m + 1], r, check_step)
         if bad >= 0:
             dense = densify(Q[: m + 1], r, check_step)
-            return CartesianPathFailed("straight line collides", {"pairs": start_scene.colliding_pairs(dense[bad])})
+            return _line_collides(start_scene, dense[bad], bad / max(len(dense) - 1, 1) * start_travel)
         bad = check_segment(scene, Q[m:], r, check_step)
         if bad >= 0:
             dense = densify(Q[m:], r, check_step)
-            return CartesianPathFailed("straight line collides", {"pairs": scene.colliding_pairs(dense[bad])})
+            return _line_collides(scene, dense[bad], None)
         return Q
     if not check_start:
         # the first state may touch (e.g. the release pose); check from the first step on
@@ -274,6 +280,6 @@ def cartesian_line(
         bad = check_segment(scene, Q, r, check_step)
     if bad >= 0:
         dense = densify(Q, r, check_step)
-        return CartesianPathFailed("straight line collides", {"pairs": scene.colliding_pairs(dense[bad])})
+        return _line_collides(scene, dense[bad], None)
     return Q
 

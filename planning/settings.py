@@ -14,6 +14,11 @@ class PlanningSettings(BaseModel):
     approach_distance: float = Field(0.10, gt=0.0, le=0.3, description="straight approach/retreat, metres")
     lift_height: float = Field(0.15, gt=0.0, le=0.5)
     max_occlusion: float = Field(0.6, ge=0.0, le=1.0, description="skip objects hidden more than this fraction")
+    visible_fraction_unoccluded: float = Field(
+        0.5, gt=0.0, le=1.0,
+        description="ObjectPose.visible_fraction of a fully visible object: perception counts the share of all "
+                    "model points its views confirmed, and from above at most about half a surface faces a camera",
+    )
     max_approach_up: float = Field(
         0.1, ge=-1.0, le=1.0, description="largest upward z component of a grasp's approach direction (-1 = straight down)"
     )

@@ -35,8 +35,11 @@ def test_upside_down_bowl_rim_grasps_are_from_below(planner, home, resting):
 
 def test_occluded_objects_are_dropped(planner, home, resting):
     cup = resting("cup", (0.5, 0.0), 1)
-    cup.visible_fraction = 1.0 - planner.settings.max_occlusion - 0.05
+    full = planner.settings.visible_fraction_unoccluded
+    cup.visible_fraction = full * (1.0 - planner.settings.max_occlusion) - 0.02  # just more hidden than allowed
     assert isinstance(planner.select_grasps(home, [cup]), NoGraspableObject)
+    cup.visible_fraction = full * (1.0 - planner.settings.max_occlusion) + 0.02  # just visible enough
+    assert isinstance(planner.select_grasps(home, [cup]), list)
 
 
 def test_multi_object_grasps_are_rejected(planner, home, resting):
