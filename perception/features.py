@@ -134,10 +134,15 @@ class FusedCloud:
         return np.concatenate([self.img, self.pts], axis=1) if self.img.shape[1] else self.pts
 
 
+def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
+    """One int64 per voxel (21 bits per axis: +-1 km at 1 mm), so that np.unique runs on 1-D keys (fast)."""
+    k = np.floor(points / voxel).astype(np.int64) + (1 << 20)
+    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+
+
 def voxel_pool(points: np.ndarray, feats: np.ndarray | None, voxel: float) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Mean point and mean feature per occupied voxel; also the voxel index of every input point."""
-    key = np.floor(points / voxel).astype(np.int64)
-    _, inv_, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inv_, cnt = np.unique(voxel_keys(points, voxel), return_inverse=True, return_counts=True)
     inv_ = inv_.reshape(-1)
     n = len(cnt)
     P = np.zeros((n, 3))
@@ -179,6 +184,7 @@ def fuse_instance(points: np.ndarray, view_idx: np.ndarray, pixel: np.ndarray, r
             rows, cols = np.nonzero(mask)
             r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
             cls, patches = img_enc.encode(rgb[r0:r1, c0:c1], mask[r0:r1, c0:c1])
+            # (patch tokens cover the crop evenly; map each point's pixel to its patch)
             cls_tokens.append(cls * np.sqrt(mask.sum()))  # weight views by how much they saw
             h, w = patches.shape[:2]
             pr = np.clip(((pixel[sel, 0] - r0) * h) // max(r1 - r0, 1), 0, h - 1)

@@ -21,11 +21,11 @@ from kitchenbot.perception.cell import Cell
 from kitchenbot.perception.database import CadDatabase
 from kitchenbot.perception.detect import Detection, Detector, PassThroughSegmenter, Segmenter
 from kitchenbot.perception import backends
-from kitchenbot.perception.features import FusedCloud, fuse_instance
+from kitchenbot.perception.features import FusedCloud, fuse_instance, voxel_keys
 from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.map import InstanceMap, align_views, build_map, consolidate
-from kitchenbot.perception.register import (Hypothesis, RegistrationConfig, Scorer, propose, refine, screen_candidate,
-                                           snap_upright)
+from kitchenbot.perception.register import (Hypothesis, RegistrationConfig, Scorer, clean_depths, propose, refine,
+                                           screen_candidate, snap_upright)
 from kitchenbot.perception.rgbd import check_view
 from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
@@ -85,6 +85,7 @@ class Perceiver:
         self.img_enc = backends.make_image_encoder(self.settings)  # colour | none | learned (fusion on/off)
         self.pt_enc = backends.make_point_encoder(self.settings.point_encoder)  # fpfh | plug-ins
         self._db = database
+        self._depths: list[np.ndarray] | None = None  # per scan: depth with unknown = 0, shared by the scorers
         self.settings_seed = 0
         st = self.settings
         self.reg_cfg = RegistrationConfig(voxel=st.voxel_size, top_k=st.top_k, candidate_threshold=st.candidate_threshold,
@@ -114,6 +115,7 @@ class Perceiver:
         for k, v in enumerate(views):
             check_view(v, f"views[{k}]")
         o3d.utility.random.seed(self.settings_seed)  # Open3D's RANSAC: same views, same answer
+        self._depths = None
         db = self.database
         if len(views) > 1 and self.settings.align_views:
             with timed("align"):
@@ -124,6 +126,7 @@ class Perceiver:
             ids = associate(views, dets, self.settings.iou_threshold)
         with timed("map"):
             m = consolidate(build_map(views, dets, ids))
+        self._depths = clean_depths(views)
         poses: list[ObjectPose] = []
         pose_ms: list[float] = []
         pose_cpu_ms: list[float] = []
@@ -257,15 +260,20 @@ class Perceiver:
         # agree too: geometry alone confuses e.g. two nested cups with one glass.
         screened = []
         scorers = {}
-        for oid, _sim, img_sim in cands:
+        best_screen, best_sim = 0.0, cands[0][1] if cands else 0.0
+        for oid, sim, img_sim in cands:
+            if best_screen >= 0.9 and sim < best_sim - 0.15:
+                continue  # a clear fit already, and this candidate looks clearly less alike: not worth the time
             entry = self.database[oid]
-            scorers[oid] = Scorer(entry, query.points, views, st.voxel_size, inside_solid=self._inside_solid(up))
+            scorers[oid] = Scorer(entry, query.points, views, st.voxel_size, inside_solid=self._inside_solid(up),
+                                  depths=self._depths)
             w = 0.6 + 0.4 * max(0.0, img_sim) if np.isfinite(img_sim) else 1.0
             stack = [h.T_base_obj for h in found if h.obj_id == oid and
                      np.linalg.norm(h.T_base_obj[:3, 3] - query.points.mean(axis=0)) < self.inventory[oid].diameter]
             for sc, name, T in screen_candidate(query, entry, self.inventory[oid], scorers[oid], self.reg_cfg, up,
                                                 stack)[:2]:
                 screened.append((sc * w, oid, name, T, w))
+                best_screen = max(best_screen, sc * w)
         screened.sort(key=lambda t: -t[0])
         best: Hypothesis | None = None
         for _, oid, name, T, w in screened[: self.reg_cfg.keep_for_refine + 1]:
@@ -289,14 +297,15 @@ class Perceiver:
                 if h.score >= best.score - 0.03:
                     best = h
                     break
-        if best is None or best.score < st.min_overlap:
+        # Both overlap ratios must be substantial: a tiny fragment "fully explained" by a model whose visible
+        # surface the views do not confirm is no detection (paper: insufficient correspondences / low overlap).
+        if best is None or best.score < st.min_overlap or best.or_model < 0.15 or best.or_query < 0.2:
             return None, query
         return best, query
 
 
 def _voxel_centres(points: np.ndarray, voxel: float) -> np.ndarray:
-    key = np.floor(points / voxel).astype(np.int64)
-    _, inv_, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inv_, cnt = np.unique(voxel_keys(points, voxel), return_inverse=True, return_counts=True)
     out = np.zeros((len(cnt), 3))
     np.add.at(out, inv_.reshape(-1), points)
     return out / cnt[:, None]
@@ -305,8 +314,7 @@ def _voxel_centres(points: np.ndarray, voxel: float) -> np.ndarray:
 def _clusters(points: np.ndarray, eps: float, min_points: int, grid: float) -> list[np.ndarray]:
     """Index arrays of the DBSCAN clusters (Open3D, on a `grid`-voxel subsample for speed) with at least
     `min_points` of the original points."""
-    key = np.floor(points / grid).astype(np.int64)
-    _, first, inv_ = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    _, first, inv_ = np.unique(voxel_keys(points, grid), return_index=True, return_inverse=True)
     inv_ = inv_.reshape(-1)
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[first]))
     lab = np.asarray(pc.cluster_dbscan(eps, 3, print_progress=False))[inv_]

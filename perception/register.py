@@ -100,11 +100,21 @@ def _rot_from_z(axis: np.ndarray) -> np.ndarray:
     return np.stack([x, y, a], axis=1)
 
 
+def clean_depths(views: list[View]) -> list[np.ndarray]:
+    """Depth images with unknown depth as 0 (computed once per scan, shared by the scorers)."""
+    out = []
+    for v in views:
+        d = np.asarray(v.depth, np.float32)
+        out.append(np.where(np.isfinite(d), d, 0.0).astype(np.float32))
+    return out
+
+
 class Scorer:
     """Overlap ratios of a posed model against the query points and the views' depth."""
 
     def __init__(self, entry: ModelEntry, query_points: np.ndarray, views: list[View], eps: float, n_model: int = 800,
-                 inside_solid: Callable[[np.ndarray], np.ndarray] | None = None):
+                 inside_solid: Callable[[np.ndarray], np.ndarray] | None = None,
+                 depths: list[np.ndarray] | None = None):
         """`inside_solid(P)`: which base-frame points lie inside known solid matter (the cell's counter and sink
         walls, or below the support plane); a pose that puts the model there is penalised."""
         self.inside_solid = inside_solid
@@ -115,7 +125,7 @@ class Scorer:
         self.q = query_points
         self.q_tree = cKDTree(query_points)
         self.views = views
-        self.depths = [np.nan_to_num(np.asarray(v.depth, np.float64), nan=0.0) for v in views]
+        self.depths = depths if depths is not None else clean_depths(views)
         self.eps = eps
 
     def __call__(self, T_base_obj: np.ndarray, coarse: bool = False) -> tuple[float, float, float, float, float]:
@@ -130,6 +140,7 @@ class Scorer:
         N = self.mn[::k] @ T_base_obj[:3, :3].T
         support = np.zeros(len(P), bool)
         violate = np.zeros(len(P), bool)
+        in_view = np.zeros(len(P), bool)
         tol = max(self.eps, 0.006)
         for v, D in zip(self.views, self.depths):
             # Facing the camera clearly (< ~70 deg): grazing points sit on silhouettes, where depth is least sure.
@@ -138,6 +149,7 @@ class Scorer:
             rc, z, inside = project_pixels(v, P)
             obs = D[rc[:, 0], rc[:, 1]]
             idx = np.nonzero(inside)[0]
+            in_view[idx] = True
             known = (obs > 0) & facing[idx]
             support[idx[known & (np.abs(z - obs) <= tol)]] = True
             violate[idx[known & (z < obs - 2 * tol)]] = True  # clearly in front of what the camera saw
@@ -151,6 +163,8 @@ class Scorer:
         or_m = float(near / n_vis)
         fs = float(violate.sum() / n_vis)
         score = 0.5 * (or_q + or_m)
+        # A pose mostly outside every image is weakly supported (its unseen part could be anywhere).
+        score *= min(1.0, float(in_view.mean()) / 0.7)
         if self.inside_solid is not None:
             score -= 2.0 * float(np.mean(self.inside_solid(P)))
         return max(score, 0.0), or_q, or_m, fs, float(near / len(P))
@@ -211,6 +225,66 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
     return T
 
 
+def _exp_se3_batch(x: np.ndarray) -> np.ndarray:
+    """(H, 4, 4) transforms of rotation vectors x[:, :3] (Rodrigues) and translations x[:, 3:]."""
+    w = x[:, :3]
+    th = np.linalg.norm(w, axis=1)
+    Kx = np.zeros((len(x), 3, 3))
+    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    Kx[:, 1, 0], Kx[:, 2, 0], Kx[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    safe = np.maximum(th, 1e-9)
+    a = np.where(th > 1e-9, np.sin(th) / safe, 1.0)
+    b = np.where(th > 1e-9, (1 - np.cos(th)) / safe**2, 0.5)
+    T = np.tile(np.eye(4), (len(x), 1, 1))
+    T[:, :3, :3] += a[:, None, None] * Kx + b[:, None, None] * (Kx @ Kx)
+    T[:, :3, 3] = x[:, 3:]
+    return T
+
+
+def icp_batch(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...], iters: int = 5,
+              coarse: bool = True, keep_axis: np.ndarray | None = None) -> np.ndarray:
+    """`icp_to_model` for H starting poses at once ((H, 4, 4) T_obj_base -> (H, 4, 4)): one KD-tree query and
+    one batched 6x6 solve per iteration for all hypotheses (the per-call Python overhead dominated).
+    `keep_axis[h]`: hypothesis h keeps its object z axis (translation and yaw only)."""
+    T = np.array(T_obj_base, float)
+    H, n = len(T), len(q)
+    if H == 0:
+        return T
+    tree, mp, mn = (entry.ref_tree, entry.ref.points, entry.ref.normals) if coarse else \
+        (entry.tree, entry.dense_points, entry.dense_normals)
+    mp, mn = np.asarray(mp, np.float64), np.asarray(mn, np.float64)
+    lock = np.zeros(H, bool) if keep_axis is None else np.asarray(keep_axis, bool)
+    eye6 = 1e-6 * np.eye(6)
+    for dmax in dists:
+        active = np.ones(H, bool)
+        for _ in range(iters):
+            idx = np.nonzero(active)[0]
+            if len(idx) == 0:
+                break
+            Ta = T[idx]
+            p = np.einsum("hij,nj->hni", Ta[:, :3, :3], q) + Ta[:, None, :3, 3]
+            d, j = tree.query(p.reshape(-1, 3), distance_upper_bound=dmax)
+            ok = np.isfinite(d).reshape(len(idx), n)
+            jj = np.where(ok, j.reshape(len(idx), n), 0)
+            m, nn = mp[jj], mn[jj]
+            r = np.einsum("hni,hni->hn", p - m, nn) * ok
+            J = np.concatenate([np.cross(p, nn), nn], axis=2) * ok[..., None]
+            A = np.einsum("hni,hnj->hij", J, J) + eye6
+            bvec = np.einsum("hni,hn->hi", J, r)
+            lk = lock[idx]
+            for c in (0, 1):  # locked axis: no rotation about the object's x and y
+                A[lk, c, :] = 0.0
+                A[lk, :, c] = 0.0
+                A[lk, c, c] = 1.0
+                bvec[lk, c] = 0.0
+            x = -np.linalg.solve(A, bvec[..., None])[..., 0]
+            x[ok.sum(axis=1) < 6] = 0.0
+            T[idx] = _exp_se3_batch(x) @ Ta
+            small = (np.linalg.norm(x[:, :3], axis=1) < 1e-4) & (np.linalg.norm(x[:, 3:], axis=1) < 1e-5)
+            active[idx[small]] = False
+    return T
+
+
 def seeds(points: np.ndarray, diameter: float, max_seeds: int = 6) -> list[np.ndarray]:
     """Where to centre hypotheses: the query's centroid, and when the query is larger than the model (touching
     items segmented together), farthest-point samples about half a diameter apart, each moved to the centroid
@@ -260,13 +334,21 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
     `stacked_on`: poses of the same model found nearby; nested/stacked copies along their axis are tried."""
     v = cfg.voxel
     up = np.array([0.0, 0.0, 1.0]) if up is None else up
-    qs = query.points[:: max(1, len(query.points) // 200)]  # screening runs on <= ~200 points
+    qs = query.points[:: max(1, len(query.points) // 150)]  # screening runs on <= ~150 points
     scored: list[tuple[float, str, np.ndarray]] = []
+    starts: list[tuple[str, np.ndarray, bool]] = []  # (name, T_base_obj, keep axis)
 
-    def screen(name: str, T: np.ndarray, keep_axis: bool = False) -> None:
-        # Coarse ICP estimates T_obj_base (query points -> model frame), then the pose is scored.
-        Tb = inv(icp_to_model(qs, entry, inv(T), (5 * v, 3 * v, 1.5 * v), iters=5, coarse=True, upright=keep_axis))
-        scored.append((scorer(Tb, coarse=True)[0], name, Tb))
+    def screen_all() -> None:
+        # Coarse ICP (all starts at once) estimates T_obj_base (query points -> model frame); then each is scored.
+        if not starts:
+            return
+        T0 = np.array([inv(T) for _, T, _ in starts])
+        Ts = icp_batch(qs, entry, T0, (4 * v, 1.5 * v), iters=5, coarse=True,
+                       keep_axis=np.array([k for _, _, k in starts]))
+        for (name, _, _), T_ob in zip(starts, Ts):
+            Tb = inv(T_ob)
+            scored.append((scorer(Tb, coarse=True)[0], name, Tb))
+        starts.clear()
 
     # (0) stacking: the same model nested in / stacked on one already found, shifted along its axis.
     height = float(model.extents[2])
@@ -274,7 +356,7 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
         for f in (-0.8, -0.5, -0.25, 0.25, 0.5, 0.8):
             Ts = T.copy()
             Ts[:3, 3] += f * height * T[:3, 2]
-            screen("stack", Ts, keep_axis=True)
+            starts.append(("stack", Ts, True))
 
     # (1) fused-feature RANSAC: query -> model frame.
     if len(query.points) >= 6 and cfg.ransac_runs > 0:
@@ -287,13 +369,14 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
                 [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * v)],
                 reg.RANSACConvergenceCriteria(cfg.ransac_iterations, 0.999))
             if res.fitness > 0:
-                screen("ransac", inv(res.transformation))
+                starts.append(("ransac", inv(res.transformation), False))
     # (2) gravity priors: axis hypotheses (yaw 0) at each seed, then yaws around the best axes when yaw matters.
     r = 0.5 * model.diameter
     for k, c in enumerate(seeds(query.points, model.diameter)):
         local = query.points if k == 0 else query.points[np.linalg.norm(query.points - c, axis=1) < r]
         for a in gravity_axes(local, up):
-            screen("gravity", _pose(a, 0.0, c))
+            starts.append(("gravity", _pose(a, 0.0, c), False))
+    screen_all()
     if not model.is_rotationally_symmetric and cfg.n_yaw > 1:
         # Yaw matters (a mug's handle): every yaw upright and upside down at the centroid, and around the
         # best-scoring other axis.
@@ -303,8 +386,9 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
                        key=lambda t: -t[0])[:1]
         for _, _, Tb in grav:
             for y in np.linspace(0, 2 * np.pi, cfg.n_yaw, endpoint=False)[1:]:
-                screen("gravity-yaw", make_T(Tb[:3, :3] @ _pose(np.array([0, 0, 1.0]), y, np.zeros(3))[:3, :3],
-                                             Tb[:3, 3]))
+                starts.append(("gravity-yaw", make_T(Tb[:3, :3] @ _pose(np.array([0, 0, 1.0]), y, np.zeros(3))[:3, :3],
+                                                     Tb[:3, 3]), False))
+        screen_all()
     scored.sort(key=lambda t: -t[0])
     return scored
 
@@ -314,7 +398,7 @@ def refine(query: FusedCloud, entry: ModelEntry, scorer: Scorer, T_base_obj: np.
     """Fine ICP against the dense model surface (<= ~600 query points) and the full score."""
     v = cfg.voxel
     q = query.points[:: max(1, len(query.points) // 600)]
-    dists = (3 * v, 1.5 * v, v, 0.6 * v) if upright else (2 * v, v, 0.6 * v)
+    dists = (3 * v, 1.5 * v, v, 0.6 * v, 0.3 * v) if upright else (2 * v, v, 0.6 * v, 0.3 * v)
     Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=10, upright=upright))
     return Hypothesis(entry.obj_id, Tb, *scorer(Tb), source=source + ("-upright" if upright else ""))
 
