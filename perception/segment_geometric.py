@@ -117,6 +117,18 @@ def plane_foreground(view: View, cfg: GeometricSegmenterConfig, pts: np.ndarray)
     with np.errstate(invalid="ignore"):
         h = pts @ n + d
         fg = ok & (h > cfg.surface_margin + 0.002) & (h < cfg.above_rim)
+    # Other large planes (walls, a basin's sides) are background too: no dish is flat over 35 cm.
+    for _ in range(3):
+        Q = pts[fg]
+        if len(Q) < 500:
+            break
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Q[:: max(1, len(Q) // 20000)]))
+        pl, inl = pc.segment_plane(distance_threshold=0.006, ransac_n=3, num_iterations=200)
+        I = np.asarray(pc.points)[inl]
+        if len(inl) < 0.1 * len(pc.points) or np.linalg.norm(np.percentile(I, 95, 0) - np.percentile(I, 5, 0)) < 0.35:
+            break
+        with np.errstate(invalid="ignore"):
+            fg &= ~(np.abs(pts @ np.asarray(pl[:3]) + pl[3]) < cfg.surface_margin + 0.002)
     return fg, n, d
 
 
