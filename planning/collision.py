@@ -224,12 +224,14 @@ class CollisionWorld:
         objects: Sequence[SceneObject],
         explain_radius: float = 0.015,
         min_points: int = 3,
-        instance_points: Sequence[np.ndarray] = (),
+        instance_points: Sequence[np.ndarray | None] = (),
+        instance_reach: float = 0.03,
     ) -> np.ndarray:
         """Centres of voxels holding >= `min_points` map points that nothing explains: not a cell box, not a
-        perceived object's mesh bounding box, not within `explain_radius` of a recognised instance's own points
-        (so a pose a little off does not leave a phantom obstacle beside the object), each grown by
-        `explain_radius`."""
+        perceived object's mesh bounding box (both grown by `explain_radius`), not within `explain_radius` of a
+        recognised instance's own points (so a pose a little off leaves no phantom obstacle beside the object).
+        `instance_points[i]` belongs to `objects[i]`; only its points within `instance_reach` of that object's
+        box count (an instance that took in a neighbour must not hide the neighbour)."""
         if points is None or len(points) == 0:
             return np.zeros((0, 3))
         P = np.asarray(points, float).reshape(-1, 3)
@@ -237,12 +239,17 @@ class CollisionWorld:
         keep = np.ones(len(P), bool)
         for b in self.cell.boxes:
             keep &= ~np.all((P >= b.lower - explain_radius) & (P <= b.upper + explain_radius), axis=1)
-        for o in objects:
+        inst = []
+        for k, o in enumerate(objects):
             Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
             bb = o.model.mesh.get_axis_aligned_bounding_box()
-            lo, hi = np.asarray(bb.get_min_bound()) - explain_radius, np.asarray(bb.get_max_bound()) + explain_radius
-            keep &= ~np.all((Pl >= lo) & (Pl <= hi), axis=1)
-        inst = [np.asarray(p, float).reshape(-1, 3) for p in instance_points if p is not None and len(p)]
+            lo, hi = np.asarray(bb.get_min_bound()), np.asarray(bb.get_max_bound())
+            keep &= ~np.all((Pl >= lo - explain_radius) & (Pl <= hi + explain_radius), axis=1)
+            ip = instance_points[k] if k < len(instance_points) else None
+            if ip is not None and len(ip):
+                ip = np.asarray(ip, float).reshape(-1, 3)
+                il = (ip - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
+                inst.append(ip[np.all((il >= lo - instance_reach) & (il <= hi + instance_reach), axis=1)])
         if inst and keep.any():
             from scipy.spatial import cKDTree
 

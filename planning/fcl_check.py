@@ -206,8 +206,9 @@ def verify_pick(checker: FclChecker, planner, plan, objects, map_points=None, st
              if o.obj_id in planner.inventory.models]
     target = next(n for (n, _, _), o in zip(named, objects) if o is g.obj)
     others = [x for x in named if x[0] != target]
-    vox = planner.world.unexplained_voxels(map_points, planner._scene_objects(objects),
-                                           instance_points=[o.points for o in objects])
+    known = [o for o in objects if o.obj_id in planner.inventory.models]
+    vox = planner.world.unexplained_voxels(map_points, planner._scene_objects(known),
+                                           instance_points=[o.points for o in known])
     pads = [(p, f"obj:{target}") for p in ("pad_a", "pad_b")]
     kw = dict(voxels=vox, voxel_size=planner.world.voxel_size, step=step)
     held = (planner.inventory[g.obj.obj_id], g.T_tcp_obj)

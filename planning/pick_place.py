@@ -112,9 +112,9 @@ class Planner:
         points were mapped where they were before the pick)."""
         explainers = list(objects) + [o for o in (exclude, held.obj if held is not None else None)
                                       if o is not None and not any(o is x for x in objects)]
-        all_objs = self._scene_objects(explainers)
-        voxels = self.world.unexplained_voxels(map_points, all_objs,
-                                               instance_points=[o.points for o in explainers])
+        known = [o for o in explainers if o.obj_id in self.inventory.models]
+        voxels = self.world.unexplained_voxels(map_points, self._scene_objects(known),
+                                               instance_points=[o.points for o in known])
         objs = self._scene_objects(objects, exclude=exclude)
         h = None
         if held is not None:
