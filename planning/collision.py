@@ -385,6 +385,27 @@ class Scene:
             gd.collisionRequests[k].security_margin = m
             gd.activateCollisionPair(k) if not allowed.get((a, b), False) else gd.deactivateCollisionPair(k)
 
+    def allowing(self, pairs: Iterable[tuple[str, str]]) -> "Scene":
+        """A copy of this scene (same margins) in which the given (name, name) pairs are not checked."""
+        want = {tuple(p) for p in pairs} | {(b, a) for a, b in pairs}
+        other = self._variant()
+        for k, (a, b) in enumerate(self.pair_names):
+            other.gd.collisionRequests[k].security_margin = self.gd.collisionRequests[k].security_margin
+            if self.gd.activeCollisionPairs[k] and (a, b) not in want:
+                other.gd.activateCollisionPair(k)
+            else:
+                other.gd.deactivateCollisionPair(k)
+        return other
+
+    def _variant(self) -> "Scene":
+        other = object.__new__(Scene)
+        other.__dict__.update(self.__dict__)
+        other.data = self.model.createData()
+        other.gd = pin.GeometryData(self.gm)
+        other._bp = None
+        other._pool_obj, other._pool_version = None, -1
+        return other
+
     def for_grasp(self, target_name: str | None, *, pads_only: bool = True) -> "Scene":
         """A copy of this scene for the last centimetres of a grasp/place: gripper margins shrink to
         ``grasp_margin`` and the pads may touch ``obj:<target_name>`` (and the palm too when not pads_only)."""

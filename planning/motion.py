@@ -251,8 +251,11 @@ def cartesian_line(
         res = robot.ik(T, q, max_seeds=0)
         if res.q is None:
             return NoIK(f"straight line: no IK at {s * 100:.0f} % of the segment", {"T": T.tolist()})
-        # the TCP moved <= step; the rest of the arm must not swing (IK branch flip)
-        if point_step(r, res.q - q) > 10 * step + 0.02:
+        # No branch flip: the joint-space chord between consecutive solutions must keep the TCP on the line
+        # (its midpoint within 2 mm of the line's), and no joint may turn by more than 0.5 rad in one step.
+        mid = robot.fk_tcp((q + res.q) / 2)[:3, 3]
+        ideal = p0 + (s - 0.5 / n) * (p1 - p0)
+        if np.linalg.norm(mid - ideal) > max(0.002, 0.5 * step) or np.max(np.abs(res.q - q)) > 0.5:
             return CartesianPathFailed("straight line: the IK solution jumps (singularity or branch change)",
                                        {"at": s})
         q = res.q

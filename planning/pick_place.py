@@ -268,10 +268,13 @@ class Planner:
         grasp_in, q_grasp = r
         g.q = q_grasp
         # Lift: the held object leaves the contacts it rests in (sink floor, a stack) during the first
-        # LIFT_CONTACT_TRAVEL metres, checked without it (gripper only); above that, everything is checked.
+        # LIFT_CONTACT_TRAVEL metres (those pairs only are not checked there); above that, everything is.
         held_scene = self.scene(objects, map_points, exclude=g.obj, held=g)
         lift_scene = held_scene.for_release(None)
-        start_scene = self.scene(objects, map_points, exclude=g.obj, opening=g.spec.width).for_release(None)
+        # contacts the held object has where it rests (its support, a stack) may last for the first few
+        # centimetres; anything else it would touch is checked from the start
+        start_contacts = [p for p in lift_scene.colliding_pairs(q_grasp) if "held" in p]
+        start_scene = lift_scene.allowing(start_contacts)
         T_lift = trans(0.0, 0.0, s.lift_height) @ g.T_base_tcp
         r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False, start_scene=start_scene,
                        start_travel=LIFT_CONTACT_TRAVEL)
