@@ -367,6 +367,8 @@ class TaskRunner:
                 self._log("fault", self.failure.kind, message=self.failure.message, details=self.failure.details)
                 self._emit({"type": "fault", "kind": self.failure.kind, "message": self.failure.message})
                 if state == "recover":
+                    self.report.message = f"gave up: recovery itself failed ({self.failure.kind}: " \
+                                          f"{self.failure.message})"
                     self.report.safe = self._make_safe()
                     trigger = "give_up"
                 else:
@@ -514,6 +516,7 @@ class TaskRunner:
                                                   "score": p.score} for p in poses])
         if self.recorder is not None:
             self.recorder.perception(res, poses, self._sim_now())
+        self._verify_pending()
         if self._first_total is None:
             self._first_total = len(self.task.remaining(poses))
             self.report.objects_total = self._first_total
@@ -585,8 +588,10 @@ class TaskRunner:
     def _scene_objects(self) -> list[ObjectPose]:
         """Perceived objects plus what the task put down; a perceived object where we put one down is that one."""
         placed = self.task.obstacles()
-        seen = [p for p in self.poses
-                if not any(p.cls == o.cls and np.linalg.norm(p.T_base_obj[:3, 3] - o.T_base_obj[:3, 3]) < 0.04
+        pend = self.pending
+        if pend is not None:  # released but not verified yet: it is at its target, no longer where it was seen
+            placed.append(ObjectPose(pend.obj.obj_id, pend.obj.cls, pend.T_base_obj, 1.0, instance_id=99_999))
+        seen = [p for p in self.poses if not (pend is not None and p is pend.obj) and not any(p.cls == o.cls and np.linalg.norm(p.T_base_obj[:3, 3] - o.T_base_obj[:3, 3]) < 0.04
                            for o in placed)]
         return seen + placed
 
@@ -653,50 +658,17 @@ class TaskRunner:
                 view = self._capture_view(f"target{self.report.attempts}")
             except (DriverTimeoutError, StepFailed) as e:  # the re-scan still verifies the sink side
                 self._log("note", "no target view", reason=str(e))
-        self.pending = _Pending(obj, place.target, place.T_base_obj, view, self.staging, self.current_staged)
+        # Where it should rest: the release pose (turned as the planner chose) at the target's height (the
+        # planner may release higher up when the gripper cannot reach lower; the object then drops).
+        T_expected = np.array(place.T_base_obj, float)
+        T_expected[2, 3] = min(T_expected[2, 3], float(place.target.T_base_obj[2, 3]))
+        self.pending = _Pending(obj, place.target, T_expected, view, self.staging, self.current_staged)
         return "executed"
 
     def _do_verify(self) -> str:
-        """Re-scan; a pending placement is verified (gone from the sink, present at its target)."""
+        """Re-scan (the first perception after a placement verifies it) and decide: next object, done, give up."""
         self.views = self._scan()
         self._perceive()
-        p = self.pending
-        if p is not None:
-            self.pending = None
-            still = [q for q in self.poses if q.cls == p.obj.cls and
-                     np.linalg.norm(q.T_base_obj[:3, 3] - p.obj.T_base_obj[:3, 3]) < self.opt.gone_radius]
-            presence = None
-            if p.target_view is not None:
-                presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
-            self._log("result", "verify", still_in_sink=len(still), presence=presence.as_dict() if presence else None)
-            if still:
-                raise StepFailed("verify_failed", f"the {p.obj.cls} is still in the sink")
-            if presence is not None and presence.decided and not presence.present:
-                self.unverified.append(p.obj.cls)
-                raise StepFailed("verify_failed", f"the {p.obj.cls} was not seen at its target "
-                                 f"({presence.agree:.0%} of {presence.pixels} px agree)")
-            T_settled = p.T_base_obj.copy()
-            if presence is not None and presence.decided:
-                T_settled[2, 3] += presence.dz  # where it came to rest (it was released a little above)
-            if p.staged is not None:  # it left its staging spot
-                self.task.unplace(p.staged.instance_id)
-                self.staged = [s for s in self.staged if s is not p.staged]
-            placed = self.task.record_placed(p.obj, p.target, T_settled)
-            if p.staging:
-                self.staged.append(placed)
-                self._log("note", "staged for a regrasp", cls=p.obj.cls, xyz=T_settled[:3, 3])
-        if p is not None:
-            self.consecutive_recoveries = 0
-        if p is not None and not p.staging:
-            self.report.objects_done += 1
-            w0, m0, s0 = self._cycle_t0
-            wall, sim = time.perf_counter(), self._sim_now()
-            self.report.cycles.append({"object": p.obj.cls, "wall_s": round(wall - w0, 3),
-                                       "compute_s": round((wall - w0) - (self._motion_wall - m0), 3),
-                                       "motion_sim_s": round(sim - s0, 3) if sim is not None else None})
-            self._cycle_t0 = (wall, self._motion_wall, sim)
-            self._emit({"type": "placed", "object": p.obj.cls, "objects_done": self.report.objects_done,
-                        "objects_total": self.report.objects_total})
         cands = self._candidates()
         staged_left = [st for st in self.staged
                        if (self._tried_for(self.task.as_pose(st)) or _Tried("", np.zeros(3))).count
@@ -733,6 +705,52 @@ class TaskRunner:
             self.report.safe = self._make_safe()
             return "give_up"
         return "complete"
+
+    def _verify_pending(self) -> None:
+        """Verify the last placement against fresh poses: gone from the sink, present at its target."""
+        p = self.pending
+        if p is None:
+            return
+        self.pending = None
+        still = [q for q in self.poses if q.cls == p.obj.cls and
+                 np.linalg.norm(q.T_base_obj[:3, 3] - p.obj.T_base_obj[:3, 3]) < self.opt.gone_radius]
+        presence = None
+        if p.target_view is not None:
+            presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
+        self._log("result", "verify", still_in_sink=len(still), presence=presence.as_dict() if presence else None)
+        if still:
+            raise StepFailed("verify_failed", f"the {p.obj.cls} is still in the sink")
+        if presence is not None and presence.decided and not presence.present:
+            # Gone from the sink but not seen where it should be (tipped over, fell): something is likely
+            # there, so it stays an obstacle at its target; the report counts it as unverified.
+            self.unverified.append(p.obj.cls)
+            if p.staged is not None:
+                self.task.unplace(p.staged.instance_id)
+                self.staged = [s for s in self.staged if s is not p.staged]
+            self.task.record_placed(p.obj, p.target, p.T_base_obj)
+            raise StepFailed("verify_failed", f"the {p.obj.cls} was not seen at its target "
+                             f"({presence.agree:.0%} of {presence.pixels} px agree)")
+        T_settled = p.T_base_obj.copy()
+        if presence is not None and presence.decided:
+            T_settled[2, 3] += presence.dz  # where it came to rest (it was released a little above)
+        if p.staged is not None:  # it left its staging spot
+            self.task.unplace(p.staged.instance_id)
+            self.staged = [s for s in self.staged if s is not p.staged]
+        placed = self.task.record_placed(p.obj, p.target, T_settled)
+        if p.staging:
+            self.staged.append(placed)
+            self._log("note", "staged for a regrasp", cls=p.obj.cls, xyz=T_settled[:3, 3])
+        self.consecutive_recoveries = 0
+        if not p.staging:
+            self.report.objects_done += 1
+            w0, m0, s0 = self._cycle_t0
+            wall, sim = time.perf_counter(), self._sim_now()
+            self.report.cycles.append({"object": p.obj.cls, "wall_s": round(wall - w0, 3),
+                                       "compute_s": round((wall - w0) - (self._motion_wall - m0), 3),
+                                       "motion_sim_s": round(sim - s0, 3) if sim is not None else None})
+            self._cycle_t0 = (wall, self._motion_wall, sim)
+            self._emit({"type": "placed", "object": p.obj.cls, "objects_done": self.report.objects_done,
+                        "objects_total": self.report.objects_total})
 
     def _do_recover(self) -> str:
         f = self.failure
@@ -821,10 +839,10 @@ class TaskRunner:
                     self.arm.unlock_protective_stop()
 
     def _put_down_held(self) -> bool:
-        """Something is in the gripper after a fault: place it at its target, else the fallback spot, else
-        open where it is (the scan will find it)."""
+        """Something is in the gripper after a fault: place it at its target, else the fallback spot; if every
+        plan fails or is stopped by the arm, open where it is when that is over the cell (sink, counter, racks:
+        it drops a few centimetres onto them and the scan will find it). True if it was placed."""
         grasp = self.pick.grasp if self.pick is not None else None
-        q = self.arm.joint_positions()
         targets = []
         if self.place is not None:
             targets.append(self.place.target)
@@ -834,18 +852,33 @@ class TaskRunner:
                 targets.append(fb)
         if grasp is not None:
             for tgt in targets:
+                q = self.arm.joint_positions()
                 plan = self.planner.plan_place(q, grasp, tgt, objects=self._scene_objects())
-                if plan.ok:
-                    self._log("note", "putting down the held object", target=tgt.T_base_obj[:3, 3])
+                if not plan.ok:
+                    continue
+                self._log("note", "putting down the held object", target=tgt.T_base_obj[:3, 3])
+                try:
                     self._run_trajectory(plan.transfer)
                     self._run_trajectory(plan.lower)
                     self._cmd("gripper.open", release=True)
                     self.gripper.open(grasp.spec.opening)
                     self._run_trajectory(plan.retreat)
                     return True
-        self._log("note", "no place to put the held object; opening where it is")
-        self._cmd("gripper.open", release=True)
-        self.gripper.open()
+                except ProtectiveStopError as e:
+                    self._log("fault", "put_down_stopped", message=str(e))
+                    self._cmd("arm.unlock_protective_stop", reason="put down")
+                    self.arm.unlock_protective_stop()
+                    if not self._holding():
+                        return False
+        tcp = self.arm.tcp_pose()[:3, 3]
+        (x0, y0), (x1, y1) = self.robot.cell.spec.counter_extent_xy
+        if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
+            self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
+            self._cmd("gripper.open", release=True)
+            self.gripper.open()
+            return False
+        self._log("fault", "holding_unsafe", message="the gripper holds an object away from the cell; not opening",
+                  tcp=tcp)
         return False
 
     def _make_safe(self) -> bool:
