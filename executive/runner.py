@@ -466,7 +466,7 @@ class TaskRunner:
             return False
 
     # ---- capture ---------------------------------------------------------------------------------------------
-    def _capture_view(self, where: str) -> View:
+    def _capture_view(self, where: str, key: str | None = None) -> View:
         """Capture with bounded retries on dropped frames and unusable depth; View with its camera pose."""
         last: Exception | None = None
         for k in range(1 + self.opt.capture_retries):
@@ -484,7 +484,7 @@ class TaskRunner:
                 self._log("fault", "bad_depth", where=where, valid=float(valid.mean()))
                 continue
             T_base_cam = self.arm.flange_pose() @ self.robot.T_flange_cam
-            self.latest_images[where] = f.rgb
+            self.latest_images[key or where] = f.rgb  # the latest per waypoint / target view
             return View(f.rgb, f.depth, f.K, T_base_cam, f.stamp)
         assert last is not None
         raise last
@@ -494,7 +494,7 @@ class TaskRunner:
         views = []
         for k, q in enumerate(self.robot.config.scan_waypoints):
             self._move_joints(np.asarray(q, float), f"scan waypoint {k}")
-            views.append(self._capture_view(f"scan{self.scan_count}_wp{k}"))
+            views.append(self._capture_view(f"scan{self.scan_count}_wp{k}", f"scan_wp{k}"))
         self.scan_count += 1
         if self.dataset is not None:
             self.dataset.write_scan(views)
@@ -655,7 +655,7 @@ class TaskRunner:
         view = None
         if self.opt.verify_target_view:
             try:
-                view = self._capture_view(f"target{self.report.attempts}")
+                view = self._capture_view(f"target{self.report.attempts}", "target")
             except (DriverTimeoutError, StepFailed) as e:  # the re-scan still verifies the sink side
                 self._log("note", "no target view", reason=str(e))
         # Where it should rest: the release pose (turned as the planner chose) at the target's height (the
