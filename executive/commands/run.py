@@ -2,7 +2,7 @@
 
 TASK is one of the tasks (sink-pick, sink-to-dishwasher, cup-stacking) or `home` (the explicit home action
 that clears the journal's homing requirement after an interrupted run). `--diagram` prints the state machine.
-Exit codes: 0 succeeded, 1 failed, 3 stopped, 4 homing required, 2 bad input.
+Exit codes: 0 succeeded, 1 failed, 3 stopped, 4 homing required, 5 homing failed, 2 bad input.
 """
 
 from __future__ import annotations
@@ -95,11 +95,16 @@ def _home(cfg, args, journal, console) -> int:
     from kitchenbot.executive.session import is_simulated
     from kitchenbot.planning.pick_place import Planner
 
+    from kitchenbot.drivers.errors import DriverError
+
     robot = assemble(cfg, args.seed)
     planner = Planner.from_config(cfg, robot.inventory)
-    robot.connect()
     try:
+        robot.connect()
         home_arm(robot, planner, journal, advance=robot.arm.step if is_simulated(cfg) else None)
+    except (DriverError, RuntimeError) as e:
+        console.print(f"[red]homing failed[/red]: {type(e).__name__}: {e}; motion stays refused")
+        return 5
     finally:
         robot.disconnect()
     console.print("[green]homed[/green]: motion is accepted again")
