@@ -191,6 +191,9 @@ class Planner:
         flt = None
         if place_target is not None:
             targets = [place_target] if isinstance(place_target, PlaceTarget) else list(place_target)
+            bad = [type(t).__name__ for t in targets if not isinstance(t, PlaceTarget)]
+            if bad:
+                return InvalidInput(f"place_target: expected a PlaceTarget or a sequence of them, got items of type {bad[:3]}")
             targets = targets[: self.settings.max_place_targets]
 
             tool_scene = self.world.scene().for_release(None)  # gripper vs the cell at the release pose
@@ -360,6 +363,9 @@ class Planner:
         if isinstance(q0, PlanningFailure):
             return q0
         targets = [target] if isinstance(target, PlaceTarget) else list(target)
+        bad = [type(t).__name__ for t in targets if not isinstance(t, PlaceTarget)]
+        if bad:
+            return InvalidInput(f"plan_place target: expected a PlaceTarget or a sequence of them, got items of type {bad[:3]}")
         targets = targets[: self.settings.max_place_targets]
         if not targets:
             return NoFreeSlot("plan_place: no target given")

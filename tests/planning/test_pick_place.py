@@ -70,6 +70,9 @@ def test_unreachable_object_gives_no_ik(planner, home):
 def test_bad_input_is_a_typed_failure(planner, home, resting):
     assert isinstance(planner.plan_pick(np.zeros(5), [resting("cup", (0.5, 0.0), 1)]), InvalidInput)
     assert isinstance(planner.plan_move(home, np.full(6, np.nan)), InvalidInput)
+    cup = resting("cup", (0.5, 0.0), 1)
+    targets = SlotBook(planner.cell).targets_for(planner.inventory[cup.obj_id])[:2]
+    assert isinstance(planner.plan_pick(home, [cup], place_target=[targets]), InvalidInput)  # a list of lists
 
 
 def test_plan_move_to_scan_waypoints(planner, cfg, home, checker):
