@@ -215,9 +215,37 @@ def on_top_of_same(model: ObjectModel, placed: list[Placed], offset: float, max_
     return T if T[2, 3] < max_height else None
 
 
+def _on_a_pile(model: ObjectModel, placed: list[Placed], max_z: float = 0.35) -> np.ndarray | None:
+    """Rest `model` on top of something already placed, as a person clearing a full counter would: nested into
+    the same model when that is the top of a pile (plates, bowls, cups), or on a plate that tops a pile (any
+    plate on plates; other items standing on a plate they fit on). The lowest such pose, or None."""
+    from kitchenbot.tasks.cup_stacking import nest_offset_of
+
+    best = None
+    for base in placed:
+        T = upright(model, base.T_base_obj[:2, 3], 0.0)
+        lo, hi, _ = footprint(model, T)
+        over = [p for p in placed if np.all(lo < p.hi) and np.all(hi > p.lo)]
+        if not over:
+            continue
+        top = max(over, key=lambda p: p.top_z)
+        if abs(top.T_base_obj[2, 2]) < 0.9 or not np.allclose(top.T_base_obj[:2, 3], base.T_base_obj[:2, 3]):
+            continue  # only on an upright item centred where we stand it
+        if top.obj_id == model.obj_id:
+            z = top.T_base_obj[2, 3] + nest_offset_of(model) + DROP_HEIGHT
+        elif top.cls == "plate" and (model.cls == "plate" or np.all(top.hi - top.lo >= hi - lo)):
+            z = top.top_z + model.extents[2] / 2 + DROP_HEIGHT
+        else:
+            continue
+        if z < max_z and (best is None or z < best[2, 3]):
+            best = T.copy()
+            best[2, 3] = z
+    return best
+
+
 def _drop_zone_targets(model: ObjectModel, zone: AreaSpec, placed: list[Placed], limit: int,
                        pending: list[ObjectModel] = ()) -> list[PlaceTarget]:
-    """Free upright spots in an area (the centre inside it); when it is full, on top of the same model.
+    """Free upright spots in an area (the centre inside it); when it is full, on a pile (see _on_a_pile).
     Room is kept for the largest plate still `pending` (plates cannot go on cups; cups can go on plates)."""
     lo = np.array(zone.origin_xy)
     hi = lo + np.array(zone.size_xy)
@@ -235,18 +263,7 @@ def _drop_zone_targets(model: ObjectModel, zone: AreaSpec, placed: list[Placed],
         spots = area_spots(model, lo, hi, zone.z, placed, upright, limit, centre_inside=True)
     out = [PlaceTarget(T, "drop", free_yaw=True, support="counter") for T in spots]
     if not out:
-        from kitchenbot.tasks.cup_stacking import nest_offset_of
-
-        T = on_top_of_same(model, placed, nest_offset_of(model))
+        T = _on_a_pile(model, placed)
         if T is not None:
-            out.append(PlaceTarget(T, "drop", free_yaw=True, support=f"a {model.name} in the drop zone"))
-    if not out:
-        # Full: stand it on the widest placed item it fits on (a cup on a plate), as a person would.
-        r = max(model.extents[:2]) / 2
-        bases = sorted((p for p in placed if np.all(p.hi - p.lo >= 2 * r) and abs(p.T_base_obj[2, 2]) > 0.9),
-                       key=lambda p: p.top_z)
-        if bases:
-            b = bases[0]
-            T = upright(model, (b.lo + b.hi) / 2, b.top_z)
-            out.append(PlaceTarget(T, "drop", free_yaw=True, support=f"a {b.cls} in the drop zone"))
+            out.append(PlaceTarget(T, "drop", free_yaw=True, support="a pile in the drop zone"))
     return out
