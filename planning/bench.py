@@ -102,6 +102,7 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
     ik_ms, sel_ms, plan_ms, pick_ms, place_ms = [], [], [], [], []
     parts: dict[str, list[float]] = {"search": [], "simplify": [], "recheck": []}
     check_us: list[float] = []
+    rrt_ms: list[float] = []
     failures: Counter = Counter()
     rows = []
     ok_scenes = 0
@@ -154,6 +155,8 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
             pick_ms.append(dt)
             sel_ms.append(pick.timings_ms.get("grasp_selection_ms", np.nan))
             plan_ms += [v for k, v in pick.timings_ms.items() if k.endswith("_plan_ms")]
+            rrt_ms += [v for k, v in pick.timings_ms.items()
+                       if k.endswith("_plan_ms") and pick.timings_ms.get(k.replace("_plan_ms", "_rrt"))]
             for k, v in pick.timings_ms.items():
                 for p_ in parts:
                     if k.endswith(f"_{p_}_ms"):
@@ -168,6 +171,8 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
                 continue
             place_ms.append(dt)
             plan_ms += [v for k, v in place.timings_ms.items() if k.endswith("_plan_ms")]
+            rrt_ms += [v for k, v in place.timings_ms.items()
+                       if k.endswith("_plan_ms") and place.timings_ms.get(k.replace("_plan_ms", "_rrt"))]
             for k, v in place.timings_ms.items():
                 for p_ in parts:
                     if k.endswith(f"_{p_}_ms"):
@@ -210,6 +215,8 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
         "grasp_selection_ms_median": _median([x for x in sel_ms if np.isfinite(x)]),
         "plan_ms_median": _median(plan_ms),
         "plan_ms_p90": float(np.percentile(plan_ms, 90)) if plan_ms else None,
+        "plan_ms_median_rrt": _median(rrt_ms),
+        "plan_rrt_count": len(rrt_ms),
         "plan_search_ms_median": _median(parts["search"]),
         "plan_simplify_ms_median": _median(parts["simplify"]),
         "plan_recheck_ms_median": _median(parts["recheck"]),
@@ -237,7 +244,8 @@ def run(args: argparse.Namespace) -> int:
     fmt = lambda v, u="": "-" if v is None else (f"{v:.3f}{u}" if isinstance(v, float) else f"{v}{u}")  # noqa: E731
     for key, unit in (("success_rate", ""), ("success_inverted_or_plate_rate", ""), ("ik_ms_median", " ms"), ("collision_check_us_median", " us"),
                       ("grasp_selection_ms_median", " ms"),
-                      ("plan_ms_median", " ms"), ("plan_ms_p90", " ms"),
+                      ("plan_ms_median", " ms"), ("plan_ms_p90", " ms"), ("plan_ms_median_rrt", " ms"),
+                      ("plan_rrt_count", ""),
                       ("plan_search_ms_median", " ms"), ("plan_simplify_ms_median", " ms"),
                       ("plan_recheck_ms_median", " ms"), ("pick_ms_median", " ms"),
                       ("place_ms_median", " ms"), ("segments_rechecked", ""), ("fcl_violations", ""),

@@ -112,6 +112,7 @@ class JointPlan:
     plan_ms: float
     simplify_ms: float
     recheck_ms: float
+    used_rrt: bool = True  # False: the straight joint line was free
 
 
 def plan_joint_path(
@@ -141,7 +142,7 @@ def plan_joint_path(
         t1 = time.perf_counter()
         if check_segment(scene, np.vstack([q_start, q_goal]), r, validity_resolution) < 0:
             t2 = time.perf_counter()
-            return JointPlan(np.vstack([q_start, q_goal]), (t1 - t0) * 1e3, 0.0, (t2 - t1) * 1e3)
+            return JointPlan(np.vstack([q_start, q_goal]), (t1 - t0) * 1e3, 0.0, (t2 - t1) * 1e3, used_rrt=False)
     for resolution in (planning_resolution, validity_resolution):
         res = _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolution)
         if isinstance(res, PlanningFailure):

@@ -152,6 +152,7 @@ class Planner:
         timings[f"{name}_search_ms"] = res.plan_ms
         timings[f"{name}_simplify_ms"] = res.simplify_ms
         timings[f"{name}_recheck_ms"] = res.recheck_ms
+        timings[f"{name}_rrt"] = float(res.used_rrt)
         return self._time(res.path, name, "stop_at_vertices")
 
     def _line(self, scene: Scene, q0, T_goal, name: str, *, check_start: bool = True, start_scene: Scene | None = None,
