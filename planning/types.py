@@ -22,9 +22,10 @@ from kitchenbot.perception.types import ObjectPose
 class Trajectory:
     """A timed joint trajectory: ``times`` (N,) seconds from 0, strictly increasing; ``q`` (N, 6) radians.
 
-    Waypoints are dense enough (<= ~4 mm of TCP/link travel apart along collision-checked segments) that
-    linear interpolation between them is what was checked; velocities/accelerations by finite differences
-    stay within the safety limits (drivers.safety.SafetyLimits.check_trajectory).
+    Samples are uniform in time (8 ms). Joint-space linear interpolation between consecutive samples stays on
+    the collision-checked path (every vertex of a planned polyline is a sample; straight Cartesian segments are
+    sampled from their dense IK points); finite-difference velocities/accelerations are within the safety
+    limits (verified with drivers.safety.SafetyLimits.check_trajectory before the plan is returned).
     """
 
     times: np.ndarray
