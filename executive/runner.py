@@ -297,8 +297,7 @@ class TaskRunner:
         return self.sim_clock() if self.sim_clock is not None else None
 
     def _timeout_deadline(self, state: str) -> float | None:
-        t = M.timeout_of(state)
-        return None if t is None else t
+        return M.timeout_of(state)
 
     def _check_deadline(self) -> None:
         if self._stop.is_set():
@@ -784,9 +783,6 @@ class TaskRunner:
             self._put_down_held()
         self._back_out()
         return "rescan"
-
-    def _do_paused(self) -> str:  # never called: the loop waits in place
-        return "resume"
 
     # ---- recovery actions --------------------------------------------------------------------------------------------
     def _restore_devices(self, f: Failure) -> None:
