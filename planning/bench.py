@@ -7,7 +7,8 @@ place plan were found and every segment of both is collision-free when re-checke
 python-fcl checker (planning/fcl_check.py) and the simulator's own collision check (fakes/collision.py, where
 FakeArm would stop) finds no contact either. Prints a table; the JSON report holds ``success_rate``,
 ``ik_ms_median``, ``grasp_selection_ms_median``, ``plan_ms_median`` (RRT-Connect + simplification + dense
-re-check per joint motion), failures by type and per-scene rows.
+re-check per joint motion), failures by type and per-scene rows. ``--clear`` keeps going through the sink
+(from where the last place ended, placed items as obstacles) and reports ``objects_cleared_fraction``.
 """
 
 from __future__ import annotations
@@ -30,6 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pose-noise", type=float, nargs=2, default=(0.0, 0.0), metavar=("MM", "DEG"),
                    help="plan on object poses perturbed by this much (std, mm and degrees); the simulator "
                         "check still uses the true poses (robustness to perception error)")
+    p.add_argument("--clear", action="store_true",
+                   help="keep going after the first object: plan pick and place for the sink's objects one after "
+                        "another from where the last place ended (placed items become obstacles)")
     p.add_argument("--config", default=None, help="cell config YAML (default: the simulation config)")
     p.add_argument("--report", default=None, help="write the JSON report here")
     p.set_defaults(func=run)
@@ -83,7 +87,7 @@ def _perturb(T: np.ndarray, rng: np.random.Generator, mm: float, deg: float) -> 
 
 
 def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, check_step: float = 0.003,
-              progress=None, pose_noise: tuple[float, float] = (0.0, 0.0)) -> dict:
+              progress=None, pose_noise: tuple[float, float] = (0.0, 0.0), clear: bool = False) -> dict:
     from kitchenbot.fakes.scenes import generate_scene  # the simulator's scene generator (bench only)
     from kitchenbot.perception.inventory import Inventory
     from kitchenbot.perception.types import ObjectPose
@@ -131,73 +135,90 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
             sc.valid(q)
         check_us.append((time.perf_counter() - t0) / len(Q) * 1e6)
         book = SlotBook(planner.cell)
-        row = {"seed": s, "objects": len(objs), "status": "failed", "object": None, "reason": None, "tries": []}
-        order = sorted(objs, key=lambda o: -float(o.T_base_obj[2, 3]))[:objects_per_scene]
-        for o in order:
-            targets = book.targets_for(inventory[o.obj_id])[:4]
-            t0 = time.perf_counter()
-            pick = planner.plan_pick(home, objs, target=o, place_target=targets)
-            dt = (time.perf_counter() - t0) * 1e3
-            row["upright"] = False
-            if not pick.ok and pick.kind == "no_feasible_placement" and o.cls != "plate":
-                # the grasps that reach it cannot turn it over: the documented fallback, upright in the rack
-                failures[f"pick:{pick.kind}(inverted)"] += 1
-                targets = book.targets_for(inventory[o.obj_id], inverted=False)[:4]
+        row = {"seed": s, "objects": len(objs), "status": "failed", "object": None, "reason": None, "tries": [],
+               "cleared": 0}
+        q = home.copy()
+        remaining = list(objs)
+        placed: list = []  # ObjectPoses of what is already in the racks (obstacles from then on)
+        moved = True
+        while remaining and moved:
+            moved = False
+            scene_objs = remaining + placed
+            for o in sorted(remaining, key=lambda o: -float(o.T_base_obj[2, 3]))[:objects_per_scene]:
+                targets = book.targets_for(inventory[o.obj_id])[:4]
                 t0 = time.perf_counter()
-                pick = planner.plan_pick(home, objs, target=o, place_target=targets)
+                pick = planner.plan_pick(q, scene_objs, target=o, place_target=targets)
                 dt = (time.perf_counter() - t0) * 1e3
-                row["upright"] = True
-            if not pick.ok:
-                failures[f"pick:{pick.kind}"] += 1
-                row["reason"] = f"pick {pick.kind}"
-                row["tries"].append(f"{o.cls}: {row['reason']}")
-                continue
-            pick_ms.append(dt)
-            sel_ms.append(pick.timings_ms.get("grasp_selection_ms", np.nan))
-            plan_ms += [v for k, v in pick.timings_ms.items() if k.endswith("_plan_ms")]
-            rrt_ms += [v for k, v in pick.timings_ms.items()
-                       if k.endswith("_plan_ms") and pick.timings_ms.get(k.replace("_plan_ms", "_rrt"))]
-            for k, v in pick.timings_ms.items():
-                for p_ in parts:
-                    if k.endswith(f"_{p_}_ms"):
-                        parts[p_].append(v)
-            t0 = time.perf_counter()
-            place = planner.plan_place(pick.end, pick.grasp, targets, objects=objs)
-            dt = (time.perf_counter() - t0) * 1e3
-            if not place.ok:
-                failures[f"place:{place.kind}"] += 1
-                row["reason"] = f"place {place.kind}"
-                row["tries"].append(f"{o.cls}: {row['reason']}")
-                continue
-            place_ms.append(dt)
-            plan_ms += [v for k, v in place.timings_ms.items() if k.endswith("_plan_ms")]
-            rrt_ms += [v for k, v in place.timings_ms.items()
-                       if k.endswith("_plan_ms") and place.timings_ms.get(k.replace("_plan_ms", "_rrt"))]
-            for k, v in place.timings_ms.items():
-                for p_ in parts:
-                    if k.endswith(f"_{p_}_ms"):
-                        parts[p_].append(v)
-            checks = verify_pick(checker, planner, pick, objs, step=check_step) + \
-                verify_place(checker, planner, place, pick.grasp, objs, step=check_step)
-            segments_checked += len(checks)
-            bad = [(n, str(r)) for n, r in checks if not r.ok]
-            sim_bad = sim_contacts(world, planner, pick, place, o.instance_id)
-            if sim_bad:
-                sim_collisions += 1
-                failures["sim_contact"] += 1
-                row["reason"] = f"simulator contact {sim_bad}"
-                row["tries"].append(f"{o.cls}: {row['reason']}")
-                continue
-            if bad:
-                fcl_violations += len(bad)
-                failures["fcl_recheck"] += 1
-                row["reason"] = f"fcl {bad}"
-                row["tries"].append(f"{o.cls}: {row['reason']}")
-                continue
-            row.update(status="succeeded", object=o.cls, grasp=pick.grasp.spec.name, slot=place.target.slot,
-                       pick_ms=round(pick_ms[-1], 1), place_ms=round(dt, 1), reason=None)
-            ok_scenes += 1
-            break
+                upright = False
+                if not pick.ok and pick.kind == "no_feasible_placement" and o.cls != "plate":
+                    # the grasps that reach it cannot turn it over: the documented fallback, upright in the rack
+                    failures[f"pick:{pick.kind}(inverted)"] += 1
+                    targets = book.targets_for(inventory[o.obj_id], inverted=False)[:4]
+                    t0 = time.perf_counter()
+                    pick = planner.plan_pick(q, scene_objs, target=o, place_target=targets)
+                    dt = (time.perf_counter() - t0) * 1e3
+                    upright = True
+                if not pick.ok:
+                    failures[f"pick:{pick.kind}"] += 1
+                    row["reason"] = f"pick {pick.kind}"
+                    row["tries"].append(f"{o.cls}: {row['reason']}")
+                    continue
+                pick_ms.append(dt)
+                sel_ms.append(pick.timings_ms.get("grasp_selection_ms", np.nan))
+                others = [x for x in scene_objs if x is not o]
+                t0 = time.perf_counter()
+                place = planner.plan_place(pick.end, pick.grasp, targets, objects=others)
+                dt = (time.perf_counter() - t0) * 1e3
+                if not place.ok:
+                    failures[f"place:{place.kind}"] += 1
+                    row["reason"] = f"place {place.kind}"
+                    row["tries"].append(f"{o.cls}: {row['reason']}")
+                    continue
+                place_ms.append(dt)
+                for plan in (pick, place):
+                    tm = plan.timings_ms
+                    plan_ms.extend(v for k, v in tm.items() if k.endswith("_plan_ms"))
+                    rrt_ms.extend(v for k, v in tm.items() if k.endswith("_plan_ms") and tm.get(k.replace("_plan_ms", "_rrt")))
+                    for k, v in tm.items():
+                        for p_ in parts:
+                            if k.endswith(f"_{p_}_ms"):
+                                parts[p_].append(v)
+                checks = verify_pick(checker, planner, pick, scene_objs, step=check_step) + \
+                    verify_place(checker, planner, place, pick.grasp, others, step=check_step)
+                segments_checked += len(checks)
+                bad = [(n, str(r)) for n, r in checks if not r.ok]
+                sim_bad = sim_contacts(world, planner, pick, place, o.instance_id)
+                if sim_bad:
+                    sim_collisions += 1
+                    failures["sim_contact"] += 1
+                    row["reason"] = f"simulator contact {sim_bad}"
+                    row["tries"].append(f"{o.cls}: {row['reason']}")
+                    continue
+                if bad:
+                    fcl_violations += len(bad)
+                    failures["fcl_recheck"] += 1
+                    row["reason"] = f"fcl {bad}"
+                    row["tries"].append(f"{o.cls}: {row['reason']}")
+                    continue
+                row["cleared"] += 1
+                if row["status"] != "succeeded":
+                    row.update(status="succeeded", object=o.cls, grasp=pick.grasp.spec.name, slot=place.target.slot,
+                               pick_ms=round(pick_ms[-1], 1), place_ms=round(dt, 1), reason=None, upright=upright)
+                    ok_scenes += 1
+                if not clear:
+                    break
+                # it rests where it was released over (dropped by the release height); carry on from there
+                T_rest = place.T_base_obj.copy()
+                T_rest[2, 3] = place.target.T_base_obj[2, 3]
+                world.set_pose(o.instance_id, T_rest)
+                book.fill(place.target.slot, T_rest, inventory[o.obj_id])
+                remaining = [x for x in remaining if x is not o]
+                placed.append(ObjectPose(o.obj_id, o.cls, T_rest, 1.0, instance_id=o.instance_id))
+                q = place.end
+                moved = True
+                break
+            if not clear:
+                break
         rows.append(row)
         if progress:
             progress(row)
@@ -208,6 +229,8 @@ def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, ch
         "robot": cfg.robot.model,
         "pose_noise_mm_deg": list(pose_noise),
         "success_rate": ok_scenes / max(n_scenes, 1),
+        "clear_mode": clear,
+        "objects_cleared_fraction": sum(r["cleared"] for r in rows) / max(sum(r["objects"] for r in rows), 1),
         "success_inverted_or_plate_rate": sum(1 for r in rows if r["status"] == "succeeded" and not r.get("upright"))
         / max(n_scenes, 1),
         "ik_ms_median": _median(ik_ms),
@@ -237,12 +260,14 @@ def run(args: argparse.Namespace) -> int:
 
     def progress(row):
         print(f"  scene {row['seed']:4d}: {row['status']:9s} {row.get('object') or '':6s} "
-              f"{row.get('grasp') or '':18s} {row.get('slot') or '':10s} {row.get('reason') or ''}", flush=True)
+              f"{row.get('grasp') or '':18s} {row.get('slot') or '':10s} cleared {row['cleared']}/{row['objects']} "
+              f"{row.get('reason') or ''}", flush=True)
 
-    rep = run_bench(args.scenes, args.seed, cfg, args.objects, args.check_step, progress, tuple(args.pose_noise))
+    rep = run_bench(args.scenes, args.seed, cfg, args.objects, args.check_step, progress, tuple(args.pose_noise),
+                    args.clear)
     print()
     fmt = lambda v, u="": "-" if v is None else (f"{v:.3f}{u}" if isinstance(v, float) else f"{v}{u}")  # noqa: E731
-    for key, unit in (("success_rate", ""), ("success_inverted_or_plate_rate", ""), ("ik_ms_median", " ms"), ("collision_check_us_median", " us"),
+    for key, unit in (("success_rate", ""), ("success_inverted_or_plate_rate", ""), ("objects_cleared_fraction", ""),("ik_ms_median", " ms"), ("collision_check_us_median", " us"),
                       ("grasp_selection_ms_median", " ms"),
                       ("plan_ms_median", " ms"), ("plan_ms_p90", " ms"), ("plan_ms_median_rrt", " ms"),
                       ("plan_rrt_count", ""),
