@@ -53,8 +53,10 @@ def _cloud(points: np.ndarray, voxel: float) -> o3d.geometry.PointCloud:
 
 
 def align_views(views: list[View], voxel: float = 0.01, max_trans: float = 0.03, max_rot_deg: float = 5.0,
-                coarse: bool = True, max_range: float = 1.5) -> tuple[list[View], list[np.ndarray]]:
-    """Views with corrected T_base_cam (each registered onto view 0), and the corrections applied (base frame)."""
+                coarse: bool = True, max_range: float = 1.5, min_trans: float = 0.003,
+                min_rot_deg: float = 0.3) -> tuple[list[View], list[np.ndarray]]:
+    """Views with corrected T_base_cam (each registered onto view 0), and the corrections applied (base frame).
+    Corrections below `min_trans` / `min_rot_deg` (the registration's own error level) are not applied."""
     if len(views) < 2:
         return list(views), [np.eye(4) for _ in views]
     clouds = []
@@ -72,11 +74,69 @@ def align_views(views: list[View], voxel: float = 0.01, max_trans: float = 0.03,
             if res.fitness < 0.5 and coarse:
                 res = _coarse_then_icp(src, target, voxel)
             rot, tr = pose_error(np.eye(4), res.transformation)
-            if res.fitness >= 0.5 and tr <= max_trans and np.degrees(rot) <= max_rot_deg:
+            small = tr < min_trans and np.degrees(rot) < min_rot_deg
+            if res.fitness >= 0.5 and tr <= max_trans and np.degrees(rot) <= max_rot_deg and not small:
                 T = res.transformation
         out.append(View(v.rgb, v.depth, v.K, T @ v.T_base_cam, v.stamp))
         corr.append(T)
     return out, corr
+
+
+_CELL_CLOUDS: dict = {}  # the sampled cell surfaces of the last cell used (sampling takes ~0.3 s)
+
+
+def _cell_cloud(cell, region_lo: np.ndarray, region_hi: np.ndarray, spacing: float = 0.005) -> o3d.geometry.PointCloud:
+    """Points with normals on the cell's box surfaces inside a region (the known geometry to register to)."""
+    mesh = o3d.geometry.TriangleMesh()
+    for b in cell.boxes:
+        if np.any(b.upper < region_lo) or np.any(b.lower > region_hi):
+            continue
+        m = o3d.geometry.TriangleMesh.create_box(*b.size)
+        m.translate(b.lower)
+        mesh += m
+    if len(mesh.triangles) == 0:
+        return o3d.geometry.PointCloud()
+    mesh.compute_triangle_normals()
+    n = int(mesh.get_surface_area() / spacing**2)
+    o3d.utility.random.seed(0)
+    pc = mesh.sample_points_uniformly(min(n, 400_000), use_triangle_normal=True)
+    P = np.asarray(pc.points)
+    keep = np.all((P >= region_lo) & (P <= region_hi), axis=1)
+    return pc.select_by_index(np.nonzero(keep)[0])
+
+
+def align_to_cell(views: list[View], cell, max_trans: float = 0.03, max_rot_deg: float = 5.0,
+                  max_dist: float = 0.015, min_trans: float = 0.003, min_rot_deg: float = 0.3) -> tuple[list[View], np.ndarray]:
+    """Register the (already mutually aligned) views onto the known cell geometry around the sink - the basin's
+    floor and walls and the counter top - with robust (Tukey) point-to-plane ICP, so that a scan whose
+    poses are all off by the same error (arm / hand-eye calibration) lands on the cell. Returns the views with
+    corrected poses and the correction (identity when refused: too large, or too little cell in view; and
+    when smaller than `min_trans` / `min_rot_deg`, this registration's own error level on cluttered scenes)."""
+    lo, hi = cell.sink_interior
+    lo, hi = lo - np.array([0.1, 0.1, 0.03]), hi + np.array([0.1, 0.1, 0.05])
+    key = (id(cell), cell.spec.model_dump_json())
+    if key not in _CELL_CLOUDS:
+        _CELL_CLOUDS.clear()
+        _CELL_CLOUDS[key] = _cell_cloud(cell, lo, hi, 0.006)
+    target = _CELL_CLOUDS[key]
+    pts = []
+    for v in views:
+        p = point_map(v, stride=6).reshape(-1, 3)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        pts.append(p[np.all((p >= lo) & (p <= hi), axis=1)])
+    P = np.concatenate(pts).astype(np.float64) if pts else np.zeros((0, 3))
+    if len(P) < 200 or len(target.points) < 200:
+        return list(views), np.eye(4)
+    src = _cloud(P, 0.008)
+    est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=0.005))
+    res = reg.registration_icp(src, target, max_dist, np.eye(4), est, reg.ICPConvergenceCriteria(max_iteration=40))
+    rot, tr = pose_error(np.eye(4), res.transformation)
+    if res.fitness < 0.3 or tr > max_trans or np.degrees(rot) > max_rot_deg:
+        return list(views), np.eye(4)
+    if tr < min_trans and np.degrees(rot) < min_rot_deg:
+        return list(views), np.eye(4)
+    T = res.transformation
+    return [View(v.rgb, v.depth, v.K, T @ v.T_base_cam, v.stamp) for v in views], T
 
 
 def _coarse_then_icp(src: o3d.geometry.PointCloud, dst: o3d.geometry.PointCloud, voxel: float):

@@ -23,7 +23,7 @@ from kitchenbot.perception.detect import Detection, Detector, PassThroughSegment
 from kitchenbot.perception import backends
 from kitchenbot.perception.features import FusedCloud, fuse_instance, voxel_keys
 from kitchenbot.perception.inventory import Inventory
-from kitchenbot.perception.map import InstanceMap, align_views, build_map, consolidate
+from kitchenbot.perception.map import InstanceMap, align_to_cell, align_views, build_map, consolidate
 from kitchenbot.perception.register import (Hypothesis, RegistrationConfig, Scorer, clean_depths, propose, refine,
                                            screen_candidate, snap_upright)
 from kitchenbot.perception.rgbd import check_view
@@ -117,7 +117,12 @@ class Perceiver:
         o3d.utility.random.seed(self.settings_seed)  # Open3D's RANSAC: same views, same answer
         self._depths = None
         db = self.database
-        if len(views) > 1 and self.settings.align_views:
+        # Scan poses off (arm repeatability, hand-eye error): with a known cell each view is registered onto the
+        # cell's sink (absolute and relative errors at once); without one, the views onto the first view.
+        if self.cell is not None and self.settings.align_to_cell:
+            with timed("align"):
+                views = [align_to_cell([v], self.cell)[0][0] for v in views]
+        elif len(views) > 1 and self.settings.align_views:
             with timed("align"):
                 views, _ = align_views(views, self.settings.voxel_size)
         with timed("segment"):
@@ -138,6 +143,7 @@ class Perceiver:
             ids_out = m.ids.copy()
             splits = 0
             found: list[tuple[Hypothesis, int, np.ndarray]] = []
+            parts: set[int] = set()  # ids made by cutting a blob (never cut again)
             while queue:
                 iid = queue.pop(0)
                 sel = np.nonzero(ids_out == iid)[0]
@@ -149,12 +155,33 @@ class Perceiver:
                 pose_ms.append(1000 * (time.perf_counter() - t0))
                 pose_cpu_ms.append(1000 * (time.process_time() - c0))
                 if hyp is None:
+                    if len(sel) >= 3000 and iid not in parts:
+                        # Several items segmented together and no single model explains enough of them: cut
+                        # the blob into item-sized regions and try each (what a region's pose leaves over is
+                        # refitted as usual; duplicates are resolved below).
+                        for part in _partition(m.points[sel], 0.07):
+                            ids_out[sel[part]] = next_id
+                            parts.add(next_id)
+                            queue.append(next_id)
+                            next_id += 1
+                        continue
                     rejected += 1
                     continue
                 # Points the pose explains belong to it; a large unexplained remainder is another object
                 # (stacked / nested / touching items that segmentation could not separate).
                 explained = self._explained(hyp, m.points[sel])
-                found.append((hyp, iid, sel[explained]))
+                own = sel[explained]
+                # Explain away: points of instances still waiting in the queue that this pose explains are
+                # this object's too (an item cut in two by the blob partition must not be fitted twice).
+                if queue:
+                    pending = np.nonzero(np.isin(ids_out, queue))[0]
+                    near = pending[np.linalg.norm(m.points[pending] - hyp.T_base_obj[:3, 3], axis=1)
+                                   < 0.6 * self.inventory[hyp.obj_id].diameter]
+                    if len(near):
+                        also = near[self._explained(hyp, m.points[near])]
+                        ids_out[also] = iid
+                        own = np.concatenate([own, also])
+                found.append((hyp, iid, own))
                 rest = sel[~explained]
                 if splits < self.settings.max_splits and len(rest) >= 60:
                     for part in _clusters(m.points[rest], 1.5 * vox, 60, vox / 2):
@@ -214,6 +241,21 @@ class Perceiver:
             return None
         d = det.support_offset
         return lambda P: P @ up + d < -0.01
+
+    def _colour_weight(self, query: FusedCloud, h: Hypothesis, default: float) -> float:
+        """0.6 + 0.4 x cosine between the colour of the query points this pose explains and the model's
+        class token (the whole instance's colour misleads when two items were segmented together)."""
+        entry = self.database[h.obj_id]
+        if query.img.shape[1] == 0 or entry.ref.cls_token.size == 0:
+            return default
+        Ti = inv(h.T_base_obj)
+        d, _ = entry.tree.query(query.points @ Ti[:3, :3].T + Ti[:3, 3], distance_upper_bound=self.settings.voxel_size)
+        ok = np.isfinite(d)
+        if ok.sum() < 5:
+            return default
+        f = query.img[ok].mean(axis=0)
+        sim = float(f @ entry.ref.cls_token / max(np.linalg.norm(f), 1e-12))
+        return 0.6 + 0.4 * max(0.0, sim)
 
     def _same_place(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Same model, axes within 30 deg, centres closer than 0.2 diameter across and 0.12 height along."""
@@ -275,10 +317,17 @@ class Perceiver:
                 screened.append((sc * w, oid, name, T, w))
                 best_screen = max(best_screen, sc * w)
         screened.sort(key=lambda t: -t[0])
+        # Refine the best few overall and the best of every candidate model (so one model's many similar
+        # hypotheses cannot crowd out another model).
+        picks, seen = [], set()
+        for k, t in enumerate(screened):
+            if k <= self.reg_cfg.keep_for_refine or t[1] not in seen:
+                picks.append(t)
+                seen.add(t[1])
         best: Hypothesis | None = None
-        for _, oid, name, T, w in screened[: self.reg_cfg.keep_for_refine + 1]:
+        for _, oid, name, T, w in picks:
             h = refine(query, self.database[oid], scorers[oid], T, self.reg_cfg, name)
-            h.score *= w
+            h.score *= self._colour_weight(query, h, w)
             if best is None or h.score > best.score:
                 best = h
         # Gravity prior: dishware rests on surfaces, so an upright / upside-down pose of the best model that
@@ -302,6 +351,19 @@ class Perceiver:
         if best is None or best.score < st.min_overlap or best.or_model < 0.15 or best.or_query < 0.2:
             return None, query
         return best, query
+
+
+def _partition(points: np.ndarray, spacing: float) -> list[np.ndarray]:
+    """Index arrays of item-sized regions: farthest-point seeds `spacing` apart, each point to its nearest seed."""
+    c = points.mean(axis=0)
+    seeds = [int(np.argmin(np.linalg.norm(points - c, axis=1)))]
+    dmin = np.linalg.norm(points - points[seeds[0]], axis=1)
+    while dmin.max() > spacing and len(seeds) < 40:
+        k = int(np.argmax(dmin))
+        seeds.append(k)
+        dmin = np.minimum(dmin, np.linalg.norm(points - points[k], axis=1))
+    owner = cKDTree(points[seeds]).query(points)[1]
+    return [np.nonzero(owner == k)[0] for k in range(len(seeds)) if (owner == k).sum() >= 30]
 
 
 def _voxel_centres(points: np.ndarray, voxel: float) -> np.ndarray:

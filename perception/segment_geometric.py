@@ -54,7 +54,39 @@ def foreground_mask(view: View, cell: Cell, cfg: GeometricSegmenterConfig, pts: 
         d = np.linalg.norm(np.maximum(np.maximum(b.lower - p, p - b.upper), 0.0), axis=1)
         keep &= d > cfg.surface_margin
     ok[idx[0][~keep], idx[1][~keep]] = False
+    ok &= ~measured_surfaces(pts, cell, cfg)
     return ok
+
+
+def measured_surfaces(pts: np.ndarray, cell: Cell, cfg: GeometricSegmenterConfig, band: float = 0.02) -> np.ndarray:
+    """Pixels on (or behind) the basin's floor and walls as MEASURED: near each nominal surface a plane is fitted
+    (RANSAC) to the points, and what lies within the margin of it, or beyond it, is the sink. This keeps the
+    removal right when the scan poses are a few millimetres / tenths of a degree off the nominal cell."""
+    lo, hi = cell.sink_interior
+    out = np.zeros(pts.shape[:2], bool)
+    finite = np.all(np.isfinite(pts), axis=2)
+    P = np.where(finite[..., None], pts, 0.0)
+    inside_xy = (P[..., 0] > lo[0] - band) & (P[..., 0] < hi[0] + band) & (P[..., 1] > lo[1] - band) & \
+        (P[..., 1] < hi[1] + band) & finite
+    below_rim = P[..., 2] < hi[2] + 0.01
+    # (axis, nominal coordinate, inward direction) of the floor and the four walls.
+    faces = [(2, lo[2], 1.0), (0, lo[0], 1.0), (0, hi[0], -1.0), (1, lo[1], 1.0), (1, hi[1], -1.0)]
+    for axis, value, sign in faces:
+        d_nom = sign * (P[..., axis] - value)
+        near = inside_xy & below_rim & (np.abs(d_nom) < band)
+        Q = P[near]
+        if len(Q) < 200:
+            continue
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Q[:: max(1, len(Q) // 5000)].astype(np.float64)))
+        plane, inl = pc.segment_plane(distance_threshold=0.004, ransac_n=3, num_iterations=100)
+        n, d = np.asarray(plane[:3], float), float(plane[3])
+        if abs(n[axis]) < np.cos(np.radians(6)) or len(inl) < 0.3 * len(pc.points):
+            continue  # no clear plane here (the surface is hidden under items): keep the nominal removal only
+        if np.sign(n[axis]) != sign:
+            n, d = -n, -d
+        h = P @ n + d  # signed distance, positive towards the inside of the basin
+        out |= inside_xy & below_rim & (np.abs(d_nom) < 2 * band) & (h < cfg.surface_margin)
+    return out
 
 
 def components(pts: np.ndarray, fg: np.ndarray, link: float, max_gap: int = 10, px_angle: float = 0.0,

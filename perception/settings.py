@@ -25,5 +25,6 @@ class PerceptionSettings(BaseModel):
     iou_threshold: float = Field(0.6, gt=0.0, lt=1.0)
     min_overlap: float = Field(0.5, ge=0.0, le=1.0, description="reject poses whose mean overlap ratio is lower")
     align_views: bool = Field(True, description="register the views onto the first one (ICP, coarse FPFH if needed)")
+    align_to_cell: bool = Field(True, description="register the scan onto the known cell geometry (sink floor, walls)")
     cache_dir: str = Field("~/.cache/kitchenbot/cad", description="where the CAD feature database is cached")
-    max_splits: int = Field(6, ge=0, le=20, description="times an instance may be split by re-fitting what a pose leaves unexplained")
+    max_splits: int = Field(20, ge=0, le=50, description="times an instance may be split by re-fitting what a pose leaves unexplained")
