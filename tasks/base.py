@@ -243,10 +243,9 @@ def _on_a_pile(model: ObjectModel, placed: list[Placed], max_z: float = 0.35) ->
     return best
 
 
-def _drop_zone_targets(model: ObjectModel, zone: AreaSpec, placed: list[Placed], limit: int,
-                       pending: list[ObjectModel] = ()) -> list[PlaceTarget]:
-    """Free upright spots in an area (the centre inside it); when it is full, on a pile (see _on_a_pile).
-    Room is kept for the largest plate still `pending` (plates cannot go on cups; cups can go on plates)."""
+def with_plate_room(model: ObjectModel, zone: AreaSpec, placed: list[Placed], pending) -> list[Placed]:
+    """`placed` plus a reserved spot for the largest plate still in the sink, when `model` is not a plate and no
+    plate is in the zone yet (plates cannot go on other items; other items can go on a plate)."""
     lo = np.array(zone.origin_xy)
     hi = lo + np.array(zone.size_xy)
     taken = list(placed)
@@ -256,6 +255,16 @@ def _drop_zone_targets(model: ObjectModel, zone: AreaSpec, placed: list[Placed],
         keep = area_spots(big, lo, hi, zone.z, placed, upright, 1, centre_inside=True)
         if keep:
             taken.append(Placed(big.obj_id, big.cls, keep[0], *footprint(big, keep[0]), None))
+    return taken
+
+
+def _drop_zone_targets(model: ObjectModel, zone: AreaSpec, placed: list[Placed], limit: int,
+                       pending: list[ObjectModel] = ()) -> list[PlaceTarget]:
+    """Free upright spots in an area (the centre inside it); when it is full, on a pile (see _on_a_pile).
+    Room is kept for the largest plate still `pending` (plates cannot go on cups; cups can go on plates)."""
+    lo = np.array(zone.origin_xy)
+    hi = lo + np.array(zone.size_xy)
+    taken = with_plate_room(model, zone, placed, pending)
     spots = area_spots(model, lo, hi, zone.z, taken, upright, limit, centre_inside=True)
     if not spots:  # overhanging the zone's edge (centre inside) beats blocking the plate's room
         spots = area_spots(model, lo, hi, zone.z, taken, upright, limit, centre_inside="any")

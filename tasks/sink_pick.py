@@ -11,7 +11,7 @@ import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import Task, _drop_zone_targets, area_spots, as_is
+from kitchenbot.tasks.base import Task, _drop_zone_targets, area_spots, as_is, with_plate_room
 
 
 class SinkPick(Task):
@@ -28,7 +28,8 @@ class SinkPick(Task):
             # Not upright in the sink (a glass on its side): no grasp may reach "upright", so also offer the
             # drop zone as it lies now (set down the way it is held).
             lo = np.array(zone.origin_xy)
-            for T in area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, self.placed, as_is(R), 2,
-                                centre_inside=True):
+            taken = with_plate_room(model, zone, self.placed, self.pending)
+            for T in area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, taken, as_is(R), 2,
+                                centre_inside="any"):
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support="counter (as it lay)"))
         return out or NoFreeSlot(f"drop zone has no free spot for a {obj.cls}")
