@@ -417,7 +417,11 @@ class TaskRunner:
                 moving = self.arm.is_moving()
             if not moving:
                 break
-            self.advance(self.opt.poll_period)
+            if self.advance is time.sleep:
+                time.sleep(self.opt.poll_period)
+            else:
+                with self._arm_lock:  # the simulated controller's tick must not interleave with a stop()
+                    self.advance(self.opt.poll_period)
             el = (self._sim_now() - s0) if s0 is not None else (time.perf_counter() - t0)
             if el > limit:
                 self._cmd("arm.stop", reason=f"{what} overran its time budget")
