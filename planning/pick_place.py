@@ -429,7 +429,10 @@ class Planner:
                 for T_back in (T_tcp @ trans(0.0, 0.0, -up), trans(0.0, 0.0, up) @ T_tcp):
                     r = self._line(after_scene, q_rel, T_back, "retreat", check_start=False)
                     if not isinstance(r, PlanningFailure):
-                        break
+                        if after.valid(r[1]):  # the next plan starts here, with the full margins
+                            break
+                        r = CartesianPathFailed("retreat: ends within the collision margin",
+                                                {"pairs": after.colliding_pairs(r[1]), "segment": "retreat"})
                 if isinstance(r, PlanningFailure):
                     last = r
                     continue
