@@ -247,6 +247,12 @@ class PlacePlan:
         return [self.transfer, self.lower, self.retreat]
 
     @property
+    def release_drop(self) -> float:
+        """How far (m) above the target pose the object is released (it falls that far; see
+        PlanningSettings.max_release_drop): 0 when the gripper could go all the way down."""
+        return float(self.T_base_obj[2, 3] - np.asarray(self.target.T_base_obj)[2, 3])
+
+    @property
     def end(self) -> np.ndarray:
         return self.retreat.end
 
