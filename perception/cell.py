@@ -45,10 +45,13 @@ class RackSpec(_Strict):
 
 
 class DishwasherSpec(_Strict):
-    lower: RackSpec = RackSpec(origin_xy=(0.05, -0.78), size_xy=(0.30, 0.40), floor_z=-0.30,
-                               slot_pitch=(0.045, 0.13), kind="plates")
-    upper: RackSpec = RackSpec(origin_xy=(0.40, -0.78), size_xy=(0.30, 0.40), floor_z=-0.12,
-                               slot_pitch=(0.10, 0.10), kind="cups")
+    # Racks pulled out to the robot's right. The lower rack holds one row of upright plates (10 slots at
+    # 45 mm); the upper rack a 3 x 3 grid for cups, glasses, mugs and bowls (inverted). Every slot is within
+    # the UR5e's reach with the tool pointing down (checked by tests/planning).
+    lower: RackSpec = RackSpec(origin_xy=(-0.15, -0.74), size_xy=(0.50, 0.34), floor_z=-0.28,
+                               slot_pitch=(0.045, 0.30), kind="plates")
+    upper: RackSpec = RackSpec(origin_xy=(0.38, -0.74), size_xy=(0.34, 0.40), floor_z=-0.12,
+                               slot_pitch=(0.095, 0.095), kind="cups")
 
 
 class AreaSpec(_Strict):
