@@ -43,7 +43,7 @@ from kitchenbot.planning.types import (
     PlanningFailure,
     Trajectory,
 )
-from kitchenbot.transforms import check_rigid, rot_z, trans
+from kitchenbot.transforms import check_rigid, inv, rot_z, trans
 
 
 LIFT_CONTACT_TRAVEL = 0.03  # m of lift during which the held object may still touch what it rested on
@@ -213,17 +213,24 @@ class Planner:
                 return InvalidInput(f"place_target: expected a PlaceTarget or a sequence of them, got items of type {bad[:3]}")
             targets = targets[: self.settings.max_place_targets]
 
-            tool_scene = self.world.scene().for_release(None)  # gripper vs the cell at the release pose
+            known = [o for o in objects if o.obj_id in self.inventory.models]
+            voxels = self._voxels(map_points, known)
+            # the release pose is checked as plan_place will: gripper and held object (grasp margins) against
+            # the cell, the other objects (e.g. what is already in the rack) and the map
+            world_key = tuple(sorted((o.obj_id, np.round(np.asarray(o.T_base_obj, float), 4).tobytes()) for o in known))
 
             def flt(obj, spec, T_base_tcp):
-                # depends on the grasp in the object frame and the target only: cached across calls
-                key = (obj.obj_id, spec.name, tuple(t.T_base_obj.tobytes() for t in targets))
+                key = (obj.obj_id, spec.name, tuple(t.T_base_obj.tobytes() for t in targets), world_key, voxels.tobytes())
                 if key not in self._placeable:
-                    tool_scene.set_opening(spec.width)
+                    others = self._scene_objects(objects, exclude=obj)
+                    held = Held(self.inventory[obj.obj_id], inv(spec.T_obj_tcp), spec.width)
+                    release = self.world.scene(others, voxels, held).for_release(None)
                     self._placeable[key] = any(
-                        self._place_tcp_options(t, spec.T_obj_tcp, q, tool_scene, first_only=True, obj_id=obj.obj_id)
+                        self._place_tcp_options(t, spec.T_obj_tcp, q, release, first_only=True, obj_id=obj.obj_id)
                         for t in targets
                     )
+                    if len(self._placeable) > 5000:
+                        self._placeable.clear()
                 return self._placeable[key]
 
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
