@@ -171,10 +171,11 @@ class Perceiver:
                 # (stacked / nested / touching items that segmentation could not separate).
                 explained = self._explained(hyp, m.points[sel])
                 own = sel[explained]
-                # Explain away: points of instances still waiting in the queue that this pose explains are
+                # Explain away: points of blob parts still waiting in the queue that this pose explains are
                 # this object's too (an item cut in two by the blob partition must not be fitted twice).
-                if queue:
-                    pending = np.nonzero(np.isin(ids_out, queue))[0]
+                waiting_parts = [q for q in queue if q in parts]
+                if waiting_parts:
+                    pending = np.nonzero(np.isin(ids_out, waiting_parts))[0]
                     near = pending[np.linalg.norm(m.points[pending] - hyp.T_base_obj[:3, 3], axis=1)
                                    < 0.6 * self.inventory[hyp.obj_id].diameter]
                     if len(near):

@@ -92,15 +92,14 @@ def test_bad_views_are_rejected_with_the_field_named(perceiver, inventory, cell)
         perceiver.perceive([View(v.rgb, v.depth, np.eye(4), v.T_base_cam)])
 
 
-def test_without_a_cell_in_the_camera_frame(inventory, cell, placed, tmp_path):
+def test_without_a_cell_in_the_camera_frame(perceiver, inventory, cell, placed):
     """A BOP-style image without world poses: base frame = camera frame, the support plane found by RANSAC."""
     from kitchenbot.perception.pipeline import Perceiver
-    from kitchenbot.perception.settings import PerceptionSettings
     from kitchenbot.transforms import inv
 
     views, _ = render(inventory, placed, scan_poses(cell, height=0.35)[1:2], cell, noise=0.002)
     v = views[0]
-    p = Perceiver(PerceptionSettings(cache_dir=str(tmp_path)), inventory, None, use_cell=False)
+    p = Perceiver(perceiver.settings, inventory, None, use_cell=False, database=perceiver.database)
     r = p.perceive([View(v.rgb, v.depth, v.K, np.eye(4))])
     in_cam = [(oid, inv(v.T_base_cam) @ T) for oid, T in placed]
     _check(r, in_cam, inventory)
