@@ -183,7 +183,8 @@ def fuse_instance(points: np.ndarray, view_idx: np.ndarray, pixel: np.ndarray, r
                 continue
             rows, cols = np.nonzero(mask)
             r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-            cls, patches = img_enc.encode(rgb[r0:r1, c0:c1], mask[r0:r1, c0:c1])
+            # Every 2nd pixel is enough (the map samples the same grid) and halves the encoder's work.
+            cls, patches = img_enc.encode(rgb[r0:r1:2, c0:c1:2], mask[r0:r1:2, c0:c1:2])
             # (patch tokens cover the crop evenly; map each point's pixel to its patch)
             cls_tokens.append(cls * np.sqrt(mask.sum()))  # weight views by how much they saw
             h, w = patches.shape[:2]
@@ -196,6 +197,11 @@ def fuse_instance(points: np.ndarray, view_idx: np.ndarray, pixel: np.ndarray, r
     vp[inv_] = cam_centres[view_idx] if len(cam_centres) else 0.0
     N = oriented_normals(P, vp, voxel)
     Fp = l2n(pt_enc.encode(P, N, voxel))
-    Fi = l2n(F) if F is not None else np.zeros((len(P), 0))
     cls_token = l2n(np.sum(cls_tokens, axis=0)) if cls_tokens else np.zeros(dim_i)
+    if F is not None:
+        # Voxels whose pixels fell on empty patches (mask edges) take the instance's class token.
+        F[np.linalg.norm(F, axis=1) < 1e-9] = cls_token
+        Fi = l2n(F)
+    else:
+        Fi = np.zeros((len(P), 0))
     return FusedCloud(P, N, Fi, Fp, cls_token, l2n(Fp.mean(axis=0)) if len(Fp) else np.zeros(pt_enc.dim))

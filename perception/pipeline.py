@@ -228,10 +228,16 @@ class Perceiver:
         """Test for points inside known solid matter: the cell's boxes (deeper than 5 mm; the counter and the
         basin extended downwards), or in plane mode more than 1 cm below the support plane."""
         if self.cell is not None:
-            lo = np.array([b.lower for b in self.cell.boxes]) + 0.005
-            hi = np.array([b.upper for b in self.cell.boxes]) - 0.005
+            # Boxes near the sink only (objects are found there), shrunk by 5 mm.
+            s_lo, s_hi = self.cell.sink_interior
+            boxes = [b for b in self.cell.boxes
+                     if np.all(b.upper > s_lo - 0.3) and np.all(b.lower < s_hi + np.array([0.3, 0.3, 0.6]))]
+            if not boxes:
+                return None
+            lo = np.array([b.lower for b in boxes]) + 0.005
+            hi = np.array([b.upper for b in boxes]) - 0.005
             # Under the counter and the basin is cabinet: nothing the cameras could see rests there.
-            lo[[b.kind in ("counter", "sink") for b in self.cell.boxes], 2] = -10.0
+            lo[[b.kind in ("counter", "sink") for b in boxes], 2] = -10.0
 
             def inside(P: np.ndarray) -> np.ndarray:
                 return np.any(np.all((P[:, None] > lo) & (P[:, None] < hi), axis=2), axis=1)
