@@ -228,7 +228,9 @@ def verify_place(checker: FclChecker, planner, plan, grasp, objects, step: float
              if o.obj_id in planner.inventory.models and o is not grasp.obj]
     model = planner.inventory[grasp.obj.obj_id]
     held = (model, grasp.T_tcp_obj)
-    placed = ("placed", model, plan.T_base_obj)
+    T_rest = plan.T_base_obj.copy()
+    T_rest[2, 3] = min(T_rest[2, 3], float(plan.target.T_base_obj[2, 3]))  # it fell by the release drop
+    placed = ("placed", model, T_rest)
     pads = [(p, "obj:placed") for p in ("pad_a", "pad_b")]
     return [
         ("transfer", checker.check_path(plan.transfer.q, objects=named, held=held, opening=grasp.spec.width, step=step)),

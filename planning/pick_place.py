@@ -428,9 +428,12 @@ class Planner:
                     last = r
                     continue
                 lower, q_rel = r
-                # after release: the object stays; the open pads back out along the approach axis
-                placed = ObjectPose(grasp.obj.obj_id, grasp.obj.cls, T_obj, 1.0, instance_id=PLACED_ID)
-                after = self.scene([*objects, placed], None, exclude=grasp.obj, opening=grasp.spec.opening)
+                # after release: the object rests at the target height (it fell by the release drop, if any);
+                # the open pads back out along the approach axis
+                T_rest = T_obj.copy()
+                T_rest[2, 3] = min(T_obj[2, 3], float(np.asarray(tgt.T_base_obj)[2, 3]))
+                placed = ObjectPose(grasp.obj.obj_id, grasp.obj.cls, T_rest, 1.0, instance_id=PLACED_ID)
+                after = self.scene([*objects, placed], map_points, exclude=grasp.obj, opening=grasp.spec.opening)
                 after_scene = after.for_grasp(object_name(placed, 0))
                 # back out along the approach; if that line is blocked or singular, straight up instead
                 for T_back in (T_tcp @ trans(0.0, 0.0, -up), trans(0.0, 0.0, up) @ T_tcp):
