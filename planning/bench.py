@@ -58,7 +58,9 @@ def sim_contacts(world, planner, pick, place, uid: int) -> list[str]:
         for name, traj, held, opening in steps:
             if name == "retreat":
                 world.held_uid, world.T_tcp_held = None, None
-                world.objects[uid].T_base_obj = place.T_base_obj.copy()
+                T_rest = place.T_base_obj.copy()
+                T_rest[2, 3] = min(T_rest[2, 3], float(place.target.T_base_obj[2, 3]))  # fell by the release drop
+                world.objects[uid].T_base_obj = T_rest
             else:
                 world.held_uid = held
                 world.T_tcp_held = None if held is None else g.T_tcp_obj
