@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
@@ -22,12 +20,6 @@ def test_fk_matches_dh_table(name):
         q = rng.uniform(-np.pi, np.pi, 6)
         np.testing.assert_allclose(robot.fk(q, "flange"), fk_flange(robot.ur, q), atol=1e-12)
         np.testing.assert_allclose(robot.fk_tcp(q), fk_flange(robot.ur, q) @ robot.T_flange_tcp, atol=1e-12)
-
-
-def test_no_urdf_to_cross_check():
-    """No UR URDF ships with the installed packages (pin has no example-robot-data here; ur-rtde has none),
-    so FK is cross-checked against the DH table only. If one appears, this test says so."""
-    assert importlib.util.find_spec("example_robot_data") is None
 
 
 def test_ik_round_trips(planner, home):
