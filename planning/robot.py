@@ -3,8 +3,8 @@
 The kinematic tree is written in code from ``drivers.ur_kinematics`` (one source of the geometry): joint i is a
 revolute-z joint placed at ``Tz(d) Tx(a) Rx(alpha)`` of the previous DH row, the ``flange`` frame follows the
 last row and ``tcp`` adds the configured tool transform. No URDF is needed (the example-robot-data wheel is
-414 MB); ``tests/planning/test_robot.py`` cross-checks FK against the numpy DH code, and against a UR URDF when
-one is installed.
+414 MB, and its UR model is the CB3 UR5); ``tests/planning/test_robot.py`` cross-checks FK against the numpy DH
+code. No UR URDF is installed here, so there is no URDF cross-check.
 
 IK: Pinocchio's frame Jacobian + ``log6`` in a damped least-squares loop (the standard Pinocchio recipe),
 started from the current configuration first and then from a fixed spread of seeds; each converged solution is
