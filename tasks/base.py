@@ -120,8 +120,8 @@ class Task:
 
     def fallback_target(self, obj: ObjectPose) -> PlaceTarget | NoFreeSlot:
         """Where to put a held object down when giving up: the counter drop zone."""
-        return _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, self.placed, 1) or \
-            NoFreeSlot("drop zone is full")
+        spots = _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, self.placed, 1)
+        return spots[0] if spots else NoFreeSlot("drop zone is full")
 
     # ---- bookkeeping --------------------------------------------------------------------------------------------
     def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> Placed:

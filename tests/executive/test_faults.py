@@ -63,3 +63,42 @@ def test_fault_is_journaled_and_ends_safe(make_runner, safe_end, fault, value, s
         assert "camera" in report.message
         assert world.gripper_opening > 0.05  # gripper open
     assert report.collisions == 0
+
+
+def test_stop_while_holding_puts_the_object_down_at_the_fallback_spot(make_runner, safe_end):
+    """A protective stop during the lift (object in the gripper), and its own target unplannable from there:
+    recovery puts it down in the counter drop zone (the fallback), then the task goes on."""
+    from kitchenbot.planning.types import NoFeasiblePlacement
+
+    runner, world = make_runner()
+    grasp = runner.gripper.grasp
+
+    def grasp_then_stop(limit, timeout=3.0):
+        res = grasp(limit, timeout)
+        world.faults.protective_stop = 1  # the next motion (the lift) stops halfway, holding the cup
+        return res
+
+    runner.gripper.grasp = grasp_then_stop
+    real = runner.planner
+
+    class OwnTargetBlockedInRecovery:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_place(self, q, g, target, **kw):
+            if runner.state == "recover" and getattr(target, "kind", "") != "drop":
+                return NoFeasiblePlacement("test: the stack base is unreachable from here")
+            return real.plan_place(q, g, target, **kw)
+
+    runner.planner = OwnTargetBlockedInRecovery()
+    report = runner.run()
+    runner.gripper.grasp = grasp
+    safe_end(runner, world)
+    notes = [e for e in runner.journal.events(runner.run_id, kind="note") if e["name"] == "putting down the held object"]
+    assert len(notes) == 1
+    x, y, _ = notes[0]["payload"]["target"]
+    zone = runner.robot.cell.spec.drop_zone
+    assert zone.origin_xy[0] - 0.05 <= x <= zone.origin_xy[0] + zone.size_xy[0] + 0.05
+    assert zone.origin_xy[1] - 0.05 <= y <= zone.origin_xy[1] + zone.size_xy[1] + 0.05
+    assert report.protective_stops == 1 and report.recoveries >= 1
+    assert report.truth["end"]["in_sink"] == 0 and report.truth["end"]["held"] is False

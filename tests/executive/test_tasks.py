@@ -120,3 +120,15 @@ def test_footprint_of_a_plate_on_edge_is_thin_in_x(inv):
     m = inv.by_name("dinner_plate")
     lo, hi, top = footprint(m, on_edge(m, (0.2, -0.5), -0.3))
     assert hi[0] - lo[0] < 0.04 and hi[1] - lo[1] > 0.25 and top > -0.3 + 0.25
+
+
+def test_fallback_target_is_one_place_target_or_a_typed_failure(inv):
+    from kitchenbot.planning.types import PlaceTarget
+
+    for name in TASKS:
+        task = make_task(name, inv, Cell())
+        t = task.fallback_target(pose(inv, "cup"))
+        assert isinstance(t, PlaceTarget) and t.kind == "drop"
+    task = make_task("sink-pick", inv, Cell())
+    fill(task, inv, ["dinner_plate"] * 3 + ["bowl"] * 8)  # the zone and its pile fill up
+    assert isinstance(task.fallback_target(pose(inv, "mug")), (PlaceTarget, NoFreeSlot))
