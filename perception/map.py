@@ -127,7 +127,8 @@ def align_to_cell(views: list[View], cell, max_trans: float = 0.03, max_rot_deg:
     P = np.concatenate(pts).astype(np.float64) if pts else np.zeros((0, 3))
     if len(P) < 200 or len(target.points) < 200:
         return list(views), np.eye(4)
-    src = _cloud(P, 0.008)
+    # Point-to-plane needs the target's normals only: the source is just voxel-downsampled.
+    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P)).voxel_down_sample(0.008)
     est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=0.005))
     res = reg.registration_icp(src, target, max_dist, np.eye(4), est, reg.ICPConvergenceCriteria(max_iteration=40))
     rot, tr = pose_error(np.eye(4), res.transformation)
