@@ -51,8 +51,7 @@ def _visible_in(view, T_base_obj: np.ndarray, pts_obj: np.ndarray) -> bool:
 
 def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, cell: Cell | None = None,
              use_cell: str = "auto", split: str | None = None, scenes: list[int] | None = None,
-             min_visib: float = 0.1, progress: bool = True, keep_results: bool = False,
-             inventory: Inventory | None = None) -> EvalResult:
+             min_visib: float = 0.1, progress: bool = True, inventory: Inventory | None = None) -> EvalResult:
     root = Path(dataset)
     settings = settings or PerceptionSettings()
     if inventory is None:
@@ -83,13 +82,12 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
     per_scan = []
     pts = {m.obj_id: m.points for m in inventory}
     n_images = 0
-    iterator = dirs
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(dirs), desc="scenes", unit="scene", dynamic_ncols=True)
-    for sd in iterator:
+    for sd in dirs:
         images = bop.read_scene(sd)
         for group in bop.view_groups(images):
             with_cell = use_cell == "always" or (use_cell == "auto" and group[0].has_world_pose)

@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         if args.report:
             args.report.write_text(json.dumps({"sweep": args.sweep, "rows": rows}, indent=1))
         return 0
-    res = evaluate(args.dataset, cfg.perception, keep_results=True, **kw)
+    res = evaluate(args.dataset, cfg.perception, **kw)
     r = res.report
     if args.results:
         write_bop_csv(res.estimates, args.results)
