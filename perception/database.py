@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 from kitchenbot.perception.features import FusedCloud, ImageEncoder, PointEncoder, l2n, oriented_normals, voxel_pool
 from kitchenbot.perception.inventory import Inventory, ObjectModel
 from kitchenbot.transforms import inv
+from kitchenbot.perception.raycast import pinhole_rays
 
 DB_VERSION = 3
 
@@ -70,7 +71,7 @@ def render_model(model: ObjectModel, T_obj_cam: np.ndarray, K: np.ndarray, size=
     tm = o3d.t.geometry.TriangleMesh.from_legacy(model.mesh)
     scene.add_triangles(tm)
     w, h = size
-    rays = scene.create_rays_pinhole(o3d.core.Tensor(K), o3d.core.Tensor(inv(T_obj_cam)), w, h)
+    rays = pinhole_rays(K, inv(T_obj_cam), w, h)
     ans = scene.cast_rays(rays)
     t = ans["t_hit"].numpy()
     mask = np.isfinite(t)

@@ -11,13 +11,14 @@ import open3d as o3d
 
 from kitchenbot.perception import bop
 from kitchenbot.perception.inventory import Inventory
+from kitchenbot.perception.raycast import pinhole_rays
 
 
 def silhouette(mesh: o3d.geometry.TriangleMesh, T_cam_obj: np.ndarray, K: np.ndarray, w: int, h: int) -> np.ndarray:
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    # create_rays_pinhole takes the extrinsic world->camera; the mesh's "world" is the object frame.
-    rays = scene.create_rays_pinhole(o3d.core.Tensor(K), o3d.core.Tensor(T_cam_obj), w, h)
+    # The extrinsic is world->camera; the mesh's "world" is the object frame.
+    rays = pinhole_rays(K, T_cam_obj, w, h)
     return np.isfinite(scene.cast_rays(rays)["t_hit"].numpy())
 
 
