@@ -36,7 +36,10 @@ log=$(mktemp)
 TORCH_VERSION=2.13.0
 if ! "$VENV/bin/python" -c "import torch, sys; sys.exit(torch.__version__.split('+')[0] != '$TORCH_VERSION')" 2>/dev/null; then
   echo "setup: installing torch==$TORCH_VERSION (CPU build)"
-  if ! "$VENV/bin/python" -m pip install -q "torch==$TORCH_VERSION" >"$log" 2>&1; then
+  # Elsewhere, point KITCHENBOT_TORCH_INDEX at PyTorch's CPU wheel index to avoid the CUDA build.
+  torch_index=()
+  [ -n "${KITCHENBOT_TORCH_INDEX:-}" ] && torch_index=(--index-url "$KITCHENBOT_TORCH_INDEX")
+  if ! "$VENV/bin/python" -m pip install -q "${torch_index[@]}" "torch==$TORCH_VERSION" >"$log" 2>&1; then
     grep -v "^WARNING: Location" "$log" >&2; rm -f "$log"
     echo "setup: pip could not install torch==$TORCH_VERSION (see above)." >&2; exit 1
   fi
