@@ -356,6 +356,15 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
         pos = axis + radial * (r_rim - 0.004) + np.array([0, 0, z_top - bite])
         T = _tcp_frame(np.array([0, 0, -1.0]), radial, pos)
         grasps.append(("rim", k, T))
+        if model.cls == "plate":
+            # A shallow, narrow pinch of the lip from outside, leaning in by 25/40 degrees (opened only 8 mm
+            # per pad past the lip): the fingers stay above the plate's sloped well and close to the lip, so
+            # they keep clear of a plate nested below (a vertical pinch's inner finger reaches it through the
+            # well; a 45/60 degree pinch opened 15 mm per pad sweeps over the lower plate's rim).
+            p_lip = axis + radial * (r_rim - 0.002) + np.array([0, 0, z_top - 0.006])
+            for lean in (25, 40):
+                grasps.append((f"rimlean{lean}", k,
+                               _tcp_frame(np.array([0, 0, -1.0]), radial, p_lip) @ rot_x(np.radians(lean))))
         if model.cls in ("plate", "bowl"):
             # A plate or bowl lying on a flat floor leaves no room for a pad under a vertical pinch; tilt the
             # approach inwards (gripper outside the rim, one pad under the lip, one on top of it).
@@ -377,7 +386,8 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
         w = pad_span(model, T, scene=scene)
         if w is None or w > GRIPPER_MAX_OPENING - 0.01 or w <= 0:
             continue
-        out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=min(GRIPPER_MAX_OPENING, w + 0.03), width=w))
+        slack = 0.016 if kind.startswith("rimlean") else 0.03
+        out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=min(GRIPPER_MAX_OPENING, w + slack), width=w))
     # A rim pinch that also takes in something else (the root of a mug's handle) is not a rim pinch.
     rim_w = [g.width for g in out if g.name.startswith("rim_")]
     if rim_w:

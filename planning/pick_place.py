@@ -302,16 +302,36 @@ class Planner:
         # centimetres; anything else it would touch is checked from the start
         start_contacts = [p for p in lift_scene.colliding_pairs(q_grasp) if "held" in p]
         start_scene = lift_scene.allowing(start_contacts)
-        T_lift = trans(0.0, 0.0, s.lift_height) @ g.T_base_tcp
-        r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False, start_scene=start_scene,
-                       start_travel=LIFT_CONTACT_TRAVEL)
-        if isinstance(r, PlanningFailure):
-            return r
-        lift, q_lifted = r
-        if not held_scene.valid(q_lifted):  # plan_place starts here with the full margins
-            return CartesianPathFailed("lift: the lifted pose is within the collision margin",
-                                       {"pairs": held_scene.colliding_pairs(q_lifted), "segment": "lift"})
-        return PickPlan(g, approach, grasp_in, lift, timings_ms=timings)
+        # Straight up first; an item leaning on a basin wall (or in a corner) would slide up along it, so then
+        # up and away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
+        first: PlanningFailure | None = None
+        for d in self._lift_directions(g.T_base_tcp[:3, 3]):
+            T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
+            r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False, start_scene=start_scene,
+                           start_travel=LIFT_CONTACT_TRAVEL)
+            if isinstance(r, PlanningFailure):
+                first = first or r
+                continue
+            lift, q_lifted = r
+            if not held_scene.valid(q_lifted):  # plan_place starts here with the full margins
+                first = first or CartesianPathFailed("lift: the lifted pose is within the collision margin",
+                                                     {"pairs": held_scene.colliding_pairs(q_lifted), "segment": "lift"})
+                continue
+            return PickPlan(g, approach, grasp_in, lift, timings_ms=timings)
+        return first
+
+    def _lift_directions(self, p: np.ndarray) -> list[np.ndarray]:
+        """Unit lift directions from a grasp at `p` (base frame): up, then tilted towards the sink's middle."""
+        lo, hi = self.cell.sink_interior
+        to_mid = (np.asarray(lo, float) + np.asarray(hi, float))[:2] / 2 - np.asarray(p, float)[:2]
+        out = [np.array([0.0, 0.0, 1.0])]
+        if np.linalg.norm(to_mid) < 1e-6:
+            return out
+        a0 = float(np.arctan2(to_mid[1], to_mid[0]))
+        for tilt, da in ((30.0, 0.0), (30.0, 60.0), (30.0, -60.0), (50.0, 0.0)):
+            t, a = np.radians(tilt), a0 + np.radians(da)
+            out.append(np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)]))
+        return out
 
     # ---- place -----------------------------------------------------------------------------------------------------
     def _place_turns(self, target: PlaceTarget, obj_id: int) -> list[np.ndarray]:
