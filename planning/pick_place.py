@@ -302,10 +302,11 @@ class Planner:
         # centimetres; anything else it would touch is checked from the start
         start_contacts = [p for p in lift_scene.colliding_pairs(q_grasp) if "held" in p]
         start_scene = lift_scene.allowing(start_contacts)
-        # Straight up first; an item leaning on a basin wall (or in a corner) would slide up along it, so then
-        # up and away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
+        # Straight up first; an item resting tilted in a stack comes off along its own axis (as it was
+        # stacked); an item leaning on a basin wall (or in a corner) would slide up along it, so then up and
+        # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
         first: PlanningFailure | None = None
-        for d in self._lift_directions(g.T_base_tcp[:3, 3]):
+        for d in self._lift_directions(g.T_base_tcp[:3, 3], g.obj.T_base_obj):
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
             r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False, start_scene=start_scene,
                            start_travel=LIFT_CONTACT_TRAVEL)
@@ -320,11 +321,17 @@ class Planner:
             return PickPlan(g, approach, grasp_in, lift, timings_ms=timings)
         return first
 
-    def _lift_directions(self, p: np.ndarray) -> list[np.ndarray]:
-        """Unit lift directions from a grasp at `p` (base frame): up, then tilted towards the sink's middle."""
+    def _lift_directions(self, p: np.ndarray, T_base_obj: np.ndarray | None = None) -> list[np.ndarray]:
+        """Unit lift directions from a grasp at `p` (base frame): up; along the object's axis when it rests
+        tilted (5 to 60 degrees; the upward one of +-z); then tilted towards the sink's middle."""
         lo, hi = self.cell.sink_interior
         to_mid = (np.asarray(lo, float) + np.asarray(hi, float))[:2] / 2 - np.asarray(p, float)[:2]
         out = [np.array([0.0, 0.0, 1.0])]
+        if T_base_obj is not None:
+            axis = np.asarray(T_base_obj, float)[:3, 2]
+            axis = axis * np.sign(axis[2]) if abs(axis[2]) > 1e-9 else axis
+            if np.cos(np.radians(60)) <= axis[2] <= np.cos(np.radians(5)):
+                out.append(axis / np.linalg.norm(axis))
         if np.linalg.norm(to_mid) < 1e-6:
             return out
         a0 = float(np.arctan2(to_mid[1], to_mid[0]))

@@ -21,6 +21,21 @@ def test_lift_directions_are_up_then_towards_the_sink_middle(planner):
     assert np.degrees(np.arccos(ds[1] @ np.array([0, -1.0, 0]) / np.linalg.norm(ds[1]))) < 90 - 29
 
 
+def test_a_tilted_object_is_also_lifted_along_its_axis(planner):
+    from kitchenbot.transforms import make_T, rot_x
+
+    lo, hi = planner.cell.sink_interior
+    p = (np.asarray(lo) + np.asarray(hi)) / 2
+    tilted = make_T(t=p) @ rot_x(np.radians(25))
+    ds = planner._lift_directions(p, tilted)
+    assert np.allclose(ds[0], (0, 0, 1)) and np.allclose(ds[1], tilted[:3, 2])
+    upside_down = make_T(t=p) @ rot_x(np.radians(180 - 25))  # its upward axis is -z
+    assert np.allclose(planner._lift_directions(p, upside_down)[1], -upside_down[:3, 2])
+    flat = planner._lift_directions(p, make_T(t=p) @ rot_x(np.radians(2)))
+    lying = planner._lift_directions(p, make_T(t=p) @ rot_x(np.radians(85)))
+    assert len(flat) == len(lying) == len(ds) - 1  # no extra direction for a flat or lying item
+
+
 def test_plate_leaning_on_the_back_wall_is_lifted_away_from_it(planner, home, inventory, cfg):
     """Seed 12 of the simulator's scenes: a side plate leans on the back wall (the glasses on it taken out);
     straight up it would slide along the wall, so the lift leaves it at an angle, re-checked by FCL."""
@@ -37,7 +52,7 @@ def test_plate_leaning_on_the_back_wall_is_lifted_away_from_it(planner, home, in
     T0 = planner.robot.fk(pick.lift.q[0])
     T1 = planner.robot.fk(pick.lift.q[-1])
     move = T1[:3, 3] - T0[:3, 3]
-    assert move[2] > 0.09 and np.linalg.norm(move[:2]) > 0.05  # up and away, not straight up
+    assert move[2] > 0.07 and np.linalg.norm(move[:2]) > 0.05  # up and away from the wall, not straight up
     checker = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
     bad = [(n, str(r)) for n, r in verify_pick(checker, planner, pick, objs, step=0.003) if not r.ok]
     assert not bad
