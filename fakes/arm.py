@@ -14,7 +14,7 @@
   it: the arm runs there and stops; ``wait`` raises ProtectiveStopError until ``unlock_protective_stop()``.
 - Faults from ``world.faults``: ``arm_disconnect`` (link down until ``connect()``), ``arm_disconnect_after``
   (the link drops that many seconds into the next motion; the arm stops there), ``protective_stop`` (next N
-  motions stop halfway), ``slip_probability`` (per motion while holding; the object drops on the way and the
+  motions stop halfway), ``slip_probability`` (per grasp: in one of the next motions while holding, the object drops on the way and the
   gripper closes on nothing).
 - ``log`` records what happened (motions, protective stops, predicted collisions, refused commands, slips,
   simulated motion time) so tests and the executive can audit a run.
@@ -464,8 +464,12 @@ class FakeArm(Arm):
                 end_u, outcome, collided = after, "disconnected", False
                 detail = f"link dropped {after:.3f} s into the motion"
         m = _Motion(kind, self.world.clock.now(), duration, q_of_u, end_u, outcome, detail)
-        if self.world.held_uid is not None and f.slip_probability > 0 and self.world.rng.random() < f.slip_probability:
-            m.slip_u = float(self.world.rng.uniform(0.2, 0.8)) * end_u
+        if self.world.held_uid is not None and self.world.slip_in_motions is not None:
+            if self.world.slip_in_motions == 0:  # this hold's slip (drawn once per grasp, see SimWorld.attach)
+                m.slip_u = float(self.world.rng.uniform(0.2, 0.8)) * end_u
+                self.world.slip_in_motions = None
+            else:
+                self.world.slip_in_motions -= 1
         self._motion = m
         self.log.motions += 1
         if collided:

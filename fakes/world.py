@@ -88,6 +88,7 @@ class SimWorld:
     planes: dict[str, TexturedPlane] = field(default_factory=dict)
     held_uid: int | None = None
     T_tcp_held: np.ndarray | None = None
+    slip_in_motions: int | None = None  # the held object slips in the motion this many motions from now
     gripper_opening: float = 0.10  # m between the finger pads; FakeGripper keeps it current (collision model)
     version: int = 0  # bumped on every geometric change (render/collision caches key on it)
 
@@ -140,9 +141,15 @@ class SimWorld:
 
     # ---- grasping -----------------------------------------------------------------------------------------
     def attach(self, uid: int) -> None:
-        """The gripper now holds `uid`; it keeps its pose relative to the TCP."""
+        """The gripper now holds `uid`; it keeps its pose relative to the TCP.
+
+        Slip is drawn once per hold (per transport): with `faults.slip_probability` the object will slip out
+        during one of the next three arm motions (lift, transit or the move to the target), chosen at random.
+        """
         self.held_uid = uid
         self.T_tcp_held = inv(self.T_base_tcp()) @ self.objects[uid].T_base_obj
+        p = self.faults.slip_probability
+        self.slip_in_motions = int(self.rng.integers(0, 3)) if p > 0 and self.rng.random() < p else None
 
     def release(self) -> int | None:
         """Let go of the held object: it drops straight down onto what is below it."""

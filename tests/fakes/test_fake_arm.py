@@ -227,12 +227,13 @@ def test_held_object_moves_with_the_tcp():
 
 def test_slip_drops_the_object_during_a_move():
     world, arm, uid = make_rig(with_cup=True)
+    world.faults.slip_probability = 1.0  # drawn once per grasp: this hold slips in one of the next 3 motions
     gripper, T_grasp = _grasp_cup(world, arm, uid)
     arm.move_linear(trans(0, 0, 0.15) @ T_grasp, speed=0.1)
-    world.faults.slip_probability = 1.0
     target = HOME.copy()
     target[0] -= 0.8  # swing over the sink
     arm.move_joints(target, speed=0.5, accel=1.0)
+    arm.move_joints(HOME, speed=0.5, accel=1.0)
     assert arm.log.slips == 1 and world.held_uid is None
     st = gripper.status()
     assert not st.holding and st.opening < 1e-3
