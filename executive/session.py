@@ -104,6 +104,11 @@ def build_runner(config, task_name: str, seed: int | None = None, *, record_path
         dataset = ScanDataset(Path(dataset_dir))
     world = robot.world
     sim = world is not None and is_simulated(config)
+    if journal is not None and sim and owns:
+        # A simulated cell assembled just now has its arm at the home pose: an earlier simulation that was
+        # killed leaves nothing to home here (real arms keep the interlock).
+        journal.recover()
+        journal.mark_homed()
     opt = options or RunOptions(poll_period=0.05 if sim else 0.01)
     runner = TaskRunner(
         robot, task, perceiver, planner, journal=journal, recorder=recorder, dataset=dataset, listeners=listeners,
