@@ -284,10 +284,9 @@ class Planner:
         for k, o in enumerate(objects):
             if o is g.obj:
                 name = object_name(o, k)
+        # The straight segments (grasp-in, lift) do not depend on the approach: plan them first, so a grasp
+        # whose lift is blocked costs no RRT-Connect query.
         base_scene.set_opening(g.spec.opening)
-        approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
-        if isinstance(approach, PlanningFailure):
-            return approach
         grasp_scene = base_scene.for_grasp(name)
         r = self._line(grasp_scene, g.q_pregrasp, g.T_base_tcp, "grasp_in")
         if isinstance(r, PlanningFailure):
@@ -306,7 +305,8 @@ class Planner:
         # stacked); an item leaning on a basin wall (or in a corner) would slide up along it, so then up and
         # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
         first: PlanningFailure | None = None
-        for d in self._lift_directions(g.T_base_tcp[:3, 3], g.obj.T_base_obj):
+        near_wall = self._near_sink_wall(g.obj)
+        for d in self._lift_directions(g.T_base_tcp[:3, 3], g.obj.T_base_obj, away_from_walls=near_wall):
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
             r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False, start_scene=start_scene,
                            start_travel=LIFT_CONTACT_TRAVEL)
@@ -318,12 +318,27 @@ class Planner:
                 first = first or CartesianPathFailed("lift: the lifted pose is within the collision margin",
                                                      {"pairs": held_scene.colliding_pairs(q_lifted), "segment": "lift"})
                 continue
+            base_scene.set_opening(g.spec.opening)
+            approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+            if isinstance(approach, PlanningFailure):
+                return approach
             return PickPlan(g, approach, grasp_in, lift, timings_ms=timings)
         return first
 
-    def _lift_directions(self, p: np.ndarray, T_base_obj: np.ndarray | None = None) -> list[np.ndarray]:
+    def _near_sink_wall(self, o: ObjectPose, clearance: float = 0.03) -> bool:
+        """Whether the object reaches within `clearance` of a basin wall (its bounding sphere)."""
+        if o.obj_id not in self.inventory.models:
+            return True
+        lo, hi = self.cell.sink_interior
+        c = np.asarray(o.T_base_obj, float)[:2, 3]
+        gap = min(float(np.min(c - np.asarray(lo, float)[:2])), float(np.min(np.asarray(hi, float)[:2] - c)))
+        return gap < self.inventory[o.obj_id].diameter / 2 + clearance
+
+    def _lift_directions(self, p: np.ndarray, T_base_obj: np.ndarray | None = None, *,
+                         away_from_walls: bool = True) -> list[np.ndarray]:
         """Unit lift directions from a grasp at `p` (base frame): up; along the object's axis when it rests
-        tilted (5 to 60 degrees; the upward one of +-z); then tilted towards the sink's middle."""
+        tilted (5 to 60 degrees; the upward one of +-z); then (`away_from_walls`) tilted towards the sink's
+        middle."""
         lo, hi = self.cell.sink_interior
         to_mid = (np.asarray(lo, float) + np.asarray(hi, float))[:2] / 2 - np.asarray(p, float)[:2]
         out = [np.array([0.0, 0.0, 1.0])]
@@ -332,7 +347,7 @@ class Planner:
             axis = axis * np.sign(axis[2]) if abs(axis[2]) > 1e-9 else axis
             if np.cos(np.radians(60)) <= axis[2] <= np.cos(np.radians(5)):
                 out.append(axis / np.linalg.norm(axis))
-        if np.linalg.norm(to_mid) < 1e-6:
+        if not away_from_walls or np.linalg.norm(to_mid) < 1e-6:
             return out
         a0 = float(np.arctan2(to_mid[1], to_mid[0]))
         for tilt, da in ((30.0, 0.0), (30.0, 60.0), (30.0, -60.0), (50.0, 0.0)):

@@ -56,3 +56,17 @@ def test_plate_leaning_on_the_back_wall_is_lifted_away_from_it(planner, home, in
     checker = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
     bad = [(n, str(r)) for n, r in verify_pick(checker, planner, pick, objs, step=0.003) if not r.ok]
     assert not bad
+
+
+def test_only_items_near_a_wall_get_the_away_from_wall_lifts(planner, inventory):
+    from kitchenbot.transforms import make_T
+
+    lo, hi = planner.cell.sink_interior
+    mid = (np.asarray(lo) + np.asarray(hi)) / 2
+    cup = inventory.by_name("cup")
+    centre = ObjectPose(cup.obj_id, "cup", make_T(t=mid), 1.0, instance_id=1)
+    by_wall = ObjectPose(cup.obj_id, "cup", make_T(t=(mid[0], hi[1] - 0.05, mid[2])), 1.0, instance_id=2)
+    assert not planner._near_sink_wall(centre) and planner._near_sink_wall(by_wall)
+    p = mid + np.array([0.0, 0.1, 0.0])
+    assert len(planner._lift_directions(p, away_from_walls=False)) == 1
+    assert len(planner._lift_directions(p, away_from_walls=True)) == 5
