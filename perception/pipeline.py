@@ -171,6 +171,9 @@ class Perceiver:
                 # (stacked / nested / touching items that segmentation could not separate).
                 explained = self._explained(hyp, m.points[sel])
                 own = sel[explained]
+                # What is left over is judged at a tighter tolerance: the peeking rim of a plate or bowl
+                # nested under this one lies within 1.5 voxels of this one's surface (stack pitch ~1 cm).
+                tight = self._explained(hyp, m.points[sel], self.settings.residual_tolerance)
                 # Explain away: points of blob parts still waiting in the queue that this pose explains are
                 # this object's too (an item cut in two by the blob partition must not be fitted twice).
                 waiting_parts = [q for q in queue if q in parts]
@@ -183,7 +186,7 @@ class Perceiver:
                         ids_out[also] = iid
                         own = np.concatenate([own, also])
                 found.append((hyp, iid, own))
-                rest = sel[~explained]
+                rest = sel[~tight]
                 if splits < self.settings.max_splits and len(rest) >= 60:
                     for part in _clusters(m.points[rest], 1.5 * vox, 60, vox / 2):
                         ids_out[rest[part]] = next_id
@@ -212,7 +215,10 @@ class Perceiver:
                     continue
                 taken = np.zeros(len(P), bool)
                 for k in kept:
-                    taken |= self._explained(k[0], P)
+                    # A copy of the same model stacked along its axis (a plate under a plate) shares most of
+                    # its visible surface within 1.5 voxels: judged at the tight residual tolerance.
+                    tol = self.settings.residual_tolerance if self._stacked(k[0], hyp) else 1.5
+                    taken |= self._explained(k[0], P, tol)
                 if taken.mean() > 0.6:
                     continue
                 kept.append([hyp, iid, own])
@@ -277,13 +283,27 @@ class Perceiver:
         across = np.linalg.norm(d - (d @ z) * z)
         return across < 0.2 * model.diameter and along < 0.12 * float(model.extents[2])
 
-    def _explained(self, hyp: Hypothesis, points: np.ndarray) -> np.ndarray:
-        """Which points lie on the posed model's surface (within 1.5 voxels)."""
+    def _stacked(self, a: Hypothesis, b: Hypothesis) -> bool:
+        """Same model, axes within 30 deg, centres apart along the axis by more than 0.12 height and across
+        by under half a diameter (nested or stacked copies)."""
+        if a.obj_id != b.obj_id:
+            return False
+        model = self.inventory[a.obj_id]
+        z = a.T_base_obj[:3, 2]
+        if abs(z @ b.T_base_obj[:3, 2]) < np.cos(np.radians(30)):
+            return False
+        d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
+        along = abs(d @ z)
+        across = np.linalg.norm(d - (d @ z) * z)
+        return across < 0.5 * model.diameter and along >= 0.12 * float(model.extents[2])
+
+    def _explained(self, hyp: Hypothesis, points: np.ndarray, voxels: float = 1.5) -> np.ndarray:
+        """Which points lie on the posed model's surface (within `voxels` voxels)."""
         if len(points) == 0:
             return np.zeros(0, bool)
         Ti = inv(hyp.T_base_obj)
         d, _ = self.database[hyp.obj_id].tree.query(points @ Ti[:3, :3].T + Ti[:3, 3],
-                                                     distance_upper_bound=1.5 * self.settings.voxel_size)
+                                                     distance_upper_bound=voxels * self.settings.voxel_size)
         return np.isfinite(d)
 
     def estimate(self, inst: InstanceMap, views: list[View], found: list[Hypothesis] = ()) -> tuple[Hypothesis | None, FusedCloud]:
