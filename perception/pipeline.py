@@ -33,6 +33,11 @@ from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.transforms import inv
 
 
+# Classes whose items nest / stack on copies of themselves (a plate on a plate, a bowl in a bowl, a cup in a
+# cup): what a pose of one of them leaves over is re-fitted at the tight tolerance.
+NESTING_CLASSES = ("plate", "bowl", "cup")
+
+
 @dataclass
 class PerceptionResult:
     poses: list[ObjectPose]
@@ -173,7 +178,9 @@ class Perceiver:
                 own = sel[explained]
                 # What is left over is judged at a tighter tolerance: the peeking rim of a plate or bowl
                 # nested under this one lies within 1.5 voxels of this one's surface (stack pitch ~1 cm).
-                tight = self._explained(hyp, m.points[sel], self.settings.residual_tolerance)
+                tight = explained
+                if self.inventory[hyp.obj_id].cls in NESTING_CLASSES:
+                    tight = self._explained(hyp, m.points[sel], self.settings.residual_tolerance)
                 # Explain away: points of blob parts still waiting in the queue that this pose explains are
                 # this object's too (an item cut in two by the blob partition must not be fitted twice).
                 waiting_parts = [q for q in queue if q in parts]
