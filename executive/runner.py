@@ -169,6 +169,7 @@ class _Pending:
     target_view: View | None
     staging: bool = False  # set down upright on the counter to be grasped again (regrasp)
     staged: Any = None  # the tasks.Placed record this object was picked up from (a staged object)
+    near_before: int = 1  # same-class objects within gone_radius of it in the scan it was picked from
 
 
 # ---- the runner --------------------------------------------------------------------------------------------------------
@@ -665,7 +666,8 @@ class TaskRunner:
         # planner may release higher up when the gripper cannot reach lower; the object then drops).
         T_expected = np.array(place.T_base_obj, float)
         T_expected[2, 3] = min(T_expected[2, 3], float(place.target.T_base_obj[2, 3]))
-        self.pending = _Pending(obj, place.target, T_expected, view, self.staging, self.current_staged)
+        self.pending = _Pending(obj, place.target, T_expected, view, self.staging, self.current_staged,
+                                near_before=max(1, len(self._same_class_near(obj))))
         return "executed"
 
     def _do_verify(self) -> str:
@@ -709,14 +711,20 @@ class TaskRunner:
             return "give_up"
         return "complete"
 
+    def _same_class_near(self, obj: ObjectPose) -> list[ObjectPose]:
+        return [q for q in self.poses if q.cls == obj.cls and
+                np.linalg.norm(q.T_base_obj[:3, 3] - obj.T_base_obj[:3, 3]) < self.opt.gone_radius]
+
     def _verify_pending(self) -> None:
         """Verify the last placement against fresh poses: gone from the sink, present at its target."""
         p = self.pending
         if p is None:
             return
         self.pending = None
-        still = [q for q in self.poses if q.cls == p.obj.cls and
-                 np.linalg.norm(q.T_base_obj[:3, 3] - p.obj.T_base_obj[:3, 3]) < self.opt.gone_radius]
+        # Gone when fewer same-class objects are seen there than before the pick: the top plate of a stack
+        # leaves the one nested below it within gone_radius.
+        near = self._same_class_near(p.obj)
+        still = near if len(near) >= p.near_before else []
         presence = None
         if p.target_view is not None:
             presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
