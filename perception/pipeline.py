@@ -176,8 +176,9 @@ class Perceiver:
                 # (stacked / nested / touching items that segmentation could not separate).
                 explained = self._explained(hyp, m.points[sel])
                 own = sel[explained]
-                # What is left over is judged at a tighter tolerance: the peeking rim of a plate or bowl
-                # nested under this one lies within 1.5 voxels of this one's surface (stack pitch ~1 cm; 0.8 voxel by default).
+                # After a plate / bowl / cup, what is left over is judged at a tighter tolerance (setting
+                # residual_tolerance, 0.8 voxel): the peeking rim of a copy nested under this one lies within
+                # 1.5 voxels of this one's surface (stack pitch ~1 cm).
                 tight = explained
                 if self.inventory[hyp.obj_id].cls in NESTING_CLASSES:
                     tight = self._explained(hyp, m.points[sel], self.settings.residual_tolerance)
