@@ -6,6 +6,7 @@ Real implementations live beside them (UR over RTDE, Dynamixel gripper, OAK-D ca
 
 from kitchenbot.drivers.arm import Arm, ArmState, SafetyState
 from kitchenbot.drivers.camera import Camera, Frame
+from kitchenbot.drivers.device import Device
 from kitchenbot.drivers.errors import (
     DeviceNotConnectedError,
     DriverError,
@@ -22,6 +23,7 @@ __all__ = [
     "Arm",
     "ArmState",
     "Camera",
+    "Device",
     "DeviceNotConnectedError",
     "DriverError",
     "DriverTimeoutError",

@@ -8,11 +8,12 @@ Public methods validate every command through :class:`SafetyLimits` and then cal
 from __future__ import annotations
 
 import enum
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
 
+from kitchenbot.drivers.device import Device
 from kitchenbot.drivers.errors import (
     DeviceNotConnectedError,
     EmergencyStopError,
@@ -40,23 +41,12 @@ class ArmState:
     stamp: float  # seconds (driver clock)
 
 
-class Arm(ABC):
+class Arm(Device):
     """A 6-axis arm. Units: radians, metres, seconds."""
 
     def __init__(self, model: URModel, limits: SafetyLimits):
         self.model = model
         self.limits = limits
-
-    # ---- connection -------------------------------------------------------------------------------
-    @abstractmethod
-    def connect(self) -> None: ...
-
-    @abstractmethod
-    def disconnect(self) -> None: ...
-
-    @property
-    @abstractmethod
-    def is_connected(self) -> bool: ...
 
     # ---- state ------------------------------------------------------------------------------------
     @abstractmethod

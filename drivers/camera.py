@@ -6,10 +6,12 @@ Implementations: ``drivers.oakd_camera.OakDCamera`` (real), ``drivers.replay_cam
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+
+from kitchenbot.drivers.device import Device
 
 
 @dataclass
@@ -35,17 +37,7 @@ class Frame:
         return self.rgb.shape[1], self.rgb.shape[0]
 
 
-class Camera(ABC):
-    @abstractmethod
-    def connect(self) -> None: ...
-
-    @abstractmethod
-    def disconnect(self) -> None: ...
-
-    @property
-    @abstractmethod
-    def is_connected(self) -> bool: ...
-
+class Camera(Device):
     @abstractmethod
     def capture(self, timeout: float = 2.0) -> Frame:
         """The next synchronised RGB-D frame; DriverTimeoutError if none arrives in time."""

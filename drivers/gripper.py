@@ -7,8 +7,10 @@ fingers stall on the object (current-based position mode on a Dynamixel).
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass
+
+from kitchenbot.drivers.device import Device
 
 
 @dataclass
@@ -29,19 +31,9 @@ class GraspResult:
     current: float  # A
 
 
-class Gripper(ABC):
+class Gripper(Device):
     max_opening: float  # m
     max_current: float  # A
-
-    @abstractmethod
-    def connect(self) -> None: ...
-
-    @abstractmethod
-    def disconnect(self) -> None: ...
-
-    @property
-    @abstractmethod
-    def is_connected(self) -> bool: ...
 
     @abstractmethod
     def open(self, opening: float | None = None, timeout: float = 3.0) -> None:
