@@ -278,31 +278,32 @@ class Perceiver:
         sim = float(f @ entry.ref.cls_token / max(np.linalg.norm(f), 1e-12))
         return 0.6 + 0.4 * max(0.0, sim)
 
-    def _same_place(self, a: Hypothesis, b: Hypothesis) -> bool:
-        """Same model, axes within 30 deg, centres closer than 0.2 diameter across and 0.12 height along."""
+    def _offset(self, a: Hypothesis, b: Hypothesis):
+        """(model, distance along a's axis, distance across it) for two copies of one model whose axes are
+        within 30 deg; None otherwise."""
         if a.obj_id != b.obj_id:
-            return False
-        model = self.inventory[a.obj_id]
+            return None
         z = a.T_base_obj[:3, 2]
         if abs(z @ b.T_base_obj[:3, 2]) < np.cos(np.radians(30)):
-            return False
+            return None
         d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
-        along = abs(d @ z)
-        across = np.linalg.norm(d - (d @ z) * z)
+        return self.inventory[a.obj_id], abs(d @ z), np.linalg.norm(d - (d @ z) * z)
+
+    def _same_place(self, a: Hypothesis, b: Hypothesis) -> bool:
+        """Same model, axes within 30 deg, centres closer than 0.2 diameter across and 0.12 height along."""
+        off = self._offset(a, b)
+        if off is None:
+            return False
+        model, along, across = off
         return across < 0.2 * model.diameter and along < 0.12 * float(model.extents[2])
 
     def _stacked(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Same model, axes within 30 deg, centres apart along the axis by more than 0.12 height and across
         by under half a diameter (nested or stacked copies)."""
-        if a.obj_id != b.obj_id:
+        off = self._offset(a, b)
+        if off is None:
             return False
-        model = self.inventory[a.obj_id]
-        z = a.T_base_obj[:3, 2]
-        if abs(z @ b.T_base_obj[:3, 2]) < np.cos(np.radians(30)):
-            return False
-        d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
-        along = abs(d @ z)
-        across = np.linalg.norm(d - (d @ z) * z)
+        model, along, across = off
         return across < 0.5 * model.diameter and along >= 0.12 * float(model.extents[2])
 
     def _explained(self, hyp: Hypothesis, points: np.ndarray, voxels: float = 1.5) -> np.ndarray:
