@@ -262,6 +262,11 @@ def test_sync_and_bulk_instructions(emu):
         sw = GroupSyncWrite(port, ph, 102, 2)  # Goal Current
         assert sw.addParam(1, [0x2C, 0x01])  # 300
         assert sw.txPacket() == 0
+        # Sync Write has no status packet: the SDK returns once the bytes are sent, before the emulator (another
+        # process) has parsed them. Wait for the write to land rather than racing it.
+        deadline = time.monotonic() + 5.0
+        while emu.state()["goal_current"] != 300 and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert emu.state()["goal_current"] == 300
         sr = GroupSyncRead(port, ph, 102, 2)
         assert sr.addParam(1)
