@@ -185,7 +185,7 @@ def test_silent_servo_times_out_after_retries(emu, gripper):
     t0 = time.monotonic()
     with pytest.raises(DriverTimeoutError, match=r"no valid answer .* after 3 tries"):
         gripper.status()
-    assert 0.3 <= time.monotonic() - t0 < 1.5  # 3 tries x 100 ms
+    assert 0.3 <= time.monotonic() - t0 < 5.0  # 3 tries x 100 ms (upper bound loose: a loaded CI host)
     emu.set_silent(False)
     assert gripper.status().error is None  # recovers once the servo answers again
 
@@ -196,7 +196,7 @@ def test_stopped_emulator_gives_a_driver_error_not_a_hang(emu, gripper):
     with pytest.raises(DriverError) as exc:
         gripper.status()
     assert isinstance(exc.value, (DriverTimeoutError, DeviceNotConnectedError))
-    assert time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 < 5.0  # no hang (loose bound: a loaded CI host)
 
 
 def test_connect_to_a_silent_bus_names_port_id_and_baud(emu):
