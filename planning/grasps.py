@@ -61,6 +61,25 @@ def closing_volume(opening: float, pad_width: float, pad_root: float, pad_tip: f
     return coal.Box(pad_width, max(opening, 1e-3), pad_tip - pad_root), make_T(t=(0.0, 0.0, (pad_root + pad_tip) / 2))
 
 
+# A Fin-Ray pad wraps a few millimetres around the contact: its sweep reaches this far past the expected width.
+PAD_WRAP = 0.003
+
+
+def pad_sweeps(opening: float, width: float, pad_width: float, pad_root: float,
+               pad_tip: float) -> list[tuple[coal.Box, np.ndarray]]:
+    """The space each pad sweeps while closing from `opening` onto an item `width` wide: two boxes (TCP frame).
+
+    Whatever else lies there is pushed or taken in with the target. What lies between the closed pads but
+    outside the sweeps (the next plate of a stack, under the target's rim on the side where the target
+    overhangs it) is shielded by the target and stays where it is."""
+    inner = max(width / 2 - PAD_WRAP, 0.0)
+    outer = max(opening / 2, inner + 1e-3)
+    zc, depth = (pad_root + pad_tip) / 2, pad_tip - pad_root
+    yc = (inner + outer) / 2
+    box = coal.Box(pad_width, outer - inner, depth)
+    return [(box, make_T(t=(0.0, yc, zc))), (box, make_T(t=(0.0, -yc, zc)))]
+
+
 # +-5 deg: nearly level, but the wrist rides ~2 cm higher (clears a counter the item stands on) and the approach
 # still counts as from above when the item is turned upside down (sin 5 deg < max_approach_up 0.1);
 # +-30/50 deg: from above into a sink, where a 20 cm tool cannot come in level below the counter top.
@@ -169,61 +188,61 @@ def select_grasps(
         grasp_scene = scenes[k]
         others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
                   if j != k and objects[j].obj_id in inventory.models]
-        # multi-object grasp: another object inside the closing volume
-        vol, T_tcp_vol = closing_volume(spec.opening, gripper.pad_width, gripper.pad_root, gripper.pad_tip)
-        T_vol = _tf(T @ T_tcp_vol)
+        # multi-object grasp: another object where a pad sweeps while closing
+        sweeps = [(vol, _tf(T @ T_v)) for vol, T_v in
+                  pad_sweeps(spec.opening, spec.width, gripper.pad_width, gripper.pad_root, gripper.pad_tip)]
         taken_in = False
         for po, pm in others:
             if np.linalg.norm(po.T_base_obj[:3, 3] - T[:3, 3]) > pm.diameter / 2 + 0.15:
                 continue
-            if coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, coal.CollisionResult()):
+            if any(coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, coal.CollisionResult())
+                   for vol, T_vol in sweeps):
                 taken_in = True
                 break
         if taken_in:
             st.multi_object += 1
             continue
         grasp_scene.set_opening(spec.opening)
-        ik = None
+        q_grasp = None
         reached = False
         # A Fin-Ray grasp still holds with a shallower bite: back off along the approach (up to 8 mm)
-        # when the finger tips would touch what the object rests on.
-        q_seed = None
+        # when the finger tips would touch what the object rests on. Every IK branch is tried, nearest to
+        # the current configuration first (the nearest one's forearm often hits a basin wall where another
+        # branch's does not); numerical IK covers wrist-singular poses, where the closed form gives none.
         for back in (0.0, 0.004, 0.008):
             Tb = T @ trans(0.0, 0.0, -back)
-            ik = robot.ik(Tb, q_current if q_seed is None else q_seed, max_seeds=6 if q_seed is None else 0,
-                          max_iter=40)
-            if q_seed is None and ik.q is None:
+            branches = robot.ik_all(Tb, q_current)
+            if not branches:
+                ik = robot.ik(Tb, q_current, max_seeds=6, max_iter=40)
+                branches = [ik.q] if ik.q is not None else []
+            if back == 0.0 and not branches:
                 break  # unreachable: backing off 8 mm will not change that
-            q_seed = ik.q
-            if ik.q is None:
-                continue
-            reached = True
-            if grasp_scene.valid(ik.q):
-                T = Tb
+            for qb in branches:
+                reached = True
+                if not grasp_scene.valid(qb):
+                    continue
+                q_pre = robot.ik(Tb @ trans(0.0, 0.0, -settings.approach_distance), qb, max_seeds=0).q
+                if q_pre is None or not scene.valid(q_pre):
+                    continue  # this branch's pre-grasp is unreachable or blocked: try the next branch
+                q_grasp, T = qb, Tb
                 break
-            ik = None
-        if ik is None or ik.q is None:
+            if q_grasp is not None:
+                break
+        if q_grasp is None:
             if reached:
                 st.in_collision += 1
             else:
                 st.no_ik += 1
             continue
         T_pre = T @ trans(0.0, 0.0, -settings.approach_distance)
-        ik_pre = robot.ik(T_pre, ik.q, max_seeds=0)
-        if ik_pre.q is None:
-            st.no_ik += 1
-            continue
-        if not scene.valid(ik_pre.q):
-            st.in_collision += 1
-            continue
         if grasp_filter is not None and not grasp_filter(o, spec, T):
             st.no_placement += 1
             continue
-        clearance = grasp_scene.min_distance(ik.q, ("palm", "pad_a", "pad_b", "camera"), exclude=(f"obj:{names[k]}",))
-        motion = float(np.max(np.abs(ik_pre.q - q_current)))
+        clearance = grasp_scene.min_distance(q_grasp, ("palm", "pad_a", "pad_b", "camera"), exclude=(f"obj:{names[k]}",))
+        motion = float(np.max(np.abs(q_pre - q_current)))
         down = -T[2, 2]  # 1 = straight down
         score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
-        out.append(Grasp(spec, o, T, ik.q, ik_pre.q, T_pre, float(score), float(clearance)))
+        out.append(Grasp(spec, o, T, q_grasp, q_pre, T_pre, float(score), float(clearance)))
         st.feasible += 1
     if out:
         out.sort(key=lambda g: -g.score)

@@ -22,6 +22,7 @@ from scipy.linalg.lapack import dgesv as _dgesv
 
 from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import URModel, ur_model
+from kitchenbot.planning.ur_ik import ik_flange
 
 JOINT_NAMES = (
     "shoulder_pan_joint",
@@ -223,6 +224,19 @@ class RobotModel:
             if found > extra_solutions or d < 0.3:  # close to current: nothing will beat it by much
                 break
         return IKResult(best_q, iters, tried, best_err)
+
+    def ik_all(self, T_base_tcp: np.ndarray, q_ref: np.ndarray) -> list[np.ndarray]:
+        """Every closed-form IK branch (planning.ur_ik) reaching `T_base_tcp` inside the joint limits, each joint
+        wrapped to the value nearest `q_ref`; sorted by max-abs joint distance to `q_ref` (nearest first)."""
+        q_ref = np.asarray(q_ref, float)
+        T_base_flange = np.asarray(T_base_tcp, float) @ np.linalg.inv(self.T_flange_tcp)
+        out = []
+        for q in ik_flange(self.ur, T_base_flange):
+            qw = self.wrap_near(q, q_ref)
+            if qw is not None:
+                out.append(qw)
+        out.sort(key=lambda q: float(np.max(np.abs(q - q_ref))))
+        return out
 
     def ik_q(self, T_base_tcp: np.ndarray, q_current: np.ndarray, **kw) -> np.ndarray | None:
         return self.ik(T_base_tcp, q_current, **kw).q

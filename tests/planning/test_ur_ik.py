@@ -1,0 +1,51 @@
+"""Closed-form UR IK: every branch reaches the pose, and the configuration the pose came from is among them."""
+
+import numpy as np
+import pytest
+
+from kitchenbot.drivers.ur_kinematics import fk_flange, ur_model
+from kitchenbot.executive.config import load_config
+from kitchenbot.planning.robot import RobotModel
+from kitchenbot.planning.ur_ik import ik_flange
+
+
+@pytest.mark.parametrize("name", ["ur3e", "ur5e", "ur10e"])
+def test_all_branches_reach_the_pose_and_include_the_source(name):
+    m = ur_model(name)
+    rng = np.random.default_rng(4)
+    counts = []
+    for _ in range(100):
+        q = rng.uniform(-np.pi, np.pi, 6)
+        T = fk_flange(m, q)
+        sols = ik_flange(m, T)
+        counts.append(len(sols))
+        for s in sols:
+            np.testing.assert_allclose(fk_flange(m, s), T, atol=1e-6)
+        wrapped = (q + np.pi) % (2 * np.pi) - np.pi
+        assert any(np.max(np.abs((s - wrapped + np.pi) % (2 * np.pi) - np.pi)) < 1e-6 for s in sols)
+        # distinct branches
+        assert len({tuple(np.round(s, 6)) for s in sols}) == len(sols)
+    assert max(counts) == 8 and np.mean(counts) > 6
+
+
+def test_out_of_reach_gives_no_solution():
+    m = ur_model("ur5e")
+    T = np.eye(4)
+    T[:3, 3] = (2.0, 0.0, 0.3)
+    assert ik_flange(m, T) == []
+
+
+def test_robot_model_branches_are_sorted_and_inside_limits():
+    cfg = load_config("config/sim.yaml")
+    r = RobotModel.from_config(cfg)
+    q0 = np.asarray(cfg.robot.home, float)
+    q = q0 + np.array([0.3, -0.2, 0.25, 0.1, -0.3, 0.4])
+    T = r.fk_tcp(q)
+    sols = r.ik_all(T, q0)
+    assert len(sols) >= 4
+    d = [float(np.max(np.abs(s - q0))) for s in sols]
+    assert d == sorted(d)
+    assert np.max(np.abs(sols[0] - q)) < 1e-6  # the nearest branch is the one the pose came from
+    for s in sols:
+        assert r.within_limits(s)
+        np.testing.assert_allclose(r.fk_tcp(s), T, atol=1e-6)
