@@ -197,6 +197,7 @@ class CollisionWorld:
         *,
         margin: float = 0.01,
         grasp_margin: float = 0.002,
+        pad_contact_radius: float = 0.025,
         gripper: GripperGeometry | None = None,
         voxel_size: float = 0.02,
     ):
@@ -205,6 +206,7 @@ class CollisionWorld:
         self.T_flange_cam = None if T_flange_cam is None else np.asarray(T_flange_cam, float)
         self.margin = float(margin)
         self.grasp_margin = float(grasp_margin)
+        self.pad_contact_radius = float(pad_contact_radius)
         self.gripper = gripper or GripperGeometry()
         self.voxel_size = float(voxel_size)
         self.capsules = link_capsules(robot)
@@ -357,6 +359,7 @@ class Scene:
         self._ws_lo = np.asarray(robot.limits.workspace.lower, float)
         self._ws_hi = np.asarray(robot.limits.workspace.upper, float)
         self.pair_names = [(self.names[p.first], self.names[p.second]) for p in gm.collisionPairs]
+        self._zone: tuple[Scene, int, float] | None = None  # (strict variant, target geometry, radius): for_grasp
         self._set_margins({}, world.margin)
 
     @property
@@ -404,6 +407,7 @@ class Scene:
         other.gd = pin.GeometryData(self.gm)
         other._bp = None
         other._pool_obj, other._pool_version = None, -1
+        other._zone = None
         return other
 
     def for_grasp(self, target_name: str | None, *, pads_only: bool = True) -> "Scene":
@@ -415,6 +419,7 @@ class Scene:
         other.gd = pin.GeometryData(self.gm)
         other._bp = None
         other._pool_obj, other._pool_version = None, -1
+        other._zone = None
         allowed: dict[tuple[str, str], bool] = {}
         if target_name is not None:
             tgt = f"obj:{target_name}"
@@ -423,6 +428,14 @@ class Scene:
                 if (a == tgt and b in parts) or (b == tgt and a in parts):
                     allowed[(a, b)] = True
         other._set_margins(allowed, self.world.margin, self.world.grasp_margin)
+        if allowed and self.world.pad_contact_radius >= 0:
+            # The pads may touch the target only while closing around it: while the TCP is within
+            # `pad_contact_radius` of the target's surface. Farther out a pad touching it (e.g. a finger through a
+            # mug's handle while it slides in) pushes or hits it; there the strict variant decides.
+            strict = self._variant()
+            strict._set_margins({}, self.world.margin, self.world.grasp_margin)
+            gid = self.names.index(f"obj:{target_name}")
+            other._zone = (strict, gid, self.world.pad_contact_radius)
         return other
 
     def for_release(self, target_name: str | None = None) -> "Scene":
@@ -451,7 +464,25 @@ class Scene:
             return False
         # the TCP must stay inside the safety workspace (the Arm refuses trajectories that leave it)
         p = self.data.oMi[6].act(self._tcp_in_j6)
-        return not ((p < self._ws_lo).any() or (p > self._ws_hi).any())
+        if (p < self._ws_lo).any() or (p > self._ws_hi).any():
+            return False
+        if self._zone is not None and not self._zone[0].valid(q):
+            return bool(self._in_contact_zone(p[None])[0])
+        return True
+
+    def _in_contact_zone(self, P: np.ndarray) -> np.ndarray:
+        """Whether each TCP position (N, 3) is within the pad-contact radius of the grasp target's surface."""
+        _, gid, radius = self._zone
+        go = self.gm.geometryObjects[gid]
+        T_obj = coal.Transform3s(go.placement.rotation, go.placement.translation)  # env objects hang off the base
+        probe = coal.Sphere(1e-4)
+        req = coal.DistanceRequest()
+        out = np.zeros(len(P), bool)
+        for i, p in enumerate(P):
+            d = coal.distance(probe, coal.Transform3s(np.eye(3), np.asarray(p, float)), go.geometry, T_obj, req,
+                              coal.DistanceResult())
+            out[i] = d <= radius
+        return out
 
     def _pool(self):
         """Pinocchio's batch checker (C++ loop over configurations, same broad phase, this scene's pair
@@ -479,6 +510,11 @@ class Scene:
             idx = np.flatnonzero(ok)
             hit = np.asarray(pin.computeCollisionsInParallel(1, self._pool(), np.ascontiguousarray(Q[idx].T), True, False), bool)
             ok[idx[hit]] = False
+        if self._zone is not None and ok.any():
+            idx = np.flatnonzero(ok)
+            touching = idx[~self._zone[0].valid_batch(Q[idx])]  # valid only thanks to the allowed pad contacts
+            if len(touching):
+                ok[touching] = self._in_contact_zone(p[touching])
         return ok
 
     def first_invalid(self, Q: np.ndarray, chunk: int = 128) -> int:
@@ -491,6 +527,10 @@ class Scene:
         return -1
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
+        if self._zone is not None:
+            p = tcp_positions(self.world.robot, np.asarray(q, float).reshape(1, 6))
+            if not self._in_contact_zone(p)[0]:
+                return self._zone[0].colliding_pairs(q)
         pin.computeCollisions(self.model, self.data, self.gm, self.gd, np.asarray(q, float), False)
         out = []
         for k, r in enumerate(self.gd.collisionResults):

@@ -101,3 +101,42 @@ def test_batch_check_agrees_with_single_checks(planner, home, resting):
             np.testing.assert_array_equal(scene.valid_batch(Q), single)
             k = scene.first_invalid(Q)
             assert k == (int(np.argmin(single)) if not single.all() else -1)
+
+
+def test_pads_touching_the_target_far_from_the_grasp_point_collide(planner, cfg, home):
+    """A mug lying on its side (sim seed 9): its side grasp at 30 degrees to the handle puts the handle through
+    one finger while the TCP sits in the mug's body, 3.5 cm from any wall. The simulator (fakes/collision.py)
+    allows finger contacts only within 3 cm of the TCP; the planner allowed pad contacts with the target
+    anywhere, planned the grasp-in and the FakeArm stopped on it. The planner must refuse it too."""
+    from kitchenbot.fakes.collision import SimCollision
+    from kitchenbot.fakes.world import SimWorld
+    from kitchenbot.perception.types import ObjectPose
+
+    mug = planner.inventory.by_name("mug")
+    T_obj = np.array([[-0.0961, 0.22261, -0.97016, 0.47689],
+                      [-0.96138, 0.23176, 0.14841, 0.02726],
+                      [0.25788, 0.94696, 0.19174, -0.00073],
+                      [0.0, 0.0, 0.0, 1.0]])
+    T_obj[:3, :3] = np.linalg.svd(T_obj[:3, :3])[0] @ np.linalg.svd(T_obj[:3, :3])[2]  # re-orthonormalised
+    # the side grasp the planner chose then (closing axis 30 degrees off the handle, tilted 5 degrees), fully open
+    T_obj_tcp = np.array([[-0.04358, -0.86603, -0.49810, -0.017],
+                          [-0.07548, 0.5, -0.86275, 0.0],
+                          [0.99619, 0.0, -0.08716, 0.005],
+                          [0.0, 0.0, 0.0, 1.0]])
+    T_obj_tcp[:3, :3] = np.linalg.svd(T_obj_tcp[:3, :3])[0] @ np.linalg.svd(T_obj_tcp[:3, :3])[2]
+    opening = 0.10
+    q = planner.robot.ik_q(T_obj @ T_obj_tcp, home)
+    assert q is not None
+    # the simulated physics: a finger hits the mug
+    world = SimWorld(planner.cell, planner.inventory, T_flange_tcp=planner.robot.T_flange_tcp,
+                     T_flange_cam=cfg.T_flange_cam(), q=home.copy())
+    world.add_object(mug, T_obj)
+    contact = SimCollision(world).check_config(q, opening)
+    assert contact is not None and contact.part.startswith("finger") and contact.other == "obj:1", contact
+    # the planner: the grasp scene refuses it, naming the pad and the mug
+    scene = planner.scene([ObjectPose(mug.obj_id, "mug", T_obj, 1.0, instance_id=1)])
+    grasp = scene.for_grasp("1")
+    grasp.set_opening(opening)
+    assert not grasp.valid(q)
+    assert not grasp.valid_batch(q[None])[0]
+    assert any("obj:1" in p and ("pad_a" in p or "pad_b" in p) for p in grasp.colliding_pairs(q))
