@@ -24,7 +24,7 @@ from kitchenbot.drivers.ur_kinematics import ur_model
 from kitchenbot.perception.cell import Cell
 from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.collision import CollisionWorld, Held, Scene, SceneObject
+from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.motion import cartesian_line, plan_joint_path
 from kitchenbot.planning.robot import RobotModel
@@ -299,16 +299,26 @@ class Planner:
         lift_scene = held_scene.for_release(None)
         # contacts the held object has where it rests (its support, a stack) may last for the first few
         # centimetres; anything else it would touch is checked from the start
-        start_contacts = [p for p in lift_scene.colliding_pairs(q_grasp) if "held" in p]
+        at_grasp = lift_scene.colliding_pairs(q_grasp)
+        start_contacts = [p for p in at_grasp if "held" in p]
         start_scene = lift_scene.allowing(start_contacts)
+        # The fingers too start within the transport margin of what lies next to or under the item (the plate
+        # below in a stack): grasp_in checked them with the grasp margin. Lifting straight up (or along the
+        # item's own axis) moves them away, so those pairs are not checked for the first few centimetres.
+        tool_contacts = [p for p in at_grasp if p not in start_contacts and any(x in TOOL_PARTS for x in p)]
+        vertical_start_scene = lift_scene.allowing(start_contacts + tool_contacts) if tool_contacts else start_scene
         # Straight up first; an item resting tilted in a stack comes off along its own axis (as it was
         # stacked); an item leaning on a basin wall (or in a corner) would slide up along it, so then up and
         # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
         first: PlanningFailure | None = None
         near_wall = self._near_sink_wall(g.obj)
-        for d in self._lift_directions(g.T_base_tcp[:3, 3], g.obj.T_base_obj, away_from_walls=near_wall):
+        directions = self._lift_directions(g.T_base_tcp[:3, 3], g.obj.T_base_obj, away_from_walls=near_wall)
+        for k, d in enumerate(directions):
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
-            r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False, start_scene=start_scene,
+            # the first one or two directions are straight up and along the item's axis (see _lift_directions)
+            along = k == 0 or (k == 1 and self._tilted_axis(g.obj.T_base_obj) is not None)
+            r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False,
+                           start_scene=vertical_start_scene if along else start_scene,
                            start_travel=LIFT_CONTACT_TRAVEL)
             if isinstance(r, PlanningFailure):
                 first = first or r
@@ -334,6 +344,17 @@ class Planner:
         gap = min(float(np.min(c - np.asarray(lo, float)[:2])), float(np.min(np.asarray(hi, float)[:2] - c)))
         return gap < self.inventory[o.obj_id].diameter / 2 + clearance
 
+    @staticmethod
+    def _tilted_axis(T_base_obj: np.ndarray | None) -> np.ndarray | None:
+        """The item's axis (upward, unit) when it rests tilted by 5 to 60 degrees, else None."""
+        if T_base_obj is None:
+            return None
+        axis = np.asarray(T_base_obj, float)[:3, 2]
+        axis = axis * np.sign(axis[2]) if abs(axis[2]) > 1e-9 else axis
+        if np.cos(np.radians(60)) <= axis[2] <= np.cos(np.radians(5)):
+            return axis / np.linalg.norm(axis)
+        return None
+
     def _lift_directions(self, p: np.ndarray, T_base_obj: np.ndarray | None = None, *,
                          away_from_walls: bool = True) -> list[np.ndarray]:
         """Unit lift directions from a grasp at `p` (base frame): up; along the object's axis when it rests
@@ -342,11 +363,9 @@ class Planner:
         lo, hi = self.cell.sink_interior
         to_mid = (np.asarray(lo, float) + np.asarray(hi, float))[:2] / 2 - np.asarray(p, float)[:2]
         out = [np.array([0.0, 0.0, 1.0])]
-        if T_base_obj is not None:
-            axis = np.asarray(T_base_obj, float)[:3, 2]
-            axis = axis * np.sign(axis[2]) if abs(axis[2]) > 1e-9 else axis
-            if np.cos(np.radians(60)) <= axis[2] <= np.cos(np.radians(5)):
-                out.append(axis / np.linalg.norm(axis))
+        axis = self._tilted_axis(T_base_obj)
+        if axis is not None:
+            out.append(axis)
         if not away_from_walls or np.linalg.norm(to_mid) < 1e-6:
             return out
         a0 = float(np.arctan2(to_mid[1], to_mid[0]))
