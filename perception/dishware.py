@@ -24,12 +24,18 @@ class DishSpec:
     outer: tuple[tuple[float, float], ...]  # (r, z) outer profile from the bottom centre to the rim, metres
     thickness: float
     handle: bool = False
+    # (outer radius, radial width, height) of a foot ring under the body (bowls), metres; `outer` then starts
+    # at the body's underside, `height` above the bottom, and the ring is added below it
+    foot: tuple[float, float, float] | None = None
 
 
-def _profile_closed(outer: np.ndarray, thickness: float) -> np.ndarray:
+def _profile_closed(outer: np.ndarray, thickness: float,
+                    foot: tuple[float, float, float] | None = None) -> np.ndarray:
     """Closed (r, z) loop: outer wall bottom->rim, then the inner wall rim->bottom offset by `thickness`.
 
     The inner wall is the outer one offset along its inward normal; the loop starts and ends on the axis.
+    With `foot` = (outer radius, width, height) a solid foot ring (chamfered 1 mm at its standing edge) is
+    added under the body's underside, which `outer` starts at (z = height).
     """
     pts = np.asarray(outer, float)
     # Tangents and inward normals (pointing towards the axis/up, i.e. inside the vessel).
@@ -48,6 +54,16 @@ def _profile_closed(outer: np.ndarray, thickness: float) -> np.ndarray:
     if perp[1] < 0:
         perp = -perp
     rim = c + r * (np.cos(ang)[:, None] * d + np.sin(ang)[:, None] * perp)
+    if foot is not None:
+        ro, w, h = foot
+        ri, c = ro - w, 0.001
+        if not (0 < ri and abs(pts[0, 1] - h) < 1e-9 and pts[0, 0] == 0 and pts[1, 0] >= ro):
+            raise ValueError(f"foot {foot}: the body profile must start on the axis at z = {h} and its underside "
+                             f"must reach past the ring's outer radius")
+        ring = np.array([[ri, h], [ri, c], [ri + c, 0.0], [ro - c, 0.0], [ro, c], [ro, h]])
+        if pts[1, 0] - ro < 1e-9:
+            ring = ring[:-1]
+        pts = np.vstack([pts[:1], ring, pts[1:]])
     loop = np.vstack([pts, rim, inner[::-1]])
     return loop
 
@@ -118,10 +134,23 @@ def _vessel(r_bottom: float, r_top: float, height: float, belly: float = 0.0) ->
     return ((0.0, 0.0), (r_bottom - 0.006, 0.0), (r_bottom - 0.002, 0.002)) + tuple(zip(rs, zs))
 
 
+def _bowl_body(r_bottom: float, r_top: float, height: float, foot_h: float, belly: float) -> tuple[tuple[float, float], ...]:
+    """Outer profile of a bowl's body from its flat underside (z = foot_h, on the axis) to the rim."""
+    zs = np.linspace(foot_h + 0.004, height, 9)
+    s = (zs - foot_h) / (height - foot_h)
+    rs = r_bottom + (r_top - r_bottom) * s + belly * np.sin(np.pi * s)
+    return ((0.0, foot_h), (r_bottom - 0.003, foot_h), (r_bottom - 0.001, foot_h + 0.001)) + tuple(zip(rs, zs))
+
+
+# A ceramic bowl's foot ring: 3.4 cm outer radius, 5 mm wide, 10 mm tall (what it stands on; an upside-down
+# bowl offers it to a pinch from above).
+BOWL_FOOT = (0.034, 0.005, 0.010)
+
 BUILTIN_DISHES: tuple[DishSpec, ...] = (
     DishSpec("dinner_plate", "plate", (0.95, 0.95, 0.92), _plate(0.270, 0.026, 0.085), 0.005),
     DishSpec("side_plate", "plate", (0.62, 0.78, 0.90), _plate(0.200, 0.020, 0.060), 0.0045),
-    DishSpec("bowl", "bowl", (0.90, 0.55, 0.35), _vessel(0.035, 0.080, 0.070, belly=0.012), 0.0045),
+    DishSpec("bowl", "bowl", (0.90, 0.55, 0.35), _bowl_body(0.042, 0.080, 0.070, BOWL_FOOT[2], belly=0.010), 0.0045,
+             foot=BOWL_FOOT),
     DishSpec("cup", "cup", (0.30, 0.65, 0.45), _vessel(0.029, 0.042, 0.095), 0.0035),
     DishSpec("mug", "mug", (0.80, 0.25, 0.25), _vessel(0.039, 0.041, 0.095), 0.005, handle=True),
     DishSpec("glass", "glass", (0.75, 0.85, 0.95), _vessel(0.030, 0.036, 0.120), 0.0025),
@@ -130,7 +159,7 @@ BUILTIN_DISHES: tuple[DishSpec, ...] = (
 
 def build_mesh(spec: DishSpec) -> o3d.geometry.TriangleMesh:
     """The item's closed mesh in its BOP object frame (bounding-box centre origin, z up), metres."""
-    mesh = lathe(_profile_closed(np.array(spec.outer), spec.thickness))
+    mesh = lathe(_profile_closed(np.array(spec.outer), spec.thickness, spec.foot))
     if spec.handle:
         top = spec.outer[-1][1]
         r_body = spec.outer[-1][0]

@@ -28,7 +28,7 @@ import numpy as np
 import open3d as o3d
 
 from kitchenbot.perception.dishware import BUILTIN_DISHES, build_mesh
-from kitchenbot.transforms import check_rigid, make_T, rot_x
+from kitchenbot.transforms import check_rigid, make_T, rot_x, rot_y
 
 GRIPPER_MAX_OPENING = 0.10  # m, Fin-Ray pads fully open
 PAD_DEPTH = 0.035  # m, how far the pads reach past the TCP along the approach axis
@@ -152,7 +152,7 @@ class Inventory:
                 symmetries_continuous=[] if spec.handle else [{"axis": [0, 0, 1], "offset": [0, 0, 0]}],
                 colour=spec.colour,
             )
-            model.grasps = generate_grasps(model)
+            model.grasps = generate_grasps(model, foot=spec.foot)
             models.append(model)
         return cls(models, "builtin")
 
@@ -333,21 +333,50 @@ def pad_span(
     return float(max(widths)) if widths else None
 
 
-def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
+# The planner's pad boxes (planning.collision.GripperGeometry), TCP frame: 26 mm wide (x), 16 mm thick (y),
+# from the pad roots 70 mm behind the TCP to the tips 12 mm past it. Repeated here (perception does not import
+# planning) for the check that a grasp's open pads do not cut into the item itself.
+PAD_BOX_X = 0.013
+PAD_BOX_THICKNESS = 0.016
+PAD_BOX_Z = (-0.07, 0.012)
+
+
+def _pads_clear(points: np.ndarray, T_obj_tcp: np.ndarray, opening: float, tol: float = 0.001) -> bool:
+    """Whether the open pads (at `opening`) keep out of the item: no surface point deeper than `tol` inside
+    either pad box. The planner lets the pads touch the target they grasp, so a predefined grasp whose pads
+    would pass through the item's own wall (an inner pad sweeping through a lying cup's side) must not exist."""
+    P = (points - T_obj_tcp[:3, 3]) @ T_obj_tcp[:3, :3]  # TCP frame
+    o = opening / 2
+    inx = np.abs(P[:, 0]) < PAD_BOX_X - tol
+    inz = (P[:, 2] > PAD_BOX_Z[0] + tol) & (P[:, 2] < PAD_BOX_Z[1] - tol)
+    iny = (np.abs(P[:, 1]) > o + tol) & (np.abs(P[:, 1]) < o + PAD_BOX_THICKNESS - tol)
+    return not bool(np.any(inx & iny & inz))
+
+
+def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, float, float] | None = None) -> list[GraspSpec]:
     """Predefined Fin-Ray grasps for a builtin item.
 
     - rim pinch (all items): approach from above the rim, pads straddling the wall, closing radially;
-    - side grasps (cups, mugs, glasses, bowls): horizontal approach at mid height, closing across the body.
-    Expected widths are measured on the mesh, and grasps wider than the gripper are dropped.
+    - rolled rim pinches (cups, mugs, glasses, bowls): the same pinch with the approach turned about the
+      closing axis by 30-60 degrees towards the rim's tangent, the inner pad entering through the mouth: from
+      above when the item lies on its side or leans (the approach along the axis is then level);
+    - side grasps (cups, mugs, glasses, bowls): approach perpendicular to the axis at three heights, closing
+      across the body (from above across a lying body);
+    - foot-ring pinch (items with a foot ring, bowls): approach along +z (from below the upright item, from
+      above an upside-down one), one pad inside the ring, one outside, the tips short of the recessed bottom.
+    Expected widths are measured on the mesh; grasps wider than the gripper, and grasps whose open pads would
+    cut into the item (see `_pads_clear`), are dropped.
     """
     V = np.asarray(model.mesh.vertices)
     z_top = V[:, 2].max()
+    z_bot = V[:, 2].min()
     # The body's axis passes through the centre of the rim ring (not the bounding-box centre: a mug's handle
     # shifts that off the axis).
     rim = V[V[:, 2] > z_top - 0.004][:, :2]
     axis_xy = (rim.max(axis=0) + rim.min(axis=0)) / 2
     r_rim = np.max(np.linalg.norm(rim - axis_xy, axis=1))
     axis = np.array([axis_xy[0], axis_xy[1], 0.0])
+    vessel = model.cls in ("cup", "mug", "glass", "bowl")
     grasps: list[GraspSpec] = []
     bite = 0.012 if model.cls in ("plate",) else 0.015
     for k in range(n_around):
@@ -356,6 +385,10 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
         pos = axis + radial * (r_rim - 0.004) + np.array([0, 0, z_top - bite])
         T = _tcp_frame(np.array([0, 0, -1.0]), radial, pos)
         grasps.append(("rim", k, T))
+        if vessel:
+            for roll in (30, 45, 60):
+                for sgn in (1, -1):
+                    grasps.append((f"rimroll{sgn * roll:+d}", k, T @ rot_y(np.radians(sgn * roll))))
         if model.cls == "plate":
             # A shallow, narrow pinch of the lip from outside, leaning in by 25/40 degrees (opened only 8 mm
             # per pad past the lip): the fingers stay above the plate's sloped well and close to the lip, so
@@ -371,26 +404,41 @@ def generate_grasps(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
             edge = axis + radial * (r_rim - 0.003) + np.array([0, 0, z_top - 0.005])
             for tilt in (np.radians(45), np.radians(60)):
                 grasps.append((f"rimtilt{int(round(np.degrees(tilt)))}", k, _tcp_frame(np.array([0, 0, -1.0]), radial, edge) @ rot_x(tilt)))
-    if model.cls in ("cup", "mug", "glass", "bowl"):
-        z_mid = V[:, 2].min() + 0.55 * (z_top - V[:, 2].min())
-        for k in range(n_around):
-            a = 2 * np.pi * k / n_around
-            radial = np.array([np.cos(a), np.sin(a), 0.0])
-            tangent = np.array([-np.sin(a), np.cos(a), 0.0])
-            T = _tcp_frame(-radial, tangent, axis + np.array([0, 0, z_mid]))
-            grasps.append(("side", k, T))
+        if foot is not None:
+            ro, w, h = foot
+            # TCP 3 mm short of the ring's end: the pad tips (12 mm past the TCP) stop 1 mm short of the
+            # recessed bottom of a 10 mm ring, and the pads hold the ring over its last 9 mm.
+            p_foot = axis + radial * (ro - w / 2) + np.array([0, 0, z_bot - 0.003])
+            grasps.append(("foot", k, _tcp_frame(np.array([0, 0, 1.0]), radial, p_foot)))
+    if vessel:
+        for frac in (0.3, 0.55, 0.8):
+            z = z_bot + frac * (z_top - z_bot)
+            tag = "side" if frac == 0.55 else f"side{int(round(frac * 100))}"
+            for k in range(n_around):
+                a = 2 * np.pi * k / n_around
+                radial = np.array([np.cos(a), np.sin(a), 0.0])
+                tangent = np.array([-np.sin(a), np.cos(a), 0.0])
+                T = _tcp_frame(-radial, tangent, axis + np.array([0, 0, z]))
+                grasps.append((tag, k, T))
     out = []
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(model.mesh))
+    surface = None
+    if model.cls != "plate":
+        o3d.utility.random.seed(2)
+        surface = np.vstack([np.asarray(model.mesh.sample_points_uniformly(60000).points), V])
     for kind, k, T in grasps:
         w = pad_span(model, T, scene=scene)
         if w is None or w > GRIPPER_MAX_OPENING - 0.01 or w <= 0:
             continue
-        slack = 0.016 if kind.startswith("rimlean") else 0.03
-        out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=min(GRIPPER_MAX_OPENING, w + slack), width=w))
+        slack = 0.016 if kind.startswith(("rimlean", "foot")) else 0.03
+        opening = min(GRIPPER_MAX_OPENING, w + slack)
+        if surface is not None and not _pads_clear(surface, T, opening):
+            continue
+        out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=opening, width=w))
     # A rim pinch that also takes in something else (the root of a mug's handle) is not a rim pinch.
     rim_w = [g.width for g in out if g.name.startswith("rim_")]
     if rim_w:
         limit = 2.0 * float(np.median(rim_w))
-        out = [g for g in out if not (g.name.startswith("rim_") and g.width > limit)]
+        out = [g for g in out if not (g.name.startswith(("rim_", "rimroll")) and g.width > limit)]
     return out

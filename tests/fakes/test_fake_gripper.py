@@ -119,3 +119,18 @@ def test_bad_arguments_and_connection():
         g.grasp(5.0)
     with pytest.raises(ValueError, match="opening"):
         g.open(0.2)
+
+
+def test_upside_down_bowl_is_held_by_its_foot_ring():
+    """A foot-ring pinch (perception.inventory) from above an upside-down bowl: the pads stall on the ring."""
+    world = make_world()
+    bowl = INVENTORY.by_name("bowl")
+    spec = next(g for g in bowl.grasps if g.name.startswith("foot_"))
+    T_obj = world.T_base_tcp() @ inv(spec.T_obj_tcp)
+    assert T_obj[2, 2] < -0.99  # the bowl is upside down under a gripper pointing down
+    uid = world.add_object(bowl, T_obj)
+    g = connected(world)
+    g.open(spec.opening)
+    r = g.grasp(0.8)
+    assert r.holding and world.held_uid == uid
+    assert r.opening == pytest.approx(spec.width, abs=1e-3)

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import open3d as o3d
 import pytest
 
 from kitchenbot.perception.inventory import GRIPPER_MAX_OPENING, Inventory, InventoryError, pad_span
@@ -97,3 +98,52 @@ def test_mug_rim_grasps_straddle_the_wall(inventory):
     assert len(rim) >= 10
     for g in rim:
         assert g.width < 0.008  # pads close on the wall (5 mm), never on the handle's root
+
+
+def test_bowl_has_a_foot_ring_and_foot_ring_pinches(inventory):
+    """The bowl stands on a 10 mm foot ring; its foot-ring pinches approach along +z (from above an upside-down
+    bowl), straddle the ring (one pad inside, one outside) and stop short of the recessed bottom."""
+    from kitchenbot.perception.dishware import BOWL_FOOT
+
+    bowl = inventory.by_name("bowl")
+    V = np.asarray(bowl.mesh.vertices)
+    z0 = V[:, 2].min()
+    ro, w, h = BOWL_FOOT
+    r = np.linalg.norm(V[:, :2], axis=1)
+    standing = V[np.abs(V[:, 2] - z0) < 1e-6]
+    assert np.all(np.linalg.norm(standing[:, :2], axis=1) > ro - w - 1e-6)  # it stands on the ring only
+    # the underside inside the ring is recessed by the ring's height
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(bowl.mesh))
+    t = scene.cast_rays(o3d.core.Tensor([[0, 0, z0 - 0.05, 0, 0, 1]], dtype=o3d.core.float32))["t_hit"].numpy()
+    assert z0 - 0.05 + t[0] == pytest.approx(z0 + h, abs=1e-4)
+    assert np.any(r[V[:, 2] < z0 + h - 1e-3] < ro - w + 1e-6)
+    feet = [g for g in bowl.grasps if g.name.startswith("foot_")]
+    assert len(feet) == 12
+    for g in feet:
+        assert g.T_obj_tcp[2, 2] == pytest.approx(1.0)  # approach +z: from above when the bowl is upside down
+        assert g.width == pytest.approx(w, abs=1e-3)
+        assert g.opening < 0.03
+        tip = g.T_obj_tcp[2, 3] + 0.012  # planner pad tips 12 mm past the TCP
+        assert z0 < tip < z0 + h
+
+
+def test_no_grasp_drives_its_open_pads_through_the_item(inventory):
+    """Every vessel grasp keeps the open pads out of the item (the pads may touch their target in the planner,
+    so a pad inside a lying cup's wall would go unchecked); the check itself catches a pad cut into a wall."""
+    from kitchenbot.perception.inventory import _pads_clear
+    from kitchenbot.transforms import rot_y
+
+    for m in inventory:
+        if m.cls == "plate":
+            continue
+        P = np.asarray(m.mesh.sample_points_uniformly(40000).points)
+        for g in m.grasps:
+            assert _pads_clear(P, g.T_obj_tcp, g.opening, tol=0.0015), (m.name, g.name)
+    cup = inventory.by_name("cup")
+    P = np.asarray(cup.mesh.sample_points_uniformly(40000).points)
+    rim = next(g for g in cup.grasps if g.name == "rim_00")
+    # rolled 90 degrees (approach along the rim's tangent) the inner pad runs through the cup's wall
+    assert not _pads_clear(P, rim.T_obj_tcp @ rot_y(np.pi / 2), rim.opening)
+    names = {g.name.rsplit("_", 1)[0] for g in cup.grasps}
+    assert {"rim", "rimroll+45", "rimroll-45", "side", "side30", "side80"} <= names

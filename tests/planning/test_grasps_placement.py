@@ -25,12 +25,19 @@ def test_grasps_ranked_and_from_above(planner, home, resting):
         assert abs(d[2, 3]) <= 0.008 + 1e-9 and np.allclose(d[:2, 3], 0, atol=1e-9)
 
 
-def test_upside_down_bowl_rim_grasps_are_from_below(planner, home, resting):
+def test_upside_down_bowl_is_grasped_by_its_foot_ring(planner, home, resting):
     bowl = resting("bowl", (0.5, 0.0), 1, upside_down=True)
     st = GraspStats()
     res = planner.select_grasps(home, [bowl], stats=st)
-    assert isinstance(res, PlanningFailure)
-    assert st.from_below == st.considered > 0  # every rim grasp would come up from below
+    assert st.from_below > 0  # every rim pinch would come up from below
+    assert isinstance(res, list) and res
+    for g in res:  # only the foot-ring pinches are left, from above
+        assert g.spec.name.startswith("foot_") and g.approach[2] < -0.99
+    # and such a bowl goes into the upper rack mouth down with the grasp it was picked with
+    book = SlotBook(planner.cell)
+    targets = book.targets_for(planner.inventory.by_name("bowl"))
+    res = planner.select_grasps(home, [bowl], place_target=targets[:4])
+    assert isinstance(res, list) and res
 
 
 def test_occluded_objects_are_dropped(planner, home, resting):
