@@ -153,10 +153,24 @@ def _jsonable(o):
 
 @dataclass
 class _Tried:
+    """What happened to one object: executed grasp attempts, and planning failures since the scene last changed
+    (an object under or behind others is unplannable until they are gone, so those failures are forgotten
+    after each placement)."""
     cls: str
     pos: np.ndarray
     count: int = 0
     reasons: list = field(default_factory=list)
+    plan_failures: int = 0
+    plan_epoch: int = -1
+
+    def plan_failed(self, epoch: int) -> None:
+        if self.plan_epoch != epoch:
+            self.plan_epoch, self.plan_failures = epoch, 0
+        self.plan_failures += 1
+
+    def exhausted(self, epoch: int) -> bool:
+        return self.count >= M.MAX_ATTEMPTS_PER_OBJECT or (
+            self.plan_epoch == epoch and self.plan_failures >= M.MAX_PLAN_FAILURES_PER_SCENE)
 
 
 @dataclass
@@ -213,6 +227,7 @@ class TaskRunner:
         self.pending: _Pending | None = None
         self.failure: Failure | None = None
         self.tried: list[_Tried] = []
+        self.scene_epoch = 0  # placements so far (staging included): planning failures are per epoch
         self.unverified: list[str] = []  # gone from the sink but not seen at the target
         self.unplannable: list[ObjectPose] = []
         self.staged: list = []  # tasks.Placed: objects set down on the counter for a regrasp
@@ -553,7 +568,7 @@ class TaskRunner:
         out = []
         for p in self.task.remaining(self.poses):
             t = self._tried_for(p)
-            if t is None or t.count < M.MAX_ATTEMPTS_PER_OBJECT:
+            if t is None or not t.exhausted(self.scene_epoch):
                 if not (this_scan and any(p is q for q in self.unplannable)):
                     out.append(p)
         return out
@@ -564,7 +579,7 @@ class TaskRunner:
         for st in list(self.staged):  # staged objects first: they wait on the counter for their regrasp
             obj = self.task.as_pose(st)
             t = self._tried_for(obj)
-            if t is not None and t.count >= M.MAX_ATTEMPTS_PER_OBJECT:
+            if t is not None and t.exhausted(self.scene_epoch):
                 continue
             targets = self.task.targets(obj)
             if isinstance(targets, NoFreeSlot):
@@ -676,8 +691,8 @@ class TaskRunner:
         self._perceive()
         cands = self._candidates()
         staged_left = [st for st in self.staged
-                       if (self._tried_for(self.task.as_pose(st)) or _Tried("", np.zeros(3))).count
-                       < M.MAX_ATTEMPTS_PER_OBJECT]
+                       if not (self._tried_for(self.task.as_pose(st)) or _Tried("", np.zeros(3))).exhausted(
+                           self.scene_epoch)]
         if cands or staged_left:
             self.empty_scans = 0
             return "next_object"
@@ -748,6 +763,7 @@ class TaskRunner:
             self.task.unplace(p.staged.instance_id)
             self.staged = [s for s in self.staged if s is not p.staged]
         placed = self.task.record_placed(p.obj, p.target, T_settled)
+        self.scene_epoch += 1
         if p.staging:
             self.staged.append(placed)
             self._log("note", "staged for a regrasp", cls=p.obj.cls, xyz=T_settled[:3, 3])
@@ -782,8 +798,8 @@ class TaskRunner:
                 self.report.safe = self._make_safe()
                 return "give_up"
         if f.state in ("plan", "select_grasp") and self.current is not None:
-            t = self._tried_for(self.current, create=True)  # counts towards skipping this object
-            t.count += 1
+            t = self._tried_for(self.current, create=True)  # skipped until the scene changes
+            t.plan_failed(self.scene_epoch)
             t.reasons.append(f.details.get("planning_kind", f.kind))
         elif f.state in ("execute", "verify") and self.current is not None:
             self._tried_for(self.current, create=True).reasons.append(f.kind)  # counted when executed
