@@ -1,35 +1,215 @@
-"""sink-pick: take every object out of the sink and set it down upright in the counter drop zone.
+"""sink-pick: take every object out of the sink and set it down in the counter drop zone.
 
-Targets: the drop zone (cell.drop_zone), free upright spots on a 2 cm grid that do not overlap what was already
-put there; items that do not lie upright in the sink may also be set down the way they lie. Success: no object left in the sink (confirmed by consecutive scans) and each placement verified
-(gone from the sink, seen at its spot).
+Targets, the way a person clears a sink onto the counter:
+- plates go onto a pile of plates already in the zone (same model first, a smaller plate onto a bigger one next),
+  a new pile only when there is none yet (or the piles are too high); bowls and cups nest into a pile of their
+  own model the same way; glasses and mugs stand on the counter side by side (they do not nest safely);
+- a pile's height is tracked from what was placed on it (each item rests its nesting height above the one
+  below, or on the top of a different plate);
+- free spots on the counter are searched on a 2 cm grid, 1 cm apart from what is there, and room is kept for the
+  first plate / bowl / cup pile while such items are still in the sink (a cup must not take the only spot a
+  dinner plate fits in);
+- only when the counter is full does a glass or mug stand on top of a plate pile, and only once no plate is
+  left to come (it would block the pile);
+- items that do not lie upright in the sink may also be set down the way they lie.
+
+Success: no object left in the sink (confirmed by consecutive scans) and each placement verified (gone from the
+sink, seen at its spot).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import Task, _drop_zone_targets, area_spots, as_is, with_plate_room
+from kitchenbot.tasks.base import (
+    CLEARANCE,
+    DROP_HEIGHT,
+    Placed,
+    Task,
+    area_spots,
+    as_is,
+    footprint,
+    upright,
+)
+
+PILE_CLASSES = ("plate", "bowl", "cup")  # items a person piles up on the counter
+PILE_MAX_TOP = 0.20  # m above the counter: a pile higher gets unstable, and the tool must still reach over it
+# from the zone's far corner (tests/tasks/test_sink_pick_drop_zone.py)
+
+
+def _piles(placed: list[Placed]) -> list[list[Placed]]:
+    """Placed items grouped into piles (bottom first): items whose footprints overlap, standing upright."""
+    piles: list[list[Placed]] = []
+    for p in sorted(placed, key=lambda p: p.T_base_obj[2, 3]):
+        for pile in piles:
+            b = pile[0]
+            if np.all(p.lo < b.hi) and np.all(p.hi > b.lo):
+                pile.append(p)
+                break
+        else:
+            piles.append([p])
+    return piles
+
+
+def pile_pose(model: ObjectModel, pile: list[Placed]) -> np.ndarray | None:
+    """`model` upright on top of `pile` (centred on its top item): nested by its nesting height into the same
+    model, else resting on the top item's top. None when the top item is not upright or the pile is too high."""
+    top = pile[-1]
+    if top.T_base_obj[2, 2] < 0.95:
+        return None
+    T = upright(model, top.T_base_obj[:2, 3], 0.0)
+    if top.obj_id == model.obj_id:
+        T[2, 3] = top.T_base_obj[2, 3] + nesting_height(model) + DROP_HEIGHT
+    else:
+        T[2, 3] = top.top_z + model.extents[2] / 2 + DROP_HEIGHT
+    if T[2, 3] + model.extents[2] / 2 > PILE_MAX_TOP:
+        return None
+    return T
 
 
 class SinkPick(Task):
     name = "sink-pick"
-    description = "pick each object out of the sink and drop it in the counter drop zone"
+    description = "pick each object out of the sink and set it down in the counter drop zone"
     success_criteria = "sink empty; every object verified in the drop zone"
+
+    def _zone(self) -> tuple[np.ndarray, np.ndarray, float]:
+        z = self.cell.spec.drop_zone
+        lo = np.array(z.origin_xy, float)
+        return lo, lo + np.array(z.size_xy, float), float(z.z)
+
+    def _in_zone(self, p: Placed) -> bool:
+        lo, hi, _ = self._zone()
+        c = p.T_base_obj[:2, 3]
+        return bool(np.all(c >= lo - 0.05) and np.all(c <= hi + 0.05))
+
+    def _pile_targets(self, model: ObjectModel, kinds) -> list[np.ndarray]:
+        """Poses on the piles whose top item passes `kinds(top) -> rank` (lower first; None: not this pile)."""
+        zone_items = [p for p in self.placed if self._in_zone(p)]
+        out = []
+        for pile in _piles(zone_items):
+            rank = kinds(pile[-1])
+            if rank is None:
+                continue
+            T = pile_pose(model, pile)
+            if T is None:
+                continue
+            lo, hi, _ = footprint(model, T)
+            others = [p for p in zone_items if not any(p is q for q in pile)]
+            if any(np.all(lo < p.hi) and np.all(hi > p.lo) for p in others):
+                continue  # a bigger item on a smaller pile would overhang its neighbours
+            out.append((rank, T[2, 3], T))
+        return [T for _, _, T in sorted(out, key=lambda r: (r[0], r[1]))]
+
+    def _reserved(self, model: ObjectModel) -> tuple[list[Placed], list[Placed]]:
+        """Placeholders (growth, new): around each pile, the footprint of the largest item of its class still to
+        come; for each pile class with items still to come but no pile yet (and that `model` cannot start),
+        a spot for its largest item."""
+        lo, hi, z = self._zone()
+        zone_items = [p for p in self.placed if self._in_zone(p)]
+        taken = list(zone_items)
+        extra: list[Placed] = []
+        growth: list[Placed] = []
+        for cls in PILE_CLASSES:
+            pend = [m for m in self.pending if m.cls == cls]
+            if not pend:
+                continue
+            big = max(pend, key=lambda m: max(m.extents[:2]))
+            piles = [pile for pile in _piles(zone_items) if pile[-1].cls == cls]
+            if piles:
+                # the pile will take the largest item of its class still to come (a dinner plate onto a side
+                # plate): keep its footprint around the pile free
+                T = upright(big, piles[0][-1].T_base_obj[:2, 3], z)
+                ph = Placed(big.obj_id, big.cls, T, *footprint(big, T), None)
+                taken.append(ph)
+                growth.append(ph)
+                continue
+            if cls == model.cls:
+                continue
+            spot = area_spots(big, lo, hi, z, taken, upright, 1, centre_inside=True)
+            if spot:
+                ph = Placed(big.obj_id, big.cls, spot[0], *footprint(big, spot[0]), None)
+                taken.append(ph)
+                extra.append(ph)
+        return growth, extra
+
+    def _floor(self, model: ObjectModel, limit: int, pose=upright, centre_inside=True) -> list[np.ndarray]:
+        lo, hi, z = self._zone()
+        zone_items = [p for p in self.placed if self._in_zone(p)]
+        # a new pile is started with room for the largest item of its class still to come (a dinner plate
+        # onto a side plate's pile must not overhang the neighbours)
+        probe = model
+        if model.cls in PILE_CLASSES and pose is upright:
+            probe = max([model, *(m for m in self.pending if m.cls == model.cls)], key=lambda m: max(m.extents[:2]))
+        pref = self._lattice(probe, lo, hi) if pose is upright else None
+        growth, new = self._reserved(model)
+        spots: list[np.ndarray] = []
+        # the reservations leave no room: first a new pile's spot, then a pile's growth gives way to a placement now
+        for keep in (growth + new, growth, []):
+            spots = area_spots(probe, lo, hi, z, zone_items + keep, pose, limit, preferred=pref,
+                               centre_inside=centre_inside)
+            if spots:
+                break
+        if probe is not model:
+            spots = [upright(model, T[:2, 3], z) for T in spots]
+        return spots
+
+    @staticmethod
+    def _lattice(model: ObjectModel, lo: np.ndarray, hi: np.ndarray) -> list[tuple[float, float]]:
+        """Spots packed edge to edge from the zone's sides (a pile in a corner leaves the rest of the zone in one
+        piece; cups in rows waste no room), tried before the 2 cm grid."""
+        r = max(model.extents[:2]) / 2 + CLEARANCE / 2
+        if model.cls == "plate":  # plate piles in the corners
+            xs, ys = [lo[0] + r, hi[0] - r], [lo[1] + r, hi[1] - r]
+        else:
+            pitch = 2 * r + 1e-3
+            xs = [*np.arange(lo[0] + r, hi[0] - r + 1e-9, pitch), *np.arange(hi[0] - r, lo[0] + r - 1e-9, -pitch)]
+            ys = [*np.arange(lo[1] + r, hi[1] - r + 1e-9, pitch), *np.arange(hi[1] - r, lo[1] + r - 1e-9, -pitch)]
+        return [(float(x), float(y)) for x in xs for y in ys]
 
     def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
         model = self.inventory[obj.obj_id]
-        zone = self.cell.spec.drop_zone
-        out = _drop_zone_targets(model, zone, self.placed, 3, self.pending)
+        out: list[PlaceTarget] = []
+
+        def add(Ts, support):
+            out.extend(PlaceTarget(T, "drop", free_yaw=True, support=support) for T in Ts)
+
+        if model.cls == "plate":
+            size = max(model.extents[:2])
+
+            def plate_rank(top):
+                if top.cls != "plate":
+                    return None
+                if top.obj_id == model.obj_id:
+                    return 0
+                return 1 if max(self.inventory[top.obj_id].extents[:2]) >= size else 3
+
+            add(self._pile_targets(model, lambda top: p if (p := plate_rank(top)) in (0, 1) else None)[:2],
+                "a plate pile")
+            if not out:
+                add(self._floor(model, 2), "counter")
+            if not out:  # a bigger plate on a smaller one's pile still rests flat on its rim
+                add(self._pile_targets(model, plate_rank)[:2], "a plate pile")
+        elif model.cls in ("bowl", "cup"):
+            add(self._pile_targets(model, lambda top: 0 if top.obj_id == model.obj_id else None)[:2],
+                f"a {model.cls} pile")
+            if not out:
+                add(self._floor(model, 3), "counter")
+        else:
+            add(self._floor(model, 3), "counter")
+        if not out:
+            # the counter is full: overhang the zone's edge (centre inside), then stand on a plate pile once
+            # no plate is left to come
+            add(self._floor(model, 2, centre_inside="any"), "counter (overhanging)")
+        if not out and not any(m.cls == "plate" for m in self.pending if m is not model):
+            add(self._pile_targets(model, lambda top: 0 if top.cls == "plate" else None)[:2], "a plate pile")
         R = obj.T_base_obj[:3, :3]
         if R[2, 2] < 0.95:
             # Not upright in the sink (a glass on its side): no grasp may reach "upright", so also offer the
             # drop zone as it lies now (set down the way it is held).
-            lo = np.array(zone.origin_xy)
-            taken = with_plate_room(model, zone, self.placed, self.pending)
-            for T in area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, taken, as_is(R), 2,
-                                centre_inside="any"):
+            for T in self._floor(model, 2, as_is(R), centre_inside="any"):
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support="counter (as it lay)"))
         return out or NoFreeSlot(f"drop zone has no free spot for a {obj.cls}")

@@ -1,0 +1,138 @@
+"""sink-pick's drop zone: a 10-item sink's worth of items fits (plates, bowls, cups on piles; glasses and mugs side
+by side), pile heights are tracked, and every spot is reachable with the tool pointing down."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kitchenbot.perception.cell import Cell
+from kitchenbot.perception.inventory import Inventory
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.placement import nesting_height
+from kitchenbot.planning.types import NoFreeSlot
+from kitchenbot.tasks import make_task
+from kitchenbot.tasks.base import DROP_HEIGHT
+from kitchenbot.transforms import make_T
+
+
+@pytest.fixture(scope="module")
+def inv():
+    return Inventory.builtin()
+
+
+def in_sink(inv, name, k):
+    m = inv.by_name(name)
+    return ObjectPose(m.obj_id, m.cls, make_T(np.eye(3), (0.45 + 0.01 * k, 0.0, -0.15)), 1.0, instance_id=k)
+
+
+def clear_sink(task, inv, names):
+    """Place every item at its first target, in the task's pick order; returns the (pose, target) pairs."""
+    left = [in_sink(inv, n, k) for k, n in enumerate(names)]
+    out = []
+    while left:
+        o = task.remaining(left)[0]
+        left = [p for p in left if p is not o]
+        ts = task.targets(o)
+        assert not isinstance(ts, NoFreeSlot), (inv[o.obj_id].name, [p.cls for p in task.placed])
+        task.record_placed(o, ts[0], ts[0].T_base_obj)
+        out.append((o, ts[0]))
+    return out
+
+
+def _overlap(a, b):
+    return bool(np.all(a.lo < b.hi) and np.all(a.hi > b.lo))
+
+
+@pytest.mark.parametrize("names", [
+    ["dinner_plate"] * 3 + ["side_plate"] * 2 + ["bowl"] * 2 + ["cup", "mug", "glass"],
+    ["glass"] * 4 + ["mug"] * 4 + ["dinner_plate", "bowl"],
+    ["side_plate", "dinner_plate", "cup", "cup", "cup", "mug", "mug", "glass", "glass", "bowl"],
+    ["dinner_plate"] * 10,
+])
+def test_a_ten_item_sink_fits_in_the_drop_zone(inv, names):
+    cell = Cell()
+    task = make_task("sink-pick", inv, cell)
+    placed = clear_sink(task, inv, names)
+    assert len(task.placed) == len(names)
+    z = cell.spec.drop_zone
+    lo, hi = np.array(z.origin_xy), np.array(z.origin_xy) + np.array(z.size_xy)
+    for p in task.placed:
+        c = p.T_base_obj[:2, 3]
+        assert np.all(c >= lo - 1e-6) and np.all(c <= hi + 1e-6), (p.cls, c)
+        assert p.T_base_obj[2, 2] > 0.99  # upright
+    # items that overlap in xy are one pile (each on top of the one below); items of different piles do not touch
+    for a in task.placed:
+        for b in task.placed:
+            if a is b or not _overlap(a, b):
+                continue
+            assert np.allclose(a.T_base_obj[:2, 3], b.T_base_obj[:2, 3], atol=1e-9), (a.cls, b.cls)
+    # plates only go onto plates, bowls onto bowls, cups onto cups; anything else only onto a plate pile once
+    # every plate is placed (it would block the pile)
+    for k, (o, t) in enumerate(placed):
+        below = [p for p in task.placed if p.T_base_obj[2, 3] < t.T_base_obj[2, 3] - 1e-6
+                 and np.allclose(p.T_base_obj[:2, 3], t.T_base_obj[:2, 3])]
+        if not below or all(p.cls == o.cls for p in below) and o.cls in ("plate", "bowl", "cup"):
+            continue
+        assert all(p.cls == "plate" for p in below), (o.cls, [p.cls for p in below])
+        assert not any(later.cls == "plate" for later, _ in placed[k + 1:]), o.cls
+
+
+def test_a_plate_goes_on_top_of_the_plate_pile_with_its_height_tracked(inv):
+    task = make_task("sink-pick", inv, Cell())
+    placed = clear_sink(task, inv, ["dinner_plate"] * 3 + ["side_plate"])
+    T = [t.T_base_obj for _, t in placed]
+    dinner = inv.by_name("dinner_plate")
+    for k in (1, 2):  # each dinner plate nests into the one below
+        np.testing.assert_allclose(T[k][:2, 3], T[0][:2, 3], atol=1e-9)
+        assert T[k][2, 3] == pytest.approx(T[k - 1][2, 3] + nesting_height(dinner) + DROP_HEIGHT)
+    # the side plate rests on top of the pile: its underside at the top dinner plate's top
+    side = inv.by_name("side_plate")
+    np.testing.assert_allclose(T[3][:2, 3], T[0][:2, 3], atol=1e-9)
+    assert T[3][2, 3] - side.extents[2] / 2 == pytest.approx(task.placed[2].top_z + DROP_HEIGHT)
+
+
+def test_a_glass_keeps_a_plate_pile_free_and_piles_stop_at_a_safe_height(inv):
+    from kitchenbot.tasks.sink_pick import PILE_MAX_TOP
+
+    task = make_task("sink-pick", inv, Cell())
+    plate = in_sink(inv, "side_plate", 0)
+    big = in_sink(inv, "dinner_plate", 1)
+    task.remaining([plate, big])
+    t = task.targets(plate)[0]
+    task.record_placed(plate, t, t.T_base_obj)
+    glasses = [in_sink(inv, "glass", 2 + k) for k in range(12)]
+    for k, glass in enumerate(glasses):  # glasses fill the counter while the dinner plate is still in the sink
+        task.remaining([big, *glasses[k:]])
+        g = task.targets(glass)
+        if isinstance(g, NoFreeSlot):
+            break
+        task.record_placed(glass, g[0], g[0].T_base_obj)
+    # ... but none takes the room around the side plate's pile that the dinner plate needs on top of it
+    dinner = inv.by_name("dinner_plate")
+    on_pile = [nt for nt in task.targets(big) if np.allclose(nt.T_base_obj[:2, 3], t.T_base_obj[:2, 3])]
+    assert on_pile and on_pile[0].T_base_obj[2, 3] - dinner.extents[2] / 2 == pytest.approx(
+        task.placed[0].top_z + DROP_HEIGHT)
+    assert len(task.placed) >= 6  # and the counter still took a row of glasses
+    # a pile is never built past PILE_MAX_TOP
+    task = make_task("sink-pick", inv, Cell())
+    clear_sink(task, inv, ["bowl"] * 14)
+    assert max(p.top_z for p in task.placed) <= PILE_MAX_TOP + DROP_HEIGHT + 1e-6
+
+
+def test_every_drop_zone_spot_is_reachable_tool_down():
+    from kitchenbot.executive.config import CellConfig
+    from kitchenbot.planning.pick_place import Planner
+    from kitchenbot.tasks.sink_pick import PILE_MAX_TOP
+
+    cfg = CellConfig()
+    planner = Planner.from_config(cfg, Inventory.builtin())
+    home = np.asarray(cfg.robot.home, float)
+    z = cfg.cell.drop_zone
+    scene = planner.world.scene()
+    R = np.diag([1.0, -1.0, -1.0])  # tool pointing down
+    for x in np.linspace(z.origin_xy[0], z.origin_xy[0] + z.size_xy[0], 4):
+        for y in np.linspace(z.origin_xy[1], z.origin_xy[1] + z.size_xy[1], 4):
+            for h in (0.03, PILE_MAX_TOP + 0.02):  # the TCP over an item on the counter / on a full pile
+                q = planner.robot.ik_q(make_T(R, (x, y, h)), home)
+                assert q is not None and scene.valid(q), (x, y, h)
