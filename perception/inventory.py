@@ -366,6 +366,8 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
       above when the item lies on its side or leans (the approach along the axis is then level);
     - side grasps (cups, mugs, glasses, bowls): approach perpendicular to the axis at three heights, closing
       across the body (from above across a lying body);
+    - base grasps (cups, mugs, glasses): approach along +z, closing across the body just above its base (from
+      above an upside-down item);
     - foot-ring pinch (items with a foot ring, bowls): approach along +z (from below the upright item, from
       above an upside-down one), one pad inside the ring, one outside, the tips short of the recessed bottom.
     Expected widths are measured on the mesh; grasps wider than the gripper, and grasps whose open pads would
@@ -414,6 +416,14 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
             # recessed bottom of a 10 mm ring, and the pads hold the ring over its last 9 mm.
             p_foot = axis + radial * (ro - w / 2) + np.array([0, 0, z_bot - 0.003])
             grasps.append(("foot", k, _tcp_frame(np.array([0, 0, 1.0]), radial, p_foot)))
+    if model.cls in ("cup", "mug", "glass"):
+        # Across the body just above its base, approaching along +z: from above when the item stands upside
+        # down (in the sink, or inverted in the rack), the pads down its sides to 27 mm below the base.
+        for k in range(n_around):
+            a = 2 * np.pi * k / n_around
+            tangent = np.array([-np.sin(a), np.cos(a), 0.0])
+            T = _tcp_frame(np.array([0, 0, 1.0]), tangent, axis + np.array([0, 0, z_bot + 0.015]))
+            grasps.append(("base", k, T))
     if vessel:
         for frac in (0.3, 0.55, 0.8):
             z = z_bot + frac * (z_top - z_bot)

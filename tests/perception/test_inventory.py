@@ -146,4 +146,7 @@ def test_no_grasp_drives_its_open_pads_through_the_item(inventory):
     # rolled 90 degrees (approach along the rim's tangent) the inner pad runs through the cup's wall
     assert not _pads_clear(P, rim.T_obj_tcp @ rot_y(np.pi / 2), rim.opening)
     names = {g.name.rsplit("_", 1)[0] for g in cup.grasps}
-    assert {"rim", "rimroll+45", "rimroll-45", "side", "side30", "side80"} <= names
+    assert {"rim", "rimroll+45", "rimroll-45", "side", "side30", "side80", "base"} <= names
+    for g in cup.grasps:
+        if g.name.startswith("base_"):  # from above an upside-down cup, across its body near the base
+            assert g.T_obj_tcp[2, 2] == pytest.approx(1.0) and g.width < 0.07
