@@ -41,13 +41,13 @@ PILE_MAX_TOP = 0.20  # m above the counter: a pile higher gets unstable, and the
 # from the zone's far corner (tests/tasks/test_sink_pick_drop_zone.py)
 
 
-def _piles(placed: list[Placed]) -> list[list[Placed]]:
-    """Placed items grouped into piles (bottom first): items whose footprints overlap, standing upright."""
+def _piles(placed: list[Placed], tol: float = 0.03) -> list[list[Placed]]:
+    """Placed items grouped into piles (bottom first): items centred within `tol` of each other (a pile is built
+    centred on its bottom item; a neighbour whose footprint merely overlaps is not part of it)."""
     piles: list[list[Placed]] = []
     for p in sorted(placed, key=lambda p: p.T_base_obj[2, 3]):
         for pile in piles:
-            b = pile[0]
-            if np.all(p.lo < b.hi) and np.all(p.hi > b.lo):
+            if np.linalg.norm(p.T_base_obj[:2, 3] - pile[0].T_base_obj[:2, 3]) <= tol:
                 pile.append(p)
                 break
         else:
@@ -75,6 +75,16 @@ class SinkPick(Task):
     name = "sink-pick"
     description = "pick each object out of the sink and set it down in the counter drop zone"
     success_criteria = "sink empty; every object verified in the drop zone"
+
+    def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> Placed:
+        """As Task.record_placed; an upright round item's footprint is its disc's square whatever yaw the
+        planner turned it to (the bounding box of a turned plate is up to 41 % wider than the plate)."""
+        p = super().record_placed(obj, target, T_base_obj)
+        model = self.inventory[obj.obj_id]
+        if model.is_rotationally_symmetric and T_base_obj[2, 2] > 0.95:
+            r = max(model.extents[:2]) / 2
+            p.lo, p.hi = T_base_obj[:2, 3] - r, T_base_obj[:2, 3] + r
+        return p
 
     def _zone(self) -> tuple[np.ndarray, np.ndarray, float]:
         z = self.cell.spec.drop_zone
