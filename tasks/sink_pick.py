@@ -114,6 +114,22 @@ class SinkPick(Task):
             out.append((rank, T[2, 3], T))
         return [T for _, _, T in sorted(out, key=lambda r: (r[0], r[1]))]
 
+    def _same_way_piles(self, model: ObjectModel, R: np.ndarray) -> list[np.ndarray]:
+        """Poses nested onto piles topped by the same model lying the way R does (its axis within ~10 degrees):
+        two copies turned alike nest by the same height as upright ones (the pair is only turned as a whole)."""
+        if model.cls not in PILE_CLASSES:
+            return []
+        out = []
+        for pile in _piles([p for p in self.placed if self._in_zone(p)]):
+            top = pile[-1]
+            if top.obj_id != model.obj_id or float(top.T_base_obj[:3, 2] @ R[:, 2]) < 0.98:
+                continue
+            T = top.T_base_obj.copy()
+            T[2, 3] += nesting_height(model) + DROP_HEIGHT
+            if footprint(model, T)[2] <= PILE_MAX_TOP:
+                out.append(T)
+        return sorted(out, key=lambda T: T[2, 3])
+
     def _reserved(self, model: ObjectModel) -> tuple[list[Placed], list[Placed]]:
         """Placeholders (growth, new): around each pile, the footprint of the largest item of its class still to
         come; for each pile class with items still to come but no pile yet (and that `model` cannot start),
@@ -219,7 +235,10 @@ class SinkPick(Task):
         R = obj.T_base_obj[:3, :3]
         if R[2, 2] < 0.95:
             # Not upright in the sink (a glass on its side): no grasp may reach "upright", so also offer the
-            # drop zone as it lies now (set down the way it is held).
+            # drop zone as it lies now (set down the way it is held): nested onto a pile of the same model
+            # lying the same way (upside-down bowls onto an upside-down bowl), else a free spot.
+            for T in self._same_way_piles(model, R)[:1]:
+                out.append(PlaceTarget(T, "drop", free_yaw=False, support=f"a {model.cls} pile (as it lay)"))
             for T in self._floor(model, 2, as_is(R), centre_inside="any"):
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support="counter (as it lay)"))
         return out or NoFreeSlot(f"drop zone has no free spot for a {obj.cls}")

@@ -136,3 +136,22 @@ def test_every_drop_zone_spot_is_reachable_tool_down():
             for h in (0.03, PILE_MAX_TOP + 0.02):  # the TCP over an item on the counter / on a full pile
                 q = planner.robot.ik_q(make_T(R, (x, y, h)), home)
                 assert q is not None and scene.valid(q), (x, y, h)
+
+
+def test_upside_down_bowls_set_down_as_they_lay_nest_onto_each_other(inv):
+    from kitchenbot.transforms import rot_x
+
+    task = make_task("sink-pick", inv, Cell())
+    m = inv.by_name("bowl")
+    bowls = [ObjectPose(m.obj_id, "bowl", make_T(rot_x(np.pi)[:3, :3], (0.5 + 0.01 * k, 0.0, -0.15)), 1.0,
+                        instance_id=k) for k in range(2)]
+    task.remaining(bowls)
+    first = next(t for t in task.targets(bowls[0]) if t.support == "counter (as it lay)")
+    task.record_placed(bowls[0], first, first.T_base_obj)
+    ts = task.targets(bowls[1])
+    on_it = [t for t in ts if "pile" in t.support]
+    assert on_it, [t.support for t in ts]
+    T = on_it[0].T_base_obj
+    np.testing.assert_allclose(T[:3, :3], first.T_base_obj[:3, :3], atol=1e-9)  # lying the same way
+    np.testing.assert_allclose(T[:2, 3], first.T_base_obj[:2, 3], atol=1e-9)
+    assert T[2, 3] == pytest.approx(first.T_base_obj[2, 3] + nesting_height(m) + DROP_HEIGHT)
