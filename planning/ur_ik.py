@@ -19,7 +19,23 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.drivers.ur_kinematics import URModel, dh_transform, fk_flange
+from kitchenbot.drivers.ur_kinematics import URModel, dh_transform
+
+
+def fk_flange_batch(model: URModel, Q: np.ndarray) -> np.ndarray:
+    """T_base_flange (N, 4, 4) for N configurations at once (the same DH chain as drivers.ur_kinematics)."""
+    Q = np.atleast_2d(np.asarray(Q, float))
+    T = np.broadcast_to(np.eye(4), (len(Q), 4, 4)).copy()
+    for i in range(6):
+        ct, st = np.cos(Q[:, i]), np.sin(Q[:, i])
+        ca, sa = np.cos(model.alpha[i]), np.sin(model.alpha[i])
+        A = np.zeros((len(Q), 4, 4))
+        A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, model.a[i] * ct
+        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, model.a[i] * st
+        A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, model.d[i]
+        A[:, 3, 3] = 1.0
+        T = T @ A
+    return T
 
 
 def _planar_two_link(x: float, y: float, a2: float, a3: float) -> list[tuple[float, float]]:
@@ -47,7 +63,7 @@ def ik_flange(model: URModel, T_base_flange: np.ndarray, tol: float = 1e-6) -> l
     if r < abs(d4) + 1e-9:
         return []
     psi, phi = float(np.arctan2(p05[1], p05[0])), float(np.arcsin(d4 / r))
-    sols: list[np.ndarray] = []
+    cands: list[np.ndarray] = []
     for q1 in (psi + phi, psi + np.pi - phi):
         T01 = dh_transform(q1, d1, 0.0, model.alpha[0])
         T16 = np.linalg.inv(T01) @ T
@@ -66,8 +82,11 @@ def ik_flange(model: URModel, T_base_flange: np.ndarray, tol: float = 1e-6) -> l
             for q2, q3 in _planar_two_link(T14[0, 3], T14[1, 3], a2, a3):
                 q4 = q234 - q2 - q3
                 q = np.array([q1, q2, q3, q4, q5, q6])
-                q = (q + np.pi) % (2 * np.pi) - np.pi
-                Tq = fk_flange(model, q)
-                if np.linalg.norm(Tq[:3, 3] - T[:3, 3]) < tol and np.linalg.norm(Tq[:3, :3] - T[:3, :3]) < 1e-5:
-                    sols.append(q)
-    return sols
+                cands.append((q + np.pi) % (2 * np.pi) - np.pi)
+    if not cands:
+        return []
+    Q = np.array(cands)
+    Tq = fk_flange_batch(model, Q)
+    ok = (np.linalg.norm(Tq[:, :3, 3] - T[:3, 3], axis=1) < tol) & \
+         (np.linalg.norm((Tq[:, :3, :3] - T[:3, :3]).reshape(len(Q), -1), axis=1) < 1e-5)
+    return [q for q, good in zip(Q, ok) if good]
