@@ -77,8 +77,13 @@ class SinkPick(Task):
     success_criteria = "sink empty; every object verified in the drop zone"
 
     def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> Placed:
-        """As Task.record_placed; an upright round item's footprint is its disc's square whatever yaw the
-        planner turned it to (the bounding box of a turned plate is up to 41 % wider than the plate)."""
+        """As Task.record_placed, at its resting height; an upright round item's footprint is its disc's square
+        whatever yaw the planner turned it to (the bounding box of a turned plate is up to 41 % wider)."""
+        T_base_obj = np.array(T_base_obj, float)
+        if abs(T_base_obj[2, 3] - float(target.T_base_obj[2, 3])) < 1e-6:
+            # not measured (the executive had no view of it): it came to rest DROP_HEIGHT below the release
+            # target; a pile's height is built on this, so the drop height must not pile up with it
+            T_base_obj[2, 3] -= DROP_HEIGHT
         p = super().record_placed(obj, target, T_base_obj)
         model = self.inventory[obj.obj_id]
         if model.is_rotationally_symmetric and T_base_obj[2, 2] > 0.95:

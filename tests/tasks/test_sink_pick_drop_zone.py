@@ -70,7 +70,7 @@ def test_a_ten_item_sink_fits_in_the_drop_zone(inv, names):
     # plates only go onto plates, bowls onto bowls, cups onto cups; anything else only onto a plate pile once
     # every plate is placed (it would block the pile)
     for k, (o, t) in enumerate(placed):
-        below = [p for p in task.placed if p.T_base_obj[2, 3] < t.T_base_obj[2, 3] - 1e-6
+        below = [p for j, p in enumerate(task.placed) if j != k and p.T_base_obj[2, 3] < t.T_base_obj[2, 3] - 1e-6
                  and np.allclose(p.T_base_obj[:2, 3], t.T_base_obj[:2, 3])]
         if not below or all(p.cls == o.cls for p in below) and o.cls in ("plate", "bowl", "cup"):
             continue
@@ -85,7 +85,8 @@ def test_a_plate_goes_on_top_of_the_plate_pile_with_its_height_tracked(inv):
     dinner = inv.by_name("dinner_plate")
     for k in (1, 2):  # each dinner plate nests into the one below
         np.testing.assert_allclose(T[k][:2, 3], T[0][:2, 3], atol=1e-9)
-        assert T[k][2, 3] == pytest.approx(T[k - 1][2, 3] + nesting_height(dinner) + DROP_HEIGHT)
+        # (the one below came to rest DROP_HEIGHT under its release target)
+        assert T[k][2, 3] == pytest.approx(T[k - 1][2, 3] + nesting_height(dinner))
     # the side plate rests on top of the pile: its underside at the top dinner plate's top
     side = inv.by_name("side_plate")
     np.testing.assert_allclose(T[3][:2, 3], T[0][:2, 3], atol=1e-9)
@@ -154,4 +155,4 @@ def test_upside_down_bowls_set_down_as_they_lay_nest_onto_each_other(inv):
     T = on_it[0].T_base_obj
     np.testing.assert_allclose(T[:3, :3], first.T_base_obj[:3, :3], atol=1e-9)  # lying the same way
     np.testing.assert_allclose(T[:2, 3], first.T_base_obj[:2, 3], atol=1e-9)
-    assert T[2, 3] == pytest.approx(first.T_base_obj[2, 3] + nesting_height(m) + DROP_HEIGHT)
+    assert T[2, 3] == pytest.approx(first.T_base_obj[2, 3] + nesting_height(m))  # the first rests DROP_HEIGHT lower
