@@ -8,7 +8,9 @@ a :class:`Scene` with its own GeometryData, collision pairs and per-pair securit
 Margins: every pair is checked with ``margin`` (conservative, 1 cm by default: the simulator's FakeArm stops on
 contact with its own geometry, a real cell has calibration error), except the gripper near the grasp: a scene
 variant made with :meth:`Scene.for_grasp` checks the gripper with ``grasp_margin`` and lets the finger pads touch
-the grasped object (the allowed-contact set of that query).
+the grasped object (the allowed-contact set of that query) while the TCP is within ``pad_contact_radius`` (2.5 cm)
+of that object's surface, i.e. while closing around it; farther out a pad touching it would push or hit it (the
+simulator, fakes/collision.py, allows finger contacts within 3 cm: the planner stays the more conservative).
 
 Geometry of the UR links (in Pinocchio joint frames = DH frame i-1 turned by q_i): the real links are offset
 from the DH plane along the shoulder/elbow axes (UR5e: upper arm ~0.138 m, forearm ~0.138-0.131 m; scaled by d4
