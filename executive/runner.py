@@ -61,7 +61,7 @@ class StepFailed(Exception):
 @dataclass
 class Failure:
     kind: str  # camera_timeout | bad_depth | arm_disconnected | protective_stop | estop | gripper_hardware |
-    #            grasp_missed | slip | planning | verify_failed | limit_violation | timeout | no_target | error
+    #            grasp_missed | slip | planning | no_path | verify_failed | limit_violation | timeout | no_target | error
     message: str
     state: str
     details: dict = field(default_factory=dict)
@@ -461,17 +461,20 @@ class TaskRunner:
         self._log("result", "arm.execute_trajectory", name=traj.name, q=self.arm.joint_positions())
 
     def _move_joints(self, q: np.ndarray, what: str) -> None:
-        """A collision-free planned joint motion when the planner finds one, else a direct joint move."""
+        """A collision-free planned joint motion (two tries: RRT-Connect is randomised). Without one the arm does
+        not move: StepFailed("no_path"). Only a runner built without a planner moves directly."""
         q_now = self.arm.joint_positions()
         if np.max(np.abs(q_now - q)) < 1e-3:
             return
-        plan = self.planner.plan_move(q_now, q, objects=self._scene_objects(),
-                                      map_points=self.map_points) if self.planner is not None else None
-        if plan is not None and plan.ok:
-            self._run_trajectory(plan.trajectory)
-            return
-        if plan is not None:
-            self._log("note", "plan_move failed; direct joint move", what=what, reason=str(plan))
+        if self.planner is not None:
+            plan = None
+            for _ in range(2):
+                plan = self.planner.plan_move(q_now, q, objects=self._scene_objects(), map_points=self.map_points)
+                if plan.ok:
+                    self._run_trajectory(plan.trajectory)
+                    return
+            self._log("note", "no collision-free path; not moving", what=what, reason=str(plan))
+            raise StepFailed("no_path", f"no collision-free path to {what}: {plan}")
         self._cmd("arm.move_joints", q=q, speed=self.opt.scan_speed, what=what)
         with self._arm_lock:
             self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
@@ -511,9 +514,18 @@ class TaskRunner:
     # ---- states ----------------------------------------------------------------------------------------------------
     def _scan(self) -> list[View]:
         views = []
+        skipped: list[StepFailed] = []
         for k, q in enumerate(self.robot.config.scan_waypoints):
-            self._move_joints(np.asarray(q, float), f"scan waypoint {k}")
+            try:
+                self._move_joints(np.asarray(q, float), f"scan waypoint {k}")
+            except StepFailed as e:  # blocked (e.g. by a pile on the counter): the other views still cover the sink
+                if e.kind != "no_path":
+                    raise
+                skipped.append(e)
+                continue
             views.append(self._capture_view(f"scan{self.scan_count}_wp{k}", f"scan_wp{k}"))
+        if not views:
+            raise skipped[0]
         self.scan_count += 1
         if self.dataset is not None:
             self.dataset.write_scan(views)

@@ -102,3 +102,32 @@ def test_stop_while_holding_puts_the_object_down_at_the_fallback_spot(make_runne
     assert zone.origin_xy[1] - 0.05 <= y <= zone.origin_xy[1] + zone.size_xy[1] + 0.05
     assert report.protective_stops == 1 and report.recoveries >= 1
     assert report.truth["end"]["in_sink"] == 0 and report.truth["end"]["held"] is False
+
+
+def test_no_collision_free_path_means_no_motion(make_runner, safe_end):
+    """When no collision-free path to a scan waypoint (or home) exists, the arm does not move at all (no direct
+    joint move as a fallback); the run gives up where it stands (here: home)."""
+    from kitchenbot.planning.types import GoalInCollision
+
+    runner, world = make_runner()
+    real = runner.planner
+    calls = []
+
+    class NoPaths:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_move(self, q0, q1, **kw):
+            calls.append(q1)
+            return GoalInCollision("test: every waypoint is blocked")
+
+    runner.planner = NoPaths()
+    q0 = world.q.copy()
+    report = runner.run()
+    safe_end(runner, world)
+    assert calls, "the runner asked for paths"
+    assert report.status == "failed" and "no collision-free path" in report.message
+    assert report.safe  # it never left home, the safe pose
+    assert abs(world.q - q0).max() < 1e-9  # never moved
+    notes = [e for e in runner.journal.events(runner.run_id, kind="note") if e["name"].startswith("no collision-free path")]
+    assert notes
