@@ -1,7 +1,11 @@
 """cup-stacking: stack each cup from the sink onto a cup of the same type in the counter stacking area.
 
 The first cup of a type becomes the base of its stack (upright, on a free spot of the stacking area); each
-further cup of that type nests on top of the stack, lifted by planning.placement's nesting height. Other objects stay in the sink. Success: no cup left in the sink, every cup verified on its stack.
+further cup of that type nests on top of the stack, lifted by planning.placement's nesting height. Other objects
+stay in the sink, except those resting on or over a cup (a mug leaning into it, a glass lying across it): as a
+person would, they are moved out of the way first, into the counter drop zone (upright, or set down the way they
+lay), since a cup cannot be lifted out from under them. Success: no cup left in the sink, every cup verified on
+its stack.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import Task, area_spots, on_top_of_same, upright
+from kitchenbot.tasks.base import Task, _drop_zone_targets, area_spots, as_is, footprint, on_top_of_same, upright
 
 MAX_STACK = 6
 
@@ -30,11 +34,66 @@ class CupStacking(Task):
     def wants(self, obj: ObjectPose) -> bool:
         return obj.cls == "cup"
 
+    def _rests_over(self, o: ObjectPose, cup: ObjectPose) -> bool:
+        """`o` rests higher than `cup` and some of its surface lies over the cup's footprint, above the cup's
+        centre: lifting the cup would hit it (o leans into, onto or across the cup)."""
+        if o.T_base_obj[2, 3] <= cup.T_base_obj[2, 3]:
+            return False
+        lo, hi, _ = footprint(self.inventory[cup.obj_id], cup.T_base_obj)
+        m = self.inventory[o.obj_id]
+        P = m.points @ o.T_base_obj[:3, :3].T + o.T_base_obj[:3, 3]
+        inside = np.all((P[:, :2] > lo) & (P[:, :2] < hi), axis=1) & (P[:, 2] > cup.T_base_obj[2, 3])
+        return bool(inside.any())
+
+    def blockers(self, poses: list[ObjectPose]) -> list[ObjectPose]:
+        """Objects in the sink this task does not want that rest on or over a cup it wants (or on such an
+        object, transitively): they have to be moved out of the way first."""
+        todo = [p for p in poses if self.in_sink(p) and self.wants(p)]
+        out: list[ObjectPose] = []
+        grew = True
+        while grew:
+            grew = False
+            for o in poses:
+                if self.wants(o) or not self.in_sink(o) or any(o is b for b in out):
+                    continue
+                if any(self._rests_over(o, c) for c in todo + out):
+                    out.append(o)
+                    grew = True
+        return out
+
+    def remaining(self, poses: list[ObjectPose]) -> list[ObjectPose]:
+        """The cups still in the sink plus what rests on them; those blockers first (uncovered ones first, top
+        down), then the cups in Task.remaining's order."""
+        cups = super().remaining(poses)
+        blocking = self.blockers(poses)
+        self.pending = [self.inventory[p.obj_id] for p in cups + blocking]
+        return sorted(blocking, key=lambda p: (self._covered(p, poses), -p.T_base_obj[2, 3])) + cups
+
+    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+        if not self.wants(obj):
+            return self._out_of_the_way(obj)
+        return self._stack_targets(obj)
+
+    def _out_of_the_way(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+        """A blocker goes to the counter drop zone: upright, or (not upright in the sink, where no grasp may
+        reach upright) set down the way it lies."""
+        model = self.inventory[obj.obj_id]
+        out = _drop_zone_targets(model, self.cell.spec.drop_zone, self.placed, 3)
+        for t in out:
+            t.support = "counter (out of a cup's way)"
+        R = obj.T_base_obj[:3, :3]
+        if R[2, 2] < 0.95:
+            z = self.cell.spec.drop_zone
+            lo = np.array(z.origin_xy)
+            for T in area_spots(model, lo, lo + np.array(z.size_xy), z.z, self.placed, as_is(R), 2, centre_inside="any"):
+                out.append(PlaceTarget(T, "drop", free_yaw=False, support="counter (out of a cup's way, as it lay)"))
+        return out or NoFreeSlot(f"drop zone has no free spot to move the {obj.cls} off a cup")
+
     def target_areas(self, cls: str) -> list[tuple[np.ndarray, np.ndarray]]:
         a = self.cell.spec.stacking_area
         return [(np.array(a.origin_xy), np.array(a.origin_xy) + np.array(a.size_xy))]
 
-    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+    def _stack_targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
         model = self.inventory[obj.obj_id]
         stacked = [p for p in self.placed if p.obj_id == obj.obj_id and p.target.kind in ("stack", "stack_base")]
         if stacked and len(stacked) < MAX_STACK:
