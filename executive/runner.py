@@ -38,6 +38,8 @@ from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import NoFreeSlot, Trajectory
 from kitchenbot.transforms import inv
 
+SLIDABLE = ("plate",)  # classes that nest flat in stacks and are slid sideways to free them
+
 Listener = Callable[[dict], None]
 
 
@@ -112,6 +114,7 @@ class RunReport:
     objects_done: int = 0
     attempts: int = 0
     recoveries: int = 0
+    slides: int = 0  # items slid sideways to free them (the top plate of a nested stack)
     state_time_s: dict = field(default_factory=dict)  # wall seconds per state
     state_sim_time_s: dict = field(default_factory=dict)  # simulated seconds per state (simulation only)
     transitions: list = field(default_factory=list)
@@ -162,6 +165,7 @@ class _Tried:
     reasons: list = field(default_factory=list)
     plan_failures: int = 0
     plan_epoch: int = -1
+    slides: int = 0
 
     def plan_failed(self, epoch: int) -> None:
         if self.plan_epoch != epoch:
@@ -227,6 +231,7 @@ class TaskRunner:
         self.pending: _Pending | None = None
         self.failure: Failure | None = None
         self.tried: list[_Tried] = []
+        self.slide = None  # a planned slide (planning.slide.SlidePlan) instead of a pick and place
         self.scene_epoch = 0  # placements so far (staging included): planning failures are per epoch
         self.unverified: list[str] = []  # gone from the sink but not seen at the target
         self.unplannable: list[ObjectPose] = []
@@ -587,7 +592,7 @@ class TaskRunner:
         return out
 
     def _do_select_grasp(self) -> str:
-        self.pick = self.place = None
+        self.pick = self.place = self.slide = None
         self.current_staged, self.staging = None, False
         for st in list(self.staged):  # staged objects first: they wait on the counter for their regrasp
             obj = self.task.as_pose(st)
@@ -648,6 +653,23 @@ class TaskRunner:
                                                      place_target=stage)
                 if staged_pick.ok:
                     pick, targets, self.staging = staged_pick, stage, True
+        if not pick.ok and pick.kind == "no_collision_free_grasp" and obj.cls in SLIDABLE \
+                and self.current_staged is None:
+            # Nested in a stack (the top plate): no pinch fits under its lip. Slide it sideways with the closed
+            # fingers first; the next scan sees it overhanging the one below, where a lip pinch fits.
+            t = self._tried_for(obj, create=True)
+            if t.slides < M.MAX_SLIDES_PER_OBJECT:
+                self._cmd("plan_slide", cls=obj.cls)
+                slide = self.planner.plan_slide(q, scene_objs, obj, map_points=self.map_points)
+                self._check_deadline()
+                if slide.ok:
+                    self.slide = slide
+                    self._log("result", "planned slide", direction=slide.direction, distance=slide.distance,
+                              to=slide.T_base_obj_after[:3, 3])
+                    if self.recorder is not None:
+                        self.recorder.plan(slide.trajectories, self._sim_now())
+                    return "planned"
+                self._log("note", "no slide", reason=str(slide))
         if not pick.ok:
             raise StepFailed("planning", f"no pick plan for the {obj.cls}: {pick}", planning_kind=pick.kind)
         others = [p for p in scene_objs if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
@@ -663,6 +685,8 @@ class TaskRunner:
         return "planned"
 
     def _do_execute(self) -> str:
+        if self.slide is not None:
+            return self._execute_slide()
         pick, place, obj = self.pick, self.place, self.current
         self.report.attempts += 1
         self._tried_for(obj, create=True).count += 1
@@ -696,6 +720,22 @@ class TaskRunner:
         T_expected[2, 3] = min(T_expected[2, 3], float(place.target.T_base_obj[2, 3]))
         self.pending = _Pending(obj, place.target, T_expected, view, self.staging, self.current_staged,
                                 near_before=max(1, len(self._same_class_near(obj))))
+        return "executed"
+
+    def _execute_slide(self) -> str:
+        """Close the fingers, press on the item, slide it, go back up; the re-scan (verify) sees where it went."""
+        sl, obj = self.slide, self.current
+        t = self._tried_for(obj, create=True)
+        t.slides += 1
+        self.report.slides += 1
+        self._cmd("gripper.open", opening=0.0, why="closed fingers press on the item")
+        self.gripper.open(0.0)
+        for traj in sl.trajectories:
+            self._run_trajectory(traj)
+        self.slide = None
+        t.pos = sl.T_base_obj_after[:3, 3].copy()  # it is the same item over there (bounded slides)
+        self.scene_epoch += 1  # the scene changed: what could not be planned may be now
+        self._log("result", "slid", cls=obj.cls, to=sl.T_base_obj_after[:3, 3])
         return "executed"
 
     def _do_verify(self) -> str:
@@ -849,15 +889,18 @@ class TaskRunner:
 
     def _back_out(self) -> None:
         """After a failed grasp the gripper may be around an object in the sink: open, then straight back out."""
-        if self.pick is None or self.failure is None or self.failure.state != "execute":
+        if self.failure is None or self.failure.state != "execute":
             return
         q = self.arm.joint_positions()
-        gi = self.pick.grasp_in
-        if not self._holding():
-            self._cmd("gripper.open", opening=self.pick.grasp.spec.opening)
-            self.gripper.open(self.pick.grasp.spec.opening)
-        d = np.max(np.abs(gi.q - q), axis=1)
-        k = int(np.argmin(d))
+        d, k = np.array([np.inf]), 0
+        if self.pick is not None:
+            gi = self.pick.grasp_in
+            if not self._holding():
+                self._cmd("gripper.open", opening=self.pick.grasp.spec.opening)
+                self.gripper.open(self.pick.grasp.spec.opening)
+            d = np.max(np.abs(gi.q - q), axis=1)
+            k = int(np.argmin(d))
+        # (no pick: a slide was cut short, the fingers may still press on the item: straight up)
         if d[k] < 0.01 and k > 0:  # on the grasp-in line: retrace it
             self._run_trajectory(Trajectory(gi.times[k] - gi.times[k::-1], gi.q[k::-1].copy(), "back_out"))
         elif self.arm.tcp_pose()[2, 3] < 0.05:  # deep in the sink elsewhere: straight up a little

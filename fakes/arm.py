@@ -182,6 +182,8 @@ class _Motion:
     outcome: str  # done | protective_stop | disconnected | stopped
     detail: str = ""
     slip_u: float | None = None
+    dragged: int | None = None  # uid of an object the pressing fingers drag along (see FakeArm._press_drag)
+    drag_end_u: float | None = None  # where it stops being pressed (it is left there) before the motion ends
     stop_e: float | None = None  # elapsed time at which stop() started decelerating
     tau: float = 0.0  # deceleration time
 
@@ -443,11 +445,23 @@ class FakeArm(Arm):
         end_u, outcome, detail = duration, "done", ""
         if preset_stop is not None:
             end_u, outcome, detail = preset_stop[0], "protective_stop", preset_stop[1]
+        # Fingers pressing down on an item while the TCP moves sideways drag it along (it follows the TCP for the
+        # path check and settles where the motion ends).
+        dragged, refused = self._press_drag(q_of_u, end_u)
+        drag_end_u = None
+        if refused:
+            end_u, outcome, detail = 0.0, "protective_stop", refused
+        elif dragged is not None:
+            self.world.attach(dragged, slip=False)
+            jam_u, drag_end_u, why = self._drag_profile(dragged, q_of_u, end_u)
+            if jam_u is not None:
+                end_u, outcome, detail = jam_u, "protective_stop", why
         # Check the path: limits and collisions, sample by sample.
         opening = float(self.world.gripper_opening)
         us, qs = sample_path(q_of_u, end_u, lambda qq: self.collision.keypoints(qq, opening), PATH_STEP)
         k_bad, why = self._first_limit_violation(qs)
-        contact = self.collision.check_path(qs[: k_bad if k_bad is not None else len(qs)], opening)
+        contact = self.collision.check_path(qs[: k_bad if k_bad is not None else len(qs)], opening,
+                                            sliding=dragged is not None)
         collided = False
         if contact is not None:
             k_bad, why, collided = contact.index, f"collision: {contact}", True
@@ -464,6 +478,7 @@ class FakeArm(Arm):
                 end_u, outcome, collided = after, "disconnected", False
                 detail = f"link dropped {after:.3f} s into the motion"
         m = _Motion(kind, self.world.clock.now(), duration, q_of_u, end_u, outcome, detail)
+        m.dragged, m.drag_end_u = dragged, drag_end_u
         if self.world.held_uid is not None and self.world.slip_in_motions is not None:
             if self.world.slip_in_motions == 0:  # this hold's slip (drawn once per grasp, see SimWorld.attach)
                 m.slip_u = float(self.world.rng.uniform(0.2, 0.8)) * end_u
@@ -502,6 +517,11 @@ class FakeArm(Arm):
         if self.world.faults.arm_disconnect and e < m.e_end:  # the link dropped: the arm stops where it is
             m.end_u = m.u(e)
             m.outcome, m.detail = "disconnected", "link dropped during the motion"
+        if m.drag_end_u is not None and m.dragged is not None and m.u(e) >= m.drag_end_u:
+            self.world.set_joints(m.q_of_u(m.drag_end_u))
+            if self.world.held_uid == m.dragged:
+                self._let_go_dragged()
+            m.dragged = None
         if m.slip_u is not None and m.u(e) >= m.slip_u:
             self.world.set_joints(m.q_of_u(m.slip_u))
             self._slip()
@@ -514,6 +534,8 @@ class FakeArm(Arm):
 
     def _finish(self, m: _Motion) -> None:
         self._motion = None
+        if m.dragged is not None and self.world.held_uid == m.dragged:
+            self._let_go_dragged()
         self.log.motion_time += m.e_end
         t = m.t0 + m.e_end
         if m.outcome == "protective_stop":
@@ -531,6 +553,99 @@ class FakeArm(Arm):
         else:
             self.log.completed += 1
             self._event("done", m.kind, t)
+
+    # ---- pressing and dragging ------------------------------------------------------------------------------
+    def _press_drag(self, q_of_u, end_u: float) -> tuple[int | None, str]:
+        """(uid, "") of the item the closed fingers press on from above during a sideways motion, which it then
+        follows (the fingers' friction on it beats its friction on what it rests on: a plate slid off the one
+        below); (None, why) when something rests on that item (a loaded item is not pushed: protective stop);
+        (None, "") otherwise.
+
+        Physics-free rule: gripper closed (< 1 cm), approach within 14 degrees of straight down, the TCP moves
+        >= 5 mm sideways while staying level (<= 4 mm up or down), and a finger tip is 0-6 mm into the top
+        surface of an item (the Fin-Ray fingers' compliance presses it)."""
+        w = self.world
+        if w.held_uid is not None or w.gripper_opening > 0.01 or end_u <= 0:
+            return None, ""
+        Ts = [fk_flange(self.model, q_of_u(u)) @ self.limits.T_flange_tcp for u in np.linspace(0.0, end_u, 9)]
+        if Ts[0][2, 2] > -0.97:
+            return None, ""
+        P = np.array([T[:3, 3] for T in Ts])
+        side = float(np.linalg.norm(P[-1, :2] - P[0, :2]))
+        if side < 0.005 or abs(P[-1, 2] - P[0, 2]) > 0.004 + 0.4 * side:  # mostly sideways (<~22 deg up/down)
+            return None, ""
+        from kitchenbot.fakes.geometry import build_scene
+
+        g = self.collision.gripper
+        half = w.gripper_opening / 2 + g.finger_thickness / 2
+        tips = np.array([(Ts[0] @ np.array([0.0, y, g.tip_z, 1.0]))[:3] for y in (half, -half)])
+        scene, labelled = build_scene(w, include_cell=False)
+        if not labelled.kinds:
+            return None, ""
+        origins = tips + np.array([0.0, 0.0, 0.03])
+        rays = np.hstack([origins, np.tile([0.0, 0.0, -1.0], (len(tips), 1))]).astype(np.float32)
+        import open3d as o3d
+
+        ans = scene.cast_rays(o3d.core.Tensor(rays))
+        t, gid = ans["t_hit"].numpy(), ans["geometry_ids"].numpy()
+        if any(np.isfinite(ti) and ti < 0.024 for ti in t):
+            return None, "fingers pressed more than 6 mm into an item while moving sideways"
+        pressed = [int(labelled.kinds[int(i)][1]) for ti, i in zip(t, gid) if np.isfinite(ti) and 0.024 <= ti <= 0.031]
+        if not pressed:
+            return None, ""
+        uid = pressed[0]
+        o = w.objects[uid]
+        V = np.asarray(o.model.mesh.vertices) @ o.T_base_obj[:3, :3].T + o.T_base_obj[:3, 3]
+        lo, hi = V.min(0) - 0.003, V.max(0) + 0.003
+        for v, other in w.objects.items():
+            if v == uid:
+                continue
+            W = np.asarray(other.model.mesh.vertices) @ other.T_base_obj[:3, :3].T + other.T_base_obj[:3, 3]
+            above = other.T_base_obj[2, 3] > o.T_base_obj[2, 3] + 0.005
+            if above and np.all(W.min(0) <= hi) and np.all(W.max(0) >= lo):
+                return None, f"pushing object {uid} with object {v} resting on it"
+        return uid, ""
+
+    def _drag_profile(self, uid: int, q_of_u, end_u: float) -> tuple[float | None, float | None, str]:
+        """(jam_u, release_u, why) of a drag: the item rides on what is under it while the fingers carry it
+        rigidly, so where its resting height (dropped onto the world without it) is more than 6 mm above the
+        carried pose, the fingers would have to push it through its support: a jam (protective stop at the last
+        good sample); where the resting height is more than 2 mm below, it falls away from the fingers and
+        stays (released there)."""
+        from kitchenbot.fakes.geometry import build_scene
+        from kitchenbot.fakes.placement import _Body, _drop
+
+        w = self.world
+        body = _Body.of(w.objects[uid].model.mesh)
+        scene, _ = build_scene(w, exclude=(uid,))
+        T_tcp_held = w.T_tcp_held
+        T0 = fk_flange(self.model, q_of_u(0.0)) @ self.limits.T_flange_tcp
+        T1 = fk_flange(self.model, q_of_u(end_u)) @ self.limits.T_flange_tcp
+        n = max(2, int(np.ceil(np.linalg.norm(T1[:3, 3] - T0[:3, 3]) / 0.005)) + 1)
+        last = 0.0
+        for u in np.linspace(0.0, end_u, n)[1:]:
+            T = fk_flange(self.model, q_of_u(u)) @ self.limits.T_flange_tcp @ T_tcp_held
+            T_rest, _ = _drop(body, T, scene, -1.0)
+            dz = T[2, 3] - T_rest[2, 3]
+            if dz < -0.006:
+                return last, None, f"dragged object {uid} jams against what it rests on"
+            if dz > 0.002:
+                return None, u, ""
+            last = float(u)
+        return None, None, ""
+
+    def _let_go_dragged(self) -> None:
+        """The dragged item stays where the fingers left it, settled on what is under it."""
+        from kitchenbot.fakes.placement import settle
+
+        w = self.world
+        uid = w.held_uid
+        w.held_uid, w.T_tcp_held = None, None
+        o = w.objects[uid]
+        inside = w.cell.in_sink(o.T_base_obj[:3, 3])[0]
+        o.T_base_obj = settle(w, uid, o.T_base_obj, keep_inside=w.cell.sink_interior if inside else None)
+        w.version += 1
+        self._event("dragged", f"object {uid} slid to {np.round(o.T_base_obj[:3, 3], 3).tolist()}")
 
     def _slip(self) -> None:
         uid = self.world.release()

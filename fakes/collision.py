@@ -195,7 +195,7 @@ class SimCollision:
         return np.asarray(pts)
 
     # ---- queries ---------------------------------------------------------------------------------
-    def check_path(self, qs: np.ndarray, opening: float) -> Contact | None:
+    def check_path(self, qs: np.ndarray, opening: float, sliding: bool = False) -> Contact | None:
         """First disallowed contact along consecutive configurations `qs` (N, 6), or None.
 
         The world's held object (if any) follows the TCP. Contacts at qs[0] of the fingers/held object are
@@ -245,7 +245,11 @@ class SimCollision:
             hit = self._first_hit(parts, env, env_box, T_tcp, k, (start_contacts, start_pos, seen))
             if hit is not None:
                 return hit
-            start_contacts &= seen  # a start contact that broke is no longer allowed
+            # a start contact that broke is no longer allowed; except, for an item slid along on what it rests
+            # on (`sliding`, see FakeArm._press_drag), the held item's: it rides over its support's surface
+            # (how deep it may go is FakeArm._drag_profile's rule)
+            keep = {p for p in start_contacts if p[0] == "held"} if sliding else set()
+            start_contacts &= seen | keep
         return None
 
     def _first_hit(self, parts, env, env_box, T_tcp, k, start) -> Contact | None:

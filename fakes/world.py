@@ -140,14 +140,18 @@ class SimWorld:
         return self.T_base_flange() @ self.T_flange_cam
 
     # ---- grasping -----------------------------------------------------------------------------------------
-    def attach(self, uid: int) -> None:
+    def attach(self, uid: int, slip: bool = True) -> None:
         """The gripper now holds `uid`; it keeps its pose relative to the TCP.
 
         Slip is drawn once per hold (per transport): with `faults.slip_probability` the object will slip out
         during one of the next three arm motions (lift, transit or the move to the target), chosen at random.
+        `slip=False`: no slip draw (an object dragged along under the pressing fingers, see FakeArm).
         """
         self.held_uid = uid
         self.T_tcp_held = inv(self.T_base_tcp()) @ self.objects[uid].T_base_obj
+        if not slip:
+            self.slip_in_motions = None
+            return
         p = self.faults.slip_probability
         self.slip_in_motions = int(self.rng.integers(0, 3)) if p > 0 and self.rng.random() < p else None
 

@@ -276,14 +276,10 @@ def cartesian_line(
             dense = densify(Q[m:], r, check_step)
             return _line_collides(scene, dense[bad], None)
         return Q
-    if not check_start:
-        # the first state may touch (e.g. the release pose); check from the first step on
-        bad = check_segment(scene, Q[1:], r, check_step) if len(Q) > 2 else -1
-        bad = -1 if bad < 0 else bad + 1
-    else:
-        bad = check_segment(scene, Q, r, check_step)
+    # the first state may touch when not check_start (e.g. the release pose): check from the first step on
+    checked = Q if check_start else Q[1:]
+    bad = check_segment(scene, checked, r, check_step) if len(checked) > 1 or check_start else -1
     if bad >= 0:
-        dense = densify(Q, r, check_step)
-        return _line_collides(scene, dense[bad], None)
+        return _line_collides(scene, densify(checked, r, check_step)[bad], None)
     return Q
 

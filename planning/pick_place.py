@@ -514,6 +514,17 @@ class Planner:
         return last
 
     # ---- free motion -----------------------------------------------------------------------------------------------
+    def plan_slide(self, q_start: np.ndarray, objects: Sequence[ObjectPose], target: ObjectPose, *,
+                   map_points: np.ndarray | None = None, distance: float = 0.06):
+        """Slide `target` sideways with the closed fingers pressing on it, so that it can be picked afterwards
+        (the top plate of a nested stack): see planning.slide."""
+        from kitchenbot.planning.slide import plan_slide
+
+        q0 = self._check_q(q_start, "q_start")
+        if isinstance(q0, PlanningFailure):
+            return q0
+        return plan_slide(self, q0, list(objects), target, map_points=map_points, distance=distance)
+
     def plan_move(
         self,
         q_start: np.ndarray,

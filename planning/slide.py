@@ -1,0 +1,263 @@
+"""Slide an item sideways with the closed fingers pressing on it: the move that frees the top plate of a stack.
+
+A plate nested on another one cannot be pinched: the lip of the plate below is a few millimetres under its lip,
+where a finger would have to go. People (and this robot) slide the top plate a few centimetres sideways first;
+then its lip overhangs the one below and a tilted lip pinch fits under it.
+
+Plan (all in the base frame): press point = where a vertical line through the item's centre meets its top
+surface; the closed gripper comes down on it pointing straight down (the Fin-Ray tips 3 mm into the surface:
+their compliance gives the normal force), moves ``distance`` sideways level, and goes back up. The direction is
+the first of eight (most free room first) in which the moved item stays inside the sink, touches nothing new,
+and (if asked) can then be picked. The item is modelled as held during the slide; its contacts with what it
+rests on are allowed for the whole slide (it slides on them).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import ClassVar
+
+import coal
+import numpy as np
+import open3d as o3d
+
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.collision import Held
+from kitchenbot.planning.grasps import _tf, object_name
+from kitchenbot.planning.motion import cartesian_line
+from kitchenbot.planning.types import CartesianPathFailed, NoIK, PlanningFailure, Trajectory
+from kitchenbot.transforms import inv, make_T, rot_z, trans
+
+PRESS_DEPTH = 0.003  # m the finger tips go into the surface (the simulator's tips; see fakes.arm._press_drag)
+SIM_TIP = 0.010  # m past the TCP where the fingers end (fakes.collision.GripperGeometry.tip_z)
+
+
+@dataclass
+class SlidePlan:
+    """``approach`` (joint motion to above the press point, gripper closed), ``press`` (straight down),
+    ``slide`` (level, sideways by ``distance`` along ``direction``), ``release`` (straight up)."""
+
+    target: ObjectPose
+    T_base_obj_after: np.ndarray  # where the item should end (before it settles)
+    direction: np.ndarray  # unit, horizontal
+    distance: float
+    approach: Trajectory
+    press: Trajectory
+    slide: Trajectory
+    release: Trajectory
+    timings_ms: dict = field(default_factory=dict)
+    ok: ClassVar[bool] = True
+
+    @property
+    def trajectories(self) -> list[Trajectory]:
+        return [self.approach, self.press, self.slide, self.release]
+
+
+def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
+    return replace(o, T_base_obj=trans(*shift) @ np.asarray(o.T_base_obj, float),
+                   points=np.asarray(o.points).reshape(-1, 3) + shift)
+
+
+def press_point(model, T_base_obj: np.ndarray) -> np.ndarray | None:
+    """Top surface point (base frame) on the vertical line through the item's centre, or None if it misses."""
+    scene = o3d.t.geometry.RaycastingScene()
+    mesh = o3d.geometry.TriangleMesh(model.mesh)
+    mesh.transform(np.asarray(T_base_obj, float))
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    c = np.asarray(T_base_obj, float)[:3, 3]
+    ray = np.array([[c[0], c[1], c[2] + 0.3, 0.0, 0.0, -1.0]], np.float32)
+    t = float(scene.cast_rays(o3d.core.Tensor(ray))["t_hit"].numpy()[0])
+    return None if not np.isfinite(t) else np.array([c[0], c[1], c[2] + 0.3 - t])
+
+
+class SupportHeight:
+    """How high an item rests (its pose dropped straight down onto the other items and the cell) at any pose:
+    the slide lifts the pressing fingers as the item climbs out of the one it is nested in."""
+
+    def __init__(self, planner, target: ObjectPose, others: list[ObjectPose]):
+        self.scene = o3d.t.geometry.RaycastingScene()
+        for b in planner.cell.boxes:
+            m = o3d.geometry.TriangleMesh.create_box(*np.asarray(b.size, float))
+            m.translate(np.asarray(b.lower, float))
+            self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(m))
+        for o in others:
+            if o.obj_id not in planner.inventory.models:
+                continue
+            m = o3d.geometry.TriangleMesh(planner.inventory[o.obj_id].mesh)
+            m.transform(np.asarray(o.T_base_obj, float))
+            self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(m))
+        V = np.asarray(planner.inventory[target.obj_id].mesh.vertices)
+        self.V = V[:: max(1, len(V) // 1500)]
+
+    def drop(self, T_base_obj: np.ndarray) -> float:
+        """How far (m) the item at `T_base_obj` would move down to rest (negative: up, it intersects)."""
+        T = np.asarray(T_base_obj, float)
+        P = self.V @ T[:3, :3].T + T[:3, 3]
+        lift = 0.03  # rays start this far above each vertex (an intersecting item is pushed up by up to this)
+        rays = np.hstack([P + [0.0, 0.0, lift], np.tile([0.0, 0.0, -1.0], (len(P), 1))]).astype(np.float32)
+        t = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        t = t[np.isfinite(t)]
+        return float(np.min(t) - lift) if len(t) else 1.0
+
+
+def slide_directions(planner, target: ObjectPose, others: list, distance: float) -> list[tuple[np.ndarray, float]]:
+    """(unit direction, clearance) of each of 8 horizontal directions the item can slide `distance` along:
+    it stays inside the sink (5 mm from the walls) and touches nothing it does not already touch. Most room
+    first."""
+    model = planner.inventory[target.obj_id]
+    T0 = np.asarray(target.T_base_obj, float)
+    V = np.asarray(model.mesh.vertices) @ T0[:3, :3].T + T0[:3, 3]
+    lo, hi = planner.cell.sink_interior
+    bvh = planner.world.bvh(model)
+    req = coal.CollisionRequest()
+    touching = set()
+    for k, o in enumerate(others):
+        if coal.collide(bvh, _tf(T0), planner.world.bvh(planner.inventory[o.obj_id]), _tf(o.T_base_obj), req,
+                        coal.CollisionResult()):
+            touching.add(k)
+    out = []
+    for a in np.radians(np.arange(0, 360, 45)):
+        d = np.array([np.cos(a), np.sin(a), 0.0])
+        W = V + distance * d
+        room = min(float(np.min(W[:, :2] - lo[:2])), float(np.min(hi[:2] - W[:, :2])))
+        if room < 0.005:
+            continue
+        T1 = trans(*(distance * d)) @ T0
+        hit = False
+        for k, o in enumerate(others):
+            if k in touching:
+                continue
+            dreq = coal.DistanceRequest()
+            dres = coal.DistanceResult()
+            dist = coal.distance(bvh, _tf(T1), planner.world.bvh(planner.inventory[o.obj_id]), _tf(o.T_base_obj),
+                                 dreq, dres)
+            if dist < 0.005:
+                hit = True
+                break
+            room = min(room, dist)
+        if not hit:
+            out.append((d, room))
+    out.sort(key=lambda x: -x[1])
+    return out
+
+
+def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: SupportHeight,
+                step: float = 0.01):
+    """The slide as straight pieces every `step` metres whose heights follow the item's resting height (it
+    climbs out of the one it is nested in): (trajectory, q_end, T_base_tcp_end, T_base_obj_end) or a failure.
+    The item may not need to rise faster than 1:1 (the fingers would push it into its support)."""
+    T_obj = np.asarray(target.T_base_obj, float)
+    z0 = support.drop(T_obj)  # ~0: it rests where it is
+    Q = [np.asarray(q_press, float)]
+    T_end, T1 = T_press, T_obj
+    prev_rise = 0.0
+    n = int(np.ceil(distance / step))
+    for k in range(1, n + 1):
+        shift = distance * k / n * d
+        T1 = trans(*shift) @ T_obj
+        rise = -(support.drop(T1) - z0)
+        if rise - prev_rise > distance / n:
+            return CartesianPathFailed("slide: the item would have to climb too steeply", {"segment": "slide"})
+        prev_rise = rise
+        T1 = trans(0.0, 0.0, rise) @ T1
+        T_end = trans(shift[0], shift[1], rise) @ T_press
+        r = cartesian_line(planner.robot, scene, Q[-1], T_end, step=planner.settings.validity_resolution,
+                           check_step=planner.settings.validity_resolution, check_start=False)
+        if isinstance(r, PlanningFailure):
+            r.message = f"slide: {r.message}"
+            r.details.setdefault("segment", "slide")
+            return r
+        Q.extend(r[1:])
+    traj = planner._time(np.asarray(Q), "slide", "along_path")
+    if isinstance(traj, PlanningFailure):
+        return traj
+    return traj, Q[-1], T_end, T1
+
+
+def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: ObjectPose, *,
+               map_points: np.ndarray | None = None, distance: float = 0.06,
+               then_pickable: bool = True) -> SlidePlan | PlanningFailure:
+    """Plan sliding `target` sideways by `distance` (see the module docstring); with `then_pickable`, only a
+    direction after which `planner.select_grasps` finds a grasp of the moved item is used."""
+    t0 = time.perf_counter()
+    s = planner.settings
+    q0 = np.asarray(q_start, float)
+    model = planner.inventory[target.obj_id]
+    names = [object_name(o, k) for k, o in enumerate(objects)]
+    k_t = next((k for k, o in enumerate(objects) if o is target), None)
+    if k_t is None:
+        return CartesianPathFailed("slide: the target is not among the objects", {})
+    others = [o for o in objects if o is not target]
+    p = press_point(model, target.T_base_obj)
+    if p is None:
+        return NoIK("slide: no top surface above the item's centre", {})
+    dirs = slide_directions(planner, target, others, distance)
+    if not dirs:
+        return CartesianPathFailed("slide: no direction with room to slide the item", {"segment": "slide"})
+    support = SupportHeight(planner, target, others)
+    base_scene = planner.scene(objects, map_points)
+    base_scene.set_opening(0.0)
+    press_scene = base_scene.for_grasp(names[k_t])
+    z_tcp = p[2] + SIM_TIP - PRESS_DEPTH
+    timings: dict = {}
+    first: PlanningFailure | None = None
+    for d, _room in dirs:
+        T1 = trans(*(distance * d)) @ np.asarray(target.T_base_obj, float)
+        if then_pickable:
+            moved = [o if o is not target else _moved(o, distance * d) for o in objects]
+            grasps = planner.select_grasps(q0, moved, target=moved[k_t], map_points=None, limit=1)
+            if isinstance(grasps, PlanningFailure):
+                first = first or CartesianPathFailed("slide: the item would still not be pickable there",
+                                                     {"segment": "slide", "after": grasps.kind})
+                continue
+        for yaw in np.radians((0.0, 90.0, 45.0, 135.0)):
+            # closed fingers pointing down; the closing axis across the slide or along it
+            a = float(np.arctan2(d[1], d[0])) + yaw
+            T_press = make_T(rot_z(a)[:3, :3] @ np.diag([1.0, -1.0, -1.0]), (p[0], p[1], z_tcp))
+            T_pre = trans(0.0, 0.0, s.approach_distance) @ T_press
+            q_pre = None
+            for qb in planner.robot.ik_all(T_pre, q0):
+                if base_scene.valid(qb):
+                    q_pre = qb
+                    break
+            if q_pre is None:
+                first = first or NoIK("slide: no collision-free configuration above the press point", {})
+                continue
+            r = planner._line(press_scene, q_pre, T_press, "press")
+            if isinstance(r, PlanningFailure):
+                first = first or r
+                continue
+            press, q_press = r
+            held = Held(model, inv(T_press) @ np.asarray(target.T_base_obj, float), 0.0)
+            voxels = planner._voxels(map_points, [o for o in objects if o.obj_id in planner.inventory.models])
+            slide_scene = planner.world.scene(planner._scene_objects(others), voxels, held, opening=0.0)
+            slide_scene = slide_scene.for_grasp(None)  # grasp margins: the fingers work close to the item
+            # it slides on what it rests on; the fingers press through it towards those items (never reaching
+            # them: the item is between), so those pairs are not checked either
+            resting = [pr for pr in slide_scene.colliding_pairs(q_press) if "held" in pr]
+            under = {b if a == "held" else a for a, b in resting}
+            shielded = [(f, u) for f in ("pad_a", "pad_b") for u in under]
+            r = _slide_path(planner, slide_scene.allowing(resting + shielded), q_press, T_press, target, d,
+                            distance, support)
+            if isinstance(r, PlanningFailure):
+                first = first or r
+                continue
+            slide, q_end, T_end, T1 = r
+            T_up = trans(0.0, 0.0, s.approach_distance) @ T_end
+            after = [o if o is not target else _moved(o, T1[:3, 3] - np.asarray(target.T_base_obj)[:3, 3])
+                     for o in objects]
+            up_scene = planner.scene(after, map_points)
+            up_scene.set_opening(0.0)
+            r = planner._line(up_scene.for_grasp(names[k_t]), q_end, T_up, "release", check_start=False)
+            if isinstance(r, PlanningFailure):
+                first = first or r
+                continue
+            release, _ = r
+            approach = planner._joint_motion(base_scene, q0, q_pre, "approach", timings)
+            if isinstance(approach, PlanningFailure):
+                first = first or approach
+                continue
+            timings["total_ms"] = (time.perf_counter() - t0) * 1e3
+            return SlidePlan(target, T1, d, distance, approach, press, slide, release, timings)
+    return first or CartesianPathFailed("slide: no plannable slide", {"segment": "slide"})

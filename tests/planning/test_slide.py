@@ -1,0 +1,88 @@
+"""Freeing the top plate of a nested stack: the planner slides it sideways with the closed fingers pressing on it
+(following its climb out of the plate below), the simulator drags it along, and then it can be picked."""
+
+import numpy as np
+import pytest
+
+from kitchenbot.drivers.errors import ProtectiveStopError
+from kitchenbot.executive.assembly import make_sim_world
+from kitchenbot.executive.config import load_config
+from kitchenbot.executive.oracle import OraclePerceiver
+from kitchenbot.fakes.arm import FakeArm
+from kitchenbot.fakes.gripper import FakeGripper
+from kitchenbot.planning.pick_place import Planner
+from kitchenbot.planning.slide import PRESS_DEPTH, SIM_TIP, press_point
+from kitchenbot.transforms import make_T
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture
+def nested():
+    """Seed 3's sink without its top item: dinner plate 2 nested on dinner plate 1, nothing else."""
+    cfg = load_config("config/sim.yaml")
+    world = make_sim_world(cfg, 3)
+    world.objects.pop(3)
+    assert sorted(world.objects) == [1, 2]
+    arm = FakeArm(world, cfg.safety_limits())
+    arm.connect()
+    grip = FakeGripper(world)
+    grip.connect()
+    grip.open(0.0)
+    return cfg, world, arm, Planner.from_config(cfg, world.inventory)
+
+
+def test_nested_plate_is_slid_then_pickable(nested):
+    cfg, world, arm, planner = nested
+    poses = OraclePerceiver(world).perceive([]).poses
+    top = next(p for p in poses if p.instance_id == 2)
+    q0 = world.q.copy()
+    assert planner.plan_pick(q0, poses, target=top).kind == "no_collision_free_grasp"
+    plan = planner.plan_slide(q0, poses, top)
+    assert plan.ok, plan
+    below = world.objects[1].T_base_obj.copy()
+    for traj in plan.trajectories:
+        arm.execute_trajectory(traj.times, traj.q)
+    assert arm.log.collisions == 0 and arm.log.protective_stops == 0
+    moved = world.objects[2].T_base_obj
+    assert np.linalg.norm(moved[:2, 3] - top.T_base_obj[:2, 3]) > 0.05  # it went along
+    assert np.linalg.norm(moved[:3, 3] - plan.T_base_obj_after[:3, 3]) < 0.01  # where the planner said
+    np.testing.assert_allclose(world.objects[1].T_base_obj, below)  # the plate below stayed
+    assert world.held_uid is None
+    poses = OraclePerceiver(world).perceive([]).poses
+    top = next(p for p in poses if p.instance_id == 2)
+    assert planner.plan_pick(world.q.copy(), poses, target=top).ok
+
+
+def test_level_push_of_a_nested_plate_jams(nested):
+    """The simulator does not let a nested plate pass through the one below: pushed level (not lifted as it
+    climbs out), it jams and the arm stops."""
+    cfg, world, arm, planner = nested
+    o = world.objects[2]
+    p = press_point(o.model, o.T_base_obj)
+    T = make_T(np.diag([1.0, -1.0, -1.0]), (p[0], p[1], p[2] + SIM_TIP - PRESS_DEPTH))
+    T_above = T.copy()
+    T_above[2, 3] += 0.1
+    q = planner.robot.ik_all(T_above, world.q)[0]
+    arm.move_joints(q, speed=1.0)
+    arm.move_linear(T, speed=0.05)
+    T_end = T.copy()
+    T_end[0, 3] -= 0.06
+    with pytest.raises(ProtectiveStopError, match="jams"):
+        arm.move_linear(T_end, speed=0.05)
+    assert world.held_uid is None  # the dragged plate was left where the arm stopped
+
+
+def test_fingers_pressing_too_deep_are_stopped(nested):
+    cfg, world, arm, planner = nested
+    o = world.objects[2]
+    p = press_point(o.model, o.T_base_obj)
+    T = make_T(np.diag([1.0, -1.0, -1.0]), (p[0], p[1], p[2] + SIM_TIP - 0.009))  # 9 mm into the plate
+    T_above = T.copy()
+    T_above[2, 3] += 0.1
+    arm.move_joints(planner.robot.ik_all(T_above, world.q)[0], speed=1.0)
+    arm.move_linear(T, speed=0.05)
+    T_end = T.copy()
+    T_end[1, 3] += 0.03
+    with pytest.raises(ProtectiveStopError, match="more than 6 mm"):
+        arm.move_linear(T_end, speed=0.05)
