@@ -101,6 +101,15 @@ class SupportHeight:
         return float(np.min(t) - lift) if len(t) else 1.0
 
 
+def _touching(planner, a: ObjectPose, b: ObjectPose, gap: float = 0.003) -> bool:
+    if a.obj_id not in planner.inventory.models or b.obj_id not in planner.inventory.models:
+        return False
+    d = coal.distance(planner.world.bvh(planner.inventory[a.obj_id]), _tf(a.T_base_obj),
+                      planner.world.bvh(planner.inventory[b.obj_id]), _tf(b.T_base_obj),
+                      coal.DistanceRequest(), coal.DistanceResult())
+    return d < gap
+
+
 def slide_directions(planner, target: ObjectPose, others: list, distance: float) -> list[tuple[np.ndarray, float]]:
     """(unit direction, clearance) of each of 8 horizontal directions the item can slide `distance` along:
     it stays inside the sink (5 mm from the walls) and touches nothing it does not already touch. Most room
@@ -198,7 +207,12 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     support = SupportHeight(planner, target, others)
     base_scene = planner.scene(objects, map_points)
     base_scene.set_opening(0.0)
+    # the fingers press on the item, towards what it rests on (never reaching it: the item is between; the
+    # planner's fingers are 2 mm longer than the simulator's, so they may seem to)
+    under = [names[k] for k, o in enumerate(objects) if o is not target and _touching(planner, target, o)]
     press_scene = base_scene.for_grasp(names[k_t])
+    if under:
+        press_scene = press_scene.allowing([(f"obj:{u}", pad) for u in under for pad in ("pad_a", "pad_b")])
     z_tcp = p[2] + SIM_TIP - PRESS_DEPTH
     timings: dict = {}
     first: PlanningFailure | None = None
