@@ -187,8 +187,9 @@ def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: 
 def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: ObjectPose, *,
                map_points: np.ndarray | None = None, distance: float = 0.06,
                then_pickable: bool = True) -> SlidePlan | PlanningFailure:
-    """Plan sliding `target` sideways by `distance` (see the module docstring); with `then_pickable`, only a
-    direction after which `planner.select_grasps` finds a grasp of the moved item is used."""
+    """Plan sliding `target` sideways by `distance` (or 3/4, 1/2 of it where there is no room; see the module
+    docstring); with `then_pickable`, only a slide after which `planner.select_grasps` finds a grasp of the moved
+    item is used."""
     t0 = time.perf_counter()
     s = planner.settings
     q0 = np.asarray(q_start, float)
@@ -201,8 +202,10 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     p = press_point(model, target.T_base_obj)
     if p is None:
         return NoIK("slide: no top surface above the item's centre", {})
-    dirs = slide_directions(planner, target, others, distance)
-    if not dirs:
+    # the longest slide that has room first (most overhang afterwards), shorter ones where the sink is full
+    cands = [(dist, d) for dist in (distance, 0.75 * distance, 0.5 * distance)
+             for d, _room in slide_directions(planner, target, others, dist)]
+    if not cands:
         return CartesianPathFailed("slide: no direction with room to slide the item", {"segment": "slide"})
     support = SupportHeight(planner, target, others)
     base_scene = planner.scene(objects, map_points)
@@ -216,10 +219,10 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     z_tcp = p[2] + SIM_TIP - PRESS_DEPTH
     timings: dict = {}
     first: PlanningFailure | None = None
-    for d, _room in dirs:
-        T1 = trans(*(distance * d)) @ np.asarray(target.T_base_obj, float)
+    for dist, d in cands:
+        T1 = trans(*(dist * d)) @ np.asarray(target.T_base_obj, float)
         if then_pickable:
-            moved = [o if o is not target else _moved(o, distance * d) for o in objects]
+            moved = [o if o is not target else _moved(o, dist * d) for o in objects]
             grasps = planner.select_grasps(q0, moved, target=moved[k_t], map_points=None, limit=1)
             if isinstance(grasps, PlanningFailure):
                 first = first or CartesianPathFailed("slide: the item would still not be pickable there",
@@ -253,7 +256,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
             under = {b if a == "held" else a for a, b in resting}
             shielded = [(f, u) for f in ("pad_a", "pad_b") for u in under]
             r = _slide_path(planner, slide_scene.allowing(resting + shielded), q_press, T_press, target, d,
-                            distance, support)
+                            dist, support)
             if isinstance(r, PlanningFailure):
                 first = first or r
                 continue
@@ -273,5 +276,5 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
                 first = first or approach
                 continue
             timings["total_ms"] = (time.perf_counter() - t0) * 1e3
-            return SlidePlan(target, T1, d, distance, approach, press, slide, release, timings)
+            return SlidePlan(target, T1, d, dist, approach, press, slide, release, timings)
     return first or CartesianPathFailed("slide: no plannable slide", {"segment": "slide"})
