@@ -22,6 +22,9 @@ from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.transforms import make_T, rot_x, rot_y
 
 CLEARANCE = 0.01  # m between neighbouring placed items
+# m between an item released with a near-level side grasp and its neighbours: the open Fin-Ray pads reach ~31 mm
+# beyond the item on both sides of the closing axis (plus the planner's margin), and they must open and back out
+PAD_ROOM = 0.04
 DROP_HEIGHT = 0.01  # m above the support at release (the object settles)
 
 
@@ -74,8 +77,8 @@ def footprint(model: ObjectModel, T_base_obj: np.ndarray) -> tuple[np.ndarray, n
     return P[:, :2].min(0), P[:, :2].max(0), float(P[:, 2].max())
 
 
-def _overlaps(lo, hi, placed: list[Placed]) -> bool:
-    return any(np.all(lo < p.hi + CLEARANCE) and np.all(hi > p.lo - CLEARANCE) for p in placed)
+def _overlaps(lo, hi, placed: list[Placed], clearance: float = CLEARANCE) -> bool:
+    return any(np.all(lo < p.hi + clearance) and np.all(hi > p.lo - clearance) for p in placed)
 
 
 @dataclass
@@ -127,6 +130,11 @@ class Task:
     def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> Placed:
         model = self.inventory[obj.obj_id]
         lo, hi, top = footprint(model, T_base_obj)
+        if model.is_rotationally_symmetric and abs(T_base_obj[2, 2]) > 0.95:
+            # an upright or inverted round item covers its disc whatever yaw the planner turned it to (the box
+            # of its turned bounding box is up to 41 % wider and would waste rack/counter room)
+            r = max(model.extents[:2]) / 2
+            lo, hi = T_base_obj[:2, 3] - r, T_base_obj[:2, 3] + r
         p = Placed(obj.obj_id, obj.cls, np.array(T_base_obj), lo, hi, top, target, 10_000 + self._next_id)
         self._next_id += 1
         self.placed.append(p)
@@ -173,10 +181,11 @@ class Task:
 
 
 def area_spots(model: ObjectModel, lo_xy, hi_xy, z: float, placed: list[Placed], pose=upright, limit: int = 3,
-               preferred: list | None = None, step: float = 0.02, centre_inside: bool = False) -> list[np.ndarray]:
+               preferred: list | None = None, step: float = 0.02, centre_inside: bool = False,
+               clearance: float = CLEARANCE) -> list[np.ndarray]:
     """Free poses for `model` in the xy box [lo_xy, hi_xy] resting at height z: the `preferred` xy first
     (e.g. rack slots), then a `step` grid. The footprint must stay inside the box (or only the centre when
-    `centre_inside`, for items larger than the area) and clear of everything placed."""
+    `centre_inside`, for items larger than the area) and `clearance` away from everything placed."""
     lo_xy, hi_xy = np.asarray(lo_xy, float), np.asarray(hi_xy, float)
     c = (lo_xy + hi_xy) / 2
     nx, ny = (np.ceil((hi_xy - lo_xy) / 2 / step) + 1).astype(int)
@@ -196,7 +205,7 @@ def area_spots(model: ObjectModel, lo_xy, hi_xy, z: float, placed: list[Placed],
         m = np.where(over > 0, -over, CLEARANCE / 2) if centre_inside else CLEARANCE / 2
         inside = np.all(lo >= lo_xy + m - 1e-6) and np.all(hi <= hi_xy - m + 1e-6)
         taken = placed + [Placed(model.obj_id, model.cls, t, *footprint(model, t), None) for t in out]
-        if not inside or _overlaps(lo, hi, taken):
+        if not inside or _overlaps(lo, hi, placed, clearance) or _overlaps(lo, hi, taken[len(placed):]):
             continue
         out.append(T)
         if len(out) >= limit:

@@ -12,7 +12,7 @@ import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import Task, area_spots, inverted, on_edge
+from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Task, area_spots, inverted, on_edge
 
 VESSELS = ("cup", "glass", "bowl", "mug")
 
@@ -44,7 +44,12 @@ class SinkToDishwasher(Task):
             poses = area_spots(model, lo, hi, spec.floor_z, self.placed, on_edge, 3, preferred, step=0.015)
         else:
             # Packed from the corner nearest the robot on a fine grid (the nominal slots leave gaps a bowl needs).
-            poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3)
+            # An item not already mouth-down is turned over with a near-level side grasp (after a regrasp on the
+            # counter): it is released and backed out of with open pads ~31 mm beyond it on both sides of the
+            # closing axis, so it goes where its neighbours leave that room, as a person loading a rack leaves
+            # room for the hand. An item already mouth-down is carried from above (a base grasp): 1 cm is enough.
+            room = CLEARANCE if obj.T_base_obj[2, 2] < -0.5 else PAD_ROOM
+            poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room)
         names = {tuple(np.round(xy, 4)): s.name for xy, s in
                  zip(slots, [s for s in self.cell.slots if s.rack == rack])}
         # Plates on edge keep their face normal along x (tines); mugs have a handle: no free yaw for either.
