@@ -12,7 +12,7 @@ import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Task, area_spots, inverted, on_edge
+from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Placed, Task, area_spots, footprint, inverted, on_edge
 
 VESSELS = ("cup", "glass", "bowl", "mug")
 
@@ -26,13 +26,44 @@ class SinkToDishwasher(Task):
         return obj.cls == "plate" or obj.cls in VESSELS
 
     def target_areas(self, cls: str) -> list[tuple[np.ndarray, np.ndarray]]:
-        spec = self.cell.spec.dishwasher.lower if cls == "plate" else self.cell.spec.dishwasher.upper
-        lo = np.array(spec.origin_xy)
-        return [(lo, lo + np.array(spec.size_xy))]
+        dw = self.cell.spec.dishwasher
+        specs = [dw.lower] if cls == "plate" else [dw.upper, dw.lower] if cls == "bowl" else [dw.upper]
+        return [(np.array(s.origin_xy), np.array(s.origin_xy) + np.array(s.size_xy)) for s in specs]
 
     def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+        if obj.cls == "bowl" and obj.T_base_obj[2, 2] > -0.5:
+            # Not mouth-down: a bowl (16 cm) has no level side grasp to turn it over, and its foot ring faces
+            # down. As people load one, it stands on its rim in the lower rack between the tines, facing the
+            # spray arm like a plate, carried by a rim pinch; mouth-down in the upper rack only if that is full.
+            lower = self._bowl_on_edge(obj)
+            upper = self._targets(obj, "upper")
+            out = lower + (upper if isinstance(upper, list) else [])
+            return out or NoFreeSlot("no free slot for a bowl in the lower or upper rack")
+        return self._targets(obj, "lower" if obj.cls == "plate" else "upper")
+
+    def _bowl_on_edge(self, obj: ObjectPose) -> list[PlaceTarget]:
+        """A bowl standing on its rim in the lower rack (its axis along x, as a plate), from the rack's far end
+        in x (plates are loaded from the end nearest the robot), with room for the largest plate still to come."""
         model = self.inventory[obj.obj_id]
-        rack = "lower" if obj.cls == "plate" else "upper"
+        spec = self.cell.spec.dishwasher.lower
+        lo = np.array(spec.origin_xy)
+        hi = lo + np.array(spec.size_xy)
+        taken = list(self.placed)
+        plates = [m for m in self.pending if m.cls == "plate"]
+        if plates:  # keep the plates' end of the rack: one plate thickness per plate still to come, from x near 0
+            big = max(plates, key=lambda m: max(m.extents[:2]))
+            for T in area_spots(big, lo, hi, spec.floor_z, taken, on_edge, len(plates), step=0.015):
+                taken.append(Placed(big.obj_id, big.cls, T, *footprint(big, T), None))
+        y = (lo[1] + hi[1]) / 2
+        xs = np.arange(hi[0] - 0.01, lo[0], -0.015)
+        pref = [(float(x), float(y)) for x in xs]
+        poses = area_spots(model, lo, hi, spec.floor_z, taken, on_edge, 3, pref, step=0.015)
+        poses = sorted(poses, key=lambda T: -T[0, 3])
+        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=False,
+                            support="rack_lower (on its rim)") for T in poses]
+
+    def _targets(self, obj: ObjectPose, rack: str) -> list[PlaceTarget] | NoFreeSlot:
+        model = self.inventory[obj.obj_id]
         spec = self.cell.spec.dishwasher.lower if rack == "lower" else self.cell.spec.dishwasher.upper
         lo = np.array(spec.origin_xy)
         hi = lo + np.array(spec.size_xy)

@@ -44,23 +44,24 @@ def test_registry_and_unknown_name(inv):
         assert t.description and t.success_criteria
 
 
-def test_dishwasher_plates_on_edge_in_lower_rack_vessels_inverted_in_upper(inv):
+def test_dishwasher_plates_on_edge_in_lower_rack_vessels_inverted_in_upper(inv):  # (an upright bowl: lower)
     cell = Cell()
     task = make_task("sink-to-dishwasher", inv, cell)
     fill(task, inv, ["dinner_plate", "side_plate", "cup", "glass", "bowl", "mug"])
     assert len(task.placed) == 6
     lower, upper = cell.spec.dishwasher.lower, cell.spec.dishwasher.upper
     for p in task.placed:
-        rack = lower if p.cls == "plate" else upper
+        on_rim = p.cls in ("plate", "bowl")  # an upright bowl stands on its rim in the lower rack (tests/tasks)
+        rack = lower if on_rim else upper
         lo = np.array(rack.origin_xy)
         hi = lo + np.array(rack.size_xy)
         assert np.all(p.lo >= lo - 1e-6) and np.all(p.hi <= hi + 1e-6), p.cls
         z_axis = p.T_base_obj[:3, 2]
-        if p.cls == "plate":
+        if on_rim:
             assert abs(z_axis[0]) > 0.99  # face normal along x: standing on its rim
         else:
             assert z_axis[2] < -0.99  # upside down
-        bottom = p.T_base_obj[2, 3] - (inv[p.obj_id].extents[2] / 2 if p.cls != "plate" else
+        bottom = p.T_base_obj[2, 3] - (inv[p.obj_id].extents[2] / 2 if not on_rim else
                                        max(inv[p.obj_id].extents[:2]) / 2)
         assert rack.floor_z <= bottom <= rack.floor_z + 0.02
     for a in range(6):  # no two footprints overlap

@@ -1,0 +1,62 @@
+"""sink-to-dishwasher: a bowl that is not mouth-down (no level side grasp turns a 16 cm bowl over) stands on its
+rim in the lower rack like a plate, away from the plates' end; a mouth-down bowl still goes into the upper rack."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kitchenbot.perception.cell import Cell
+from kitchenbot.perception.inventory import Inventory
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.types import NoFreeSlot
+from kitchenbot.tasks import make_task
+from kitchenbot.transforms import make_T
+
+MOUTH_DOWN = np.diag([1.0, -1.0, -1.0])
+
+
+@pytest.fixture(scope="module")
+def inv():
+    return Inventory.builtin()
+
+
+def in_sink(inv, name, R=np.eye(3), k=0):
+    m = inv.by_name(name)
+    return ObjectPose(m.obj_id, m.cls, make_T(R, (0.5, 0.01 * k, -0.15)), 1.0, instance_id=k)
+
+
+def test_upright_bowls_stand_on_their_rim_in_the_lower_rack(inv):
+    cell = Cell()
+    task = make_task("sink-to-dishwasher", inv, cell)
+    sink = [in_sink(inv, "bowl", k=0), in_sink(inv, "bowl", k=1), in_sink(inv, "dinner_plate", k=2),
+            in_sink(inv, "dinner_plate", k=3)]
+    task.remaining(sink)
+    low = cell.spec.dishwasher.lower
+    lo, hi = np.array(low.origin_xy), np.array(low.origin_xy) + np.array(low.size_xy)
+    r = max(inv.by_name("bowl").extents[:2]) / 2
+    for b in sink[:2]:
+        ts = task.targets(b)
+        assert not isinstance(ts, NoFreeSlot)
+        t = ts[0]
+        T = t.T_base_obj
+        assert abs(T[0, 2]) > 0.99  # axis along x: on its rim between the tines
+        assert low.floor_z <= T[2, 3] - r <= low.floor_z + 0.02
+        p = task.record_placed(b, t, T)
+        assert np.all(p.lo >= lo - 1e-6) and np.all(p.hi <= hi + 1e-6)
+        assert task.at_target("bowl", T)
+    # the plates still to come keep their end of the rack
+    for pl in sink[2:]:
+        ts = task.targets(pl)
+        assert not isinstance(ts, NoFreeSlot), ts
+        task.record_placed(pl, ts[0], ts[0].T_base_obj)
+    assert len(task.placed) == 4
+
+
+def test_a_mouth_down_bowl_still_goes_into_the_upper_rack(inv):
+    cell = Cell()
+    task = make_task("sink-to-dishwasher", inv, cell)
+    ts = task.targets(in_sink(inv, "bowl", MOUTH_DOWN))
+    up = cell.spec.dishwasher.upper
+    assert ts and all(t.T_base_obj[2, 2] < -0.99 for t in ts)
+    assert all(up.origin_xy[0] <= t.T_base_obj[0, 3] <= up.origin_xy[0] + up.size_xy[0] for t in ts)
