@@ -404,7 +404,8 @@ class Planner:
             turns = self._place_turns(target, obj_id)
         else:
             turns = [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if target.free_yaw else [np.eye(4)]
-        raises = np.arange(0.0, self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else [0.0]
+        c = float(max(target.clearance, 0.0))
+        raises = np.arange(c, c + self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else [c]
         seeds: dict[int, np.ndarray | None] = {}
         live = []
         for k, Rt in enumerate(turns):

@@ -121,6 +121,9 @@ class PlaceTarget:
     # May the object also face the other way (turned by pi about the vertical through its centre)? None: yes
     # for "slot" targets of objects whose symmetry axis is horizontal (plates on edge in a rack), else no.
     flip_ok: bool | None = None
+    # Lowest release height (m) above the resting pose: onto another item (a pile, a stack) the held item is let
+    # go this high, since its pose in the gripper is only as good as perception was (it drops and nests).
+    clearance: float = 0.0
 
 
 # ---- failures ------------------------------------------------------------------------------------------------

@@ -38,6 +38,7 @@ from kitchenbot.tasks.base import (
 
 PILE_CLASSES = ("plate", "bowl", "cup")  # items a person piles up on the counter
 PILE_MAX_TOP = 0.20  # m above the counter: a pile higher gets unstable, and the tool must still reach over it
+PILE_CLEARANCE = 0.015  # m above a pile where the item is let go: its pose in the gripper is as good as perception
 # from the zone's far corner (tests/tasks/test_sink_pick_drop_zone.py)
 
 
@@ -206,7 +207,9 @@ class SinkPick(Task):
         out: list[PlaceTarget] = []
 
         def add(Ts, support):
-            out.extend(PlaceTarget(T, "drop", free_yaw=True, support=support) for T in Ts)
+            onto = "pile" in support  # onto another item: released a little above it (see PlaceTarget.clearance)
+            out.extend(PlaceTarget(T, "drop", free_yaw=True, support=support, clearance=PILE_CLEARANCE if onto else 0.0)
+                       for T in Ts)
 
         if model.cls == "plate":
             size = max(model.extents[:2])
@@ -243,7 +246,8 @@ class SinkPick(Task):
             # drop zone as it lies now (set down the way it is held): nested onto a pile of the same model
             # lying the same way (upside-down bowls onto an upside-down bowl), else a free spot.
             for T in self._same_way_piles(model, R)[:1]:
-                out.append(PlaceTarget(T, "drop", free_yaw=False, support=f"a {model.cls} pile (as it lay)"))
+                out.append(PlaceTarget(T, "drop", free_yaw=False, support=f"a {model.cls} pile (as it lay)",
+                                       clearance=PILE_CLEARANCE))
             for T in self._floor(model, 2, as_is(R), centre_inside="any"):
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support="counter (as it lay)"))
         return out or NoFreeSlot(f"drop zone has no free spot for a {obj.cls}")
