@@ -212,14 +212,16 @@ class CollisionWorld:
         self.gripper = gripper or GripperGeometry()
         self.voxel_size = float(voxel_size)
         self.capsules = link_capsules(robot)
-        self._bvh_cache: dict[int, coal.BVHModelOBBRSS] = {}
+        self._bvh_cache: dict[int, tuple] = {}  # id(mesh) -> (mesh, BVH)
         self._proxy_cache: dict[int, coal.Box] = {}
 
     def bvh(self, model: ObjectModel) -> coal.BVHModelOBBRSS:
         key = id(model.mesh)
-        if key not in self._bvh_cache:
-            self._bvh_cache[key] = mesh_bvh(np.asarray(model.mesh.vertices), np.asarray(model.mesh.triangles))
-        return self._bvh_cache[key]
+        hit = self._bvh_cache.get(key)
+        if hit is None or hit[0] is not model.mesh:  # the entry keeps the mesh alive: its id stays unique
+            hit = self._bvh_cache[key] = (model.mesh, mesh_bvh(np.asarray(model.mesh.vertices),
+                                                               np.asarray(model.mesh.triangles)))
+        return hit[1]
 
     # ---- unexplained map points -> occupied voxels -----------------------------------------------------------
     def unexplained_voxels(

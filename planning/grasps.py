@@ -84,7 +84,7 @@ def pad_sweeps(opening: float, width: float, pad_width: float, pad_root: float,
 # still counts as from above when the item is turned upside down (sin 5 deg < max_approach_up 0.1);
 # +-30/50 deg: from above into a sink, where a 20 cm tool cannot come in level below the counter top.
 TILTS = tuple(np.radians(a) for a in (5.0, -5.0, 30.0, -30.0, 50.0, -50.0))
-_expanded: dict[int, list] = {}
+_expanded: dict[int, tuple] = {}
 
 
 def expand_grasps(model) -> list:
@@ -98,8 +98,9 @@ def expand_grasps(model) -> list:
     from kitchenbot.transforms import rot_y
 
     key = id(model)
-    if key in _expanded:
-        return _expanded[key]
+    hit = _expanded.get(key)
+    if hit is not None and hit[0] is model:  # (the model is kept in the entry: its id cannot be reused meanwhile)
+        return hit[1]
     out = list(model.grasps)
     sym = model.is_rotationally_symmetric
     axis = np.asarray(model.symmetries_continuous[0]["axis"], float) if sym else np.array([0.0, 0.0, 1.0])
@@ -110,7 +111,9 @@ def expand_grasps(model) -> list:
         # a non-symmetric item (a mug: its handle) only gets the nearly level variants
         for t in TILTS if sym else TILTS[:2]:
             out.append(GraspSpec(f"{g.name}_tilt{np.degrees(t):+.0f}", g.T_obj_tcp @ rot_y(t), g.opening, g.width))
-    _expanded[key] = out
+    if len(_expanded) > 256:
+        _expanded.clear()
+    _expanded[key] = (model, out)
     return out
 
 
