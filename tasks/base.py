@@ -77,7 +77,8 @@ def footprint(model: ObjectModel, T_base_obj: np.ndarray) -> tuple[np.ndarray, n
     return P[:, :2].min(0), P[:, :2].max(0), float(P[:, 2].max())
 
 
-def _overlaps(lo, hi, placed: list[Placed], clearance: float = CLEARANCE) -> bool:
+def _overlaps(lo, hi, placed: list[Placed], clearance: float | np.ndarray = CLEARANCE) -> bool:
+    """Boxes closer than `clearance` (m; per axis when an xy array)?"""
     return any(np.all(lo < p.hi + clearance) and np.all(hi > p.lo - clearance) for p in placed)
 
 
@@ -182,10 +183,11 @@ class Task:
 
 def area_spots(model: ObjectModel, lo_xy, hi_xy, z: float, placed: list[Placed], pose=upright, limit: int = 3,
                preferred: list | None = None, step: float = 0.02, centre_inside: bool = False,
-               clearance: float = CLEARANCE) -> list[np.ndarray]:
+               clearance: float | np.ndarray = CLEARANCE) -> list[np.ndarray]:
     """Free poses for `model` in the xy box [lo_xy, hi_xy] resting at height z: the `preferred` xy first
     (e.g. rack slots), then a `step` grid. The footprint must stay inside the box (or only the centre when
-    `centre_inside`, for items larger than the area) and `clearance` away from everything placed."""
+    `centre_inside`, for items larger than the area) and `clearance` away from everything placed (per axis when
+    an xy array)."""
     lo_xy, hi_xy = np.asarray(lo_xy, float), np.asarray(hi_xy, float)
     c = (lo_xy + hi_xy) / 2
     nx, ny = (np.ceil((hi_xy - lo_xy) / 2 / step) + 1).astype(int)

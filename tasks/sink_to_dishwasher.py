@@ -78,8 +78,10 @@ class SinkToDishwasher(Task):
             # An item not already mouth-down is turned over with a near-level side grasp (after a regrasp on the
             # counter): it is released and backed out of with open pads ~31 mm beyond it on both sides of the
             # closing axis, so it goes where its neighbours leave that room, as a person loading a rack leaves
-            # room for the hand. An item already mouth-down is carried from above (a base grasp): 1 cm is enough.
-            room = CLEARANCE if obj.T_base_obj[2, 2] < -0.5 else PAD_ROOM
+            # room for the hand. The arm reaches the upper rack level only coming in along +x..+30 degrees (a
+            # scan of release poses over the rack), so the pads open along ~y: PAD_ROOM in y, 1 cm in x. An item
+            # already mouth-down is carried from above (a base grasp): 1 cm is enough.
+            room = CLEARANCE if obj.T_base_obj[2, 2] < -0.5 else np.array([CLEARANCE, PAD_ROOM])
             poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room)
         names = {tuple(np.round(xy, 4)): s.name for xy, s in
                  zip(slots, [s for s in self.cell.slots if s.rack == rack])}

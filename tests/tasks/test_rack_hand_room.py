@@ -1,5 +1,6 @@
 """sink-to-dishwasher leaves room in the upper rack for the open pads of a near-level side grasp: an item that is
-not already mouth-down is turned over with one, so it goes PAD_ROOM from its neighbours; an item already
+not already mouth-down is turned over with one, so it goes PAD_ROOM from its neighbours along y (the pads' closing
+axis: the hand comes in along ~x), 1 cm along x; an item already
 mouth-down is set in from above and may stand 1 cm from them."""
 
 from __future__ import annotations
@@ -28,12 +29,13 @@ def in_sink(inv, name, R=np.eye(3)):
     return ObjectPose(m.obj_id, m.cls, make_T(R, (0.5, 0.0, -0.15)), 1.0)
 
 
-def gap(task, inv, obj, T):
-    """Smallest box-to-box gap (m) between `obj` at pose T and anything placed."""
+def gap(task, inv, obj, T, room=(1.0, 1.0)):
+    """Smallest box-to-box gap (m) between `obj` at pose T and anything placed, each axis's gap scaled by
+    1/room (room: the clearance wanted along x and y, relative)."""
     lo, hi, _ = footprint(inv[obj.obj_id], T)
     out = np.inf
     for p in task.placed:
-        d = np.maximum(np.maximum(p.lo - hi, lo - p.hi), 0.0)
+        d = np.maximum(np.maximum(p.lo - hi, lo - p.hi), 0.0) / np.asarray(room)
         out = min(out, float(np.max(d)))
     return out
 
@@ -45,10 +47,11 @@ def test_an_upright_cup_gets_room_for_the_open_pads(inv):
         ts = task.targets(o)
         assert not isinstance(ts, NoFreeSlot), ts
         for t in ts:
-            g = gap(task, inv, o, t.T_base_obj)
-            if R[2, 2] > 0:  # turned over by a side grasp: the pads need their room
-                assert g >= PAD_ROOM - 1e-6, (name, g)
+            if R[2, 2] > 0:  # turned over by a side grasp coming in along ~x: the pads need their room along y
+                g = gap(task, inv, o, t.T_base_obj, (CLEARANCE, PAD_ROOM))
+                assert g >= 1.0 - 1e-6, (name, g)
             else:
+                g = gap(task, inv, o, t.T_base_obj)
                 assert g >= CLEARANCE - 1e-6, (name, g)
         task.record_placed(o, ts[0], ts[0].T_base_obj)
     # and mouth-down items still pack tight: the second glass may stand closer than PAD_ROOM
