@@ -143,3 +143,31 @@ def test_no_collision_free_path_means_no_motion(make_runner, safe_end):
     assert abs(world.q - q0).max() < 1e-9  # never moved
     notes = [e for e in runner.journal.events(runner.run_id, kind="note") if e["name"].startswith("no collision-free path")]
     assert notes
+
+
+def test_a_duplicate_first_scan_detection_is_noted_not_failed(make_runner, safe_end):
+    """The first scan sees one cup twice (a duplicate detection); later scans do not. Nothing was dropped, so the
+    run succeeds and says so; with a real drop (a slip) the same count would fail the run."""
+    from dataclasses import replace
+
+    runner, world = make_runner()
+    real = runner.perceiver
+    calls = {"n": 0}
+
+    class FirstScanTwice:
+        def perceive(self, views):
+            res = real.perceive(views)
+            calls["n"] += 1
+            if calls["n"] == 1 and res.poses:
+                p = res.poses[0]
+                T = p.T_base_obj.copy()
+                T[0, 3] += 0.15  # a ghost 15 cm away
+                res.poses.append(replace(p, T_base_obj=T, instance_id=p.instance_id + 500))
+            return res
+
+    runner.perceiver = FirstScanTwice()
+    report = runner.run()
+    safe_end(runner, world)
+    assert report.status == "succeeded", report.message
+    assert "never confirmed" in report.message
+    assert report.truth["end"]["delivered"] == 1
