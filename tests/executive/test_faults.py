@@ -171,3 +171,32 @@ def test_a_duplicate_first_scan_detection_is_noted_not_failed(make_runner, safe_
     assert report.status == "succeeded", report.message
     assert "never confirmed" in report.message
     assert report.truth["end"]["delivered"] == 1
+
+
+def test_placed_item_seen_at_its_target_counts_despite_a_ghost_at_its_old_spot(make_runner, safe_end):
+    """The verify scan still 'sees' a cup where the picked one was (a duplicate detection, or the item nested
+    under it), but the target view shows the cup where it was put: it counts as placed (and is an obstacle there
+    from then on) instead of failing the verify and being forgotten at its target."""
+    from dataclasses import replace
+
+    runner, world = make_runner()
+    real = runner.perceiver
+    calls = {"n": 0, "first": None}
+
+    class GhostInFirstVerify:
+        def perceive(self, views):
+            res = real.perceive(views)
+            calls["n"] += 1
+            if calls["n"] == 1 and res.poses:
+                calls["first"] = res.poses[0]
+            if calls["n"] == 2 and calls["first"] is not None:
+                res.poses.append(replace(calls["first"], instance_id=calls["first"].instance_id + 500))
+            return res
+
+    runner.perceiver = GhostInFirstVerify()
+    report = runner.run()
+    safe_end(runner, world)
+    assert report.status == "succeeded", (report.message, report.failures)
+    assert not any(f["kind"] == "verify_failed" for f in report.failures)
+    notes = [e for e in runner.journal.events(runner.run_id, kind="note") if e["name"].startswith("placed, though")]
+    assert len(notes) == 1
