@@ -417,13 +417,7 @@ class Scene:
     def for_grasp(self, target_name: str | None, *, pads_only: bool = True) -> "Scene":
         """A copy of this scene for the last centimetres of a grasp/place: gripper margins shrink to
         ``grasp_margin`` and the pads may touch ``obj:<target_name>`` (and the palm too when not pads_only)."""
-        other = object.__new__(Scene)
-        other.__dict__.update(self.__dict__)
-        other.data = self.model.createData()
-        other.gd = pin.GeometryData(self.gm)
-        other._bp = None
-        other._pool_obj, other._pool_version = None, -1
-        other._zone = None
+        other = self._variant()
         allowed: dict[tuple[str, str], bool] = {}
         if target_name is not None:
             tgt = f"obj:{target_name}"
