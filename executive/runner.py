@@ -231,7 +231,7 @@ class TaskRunner:
         self.pending: _Pending | None = None
         self.failure: Failure | None = None
         self.tried: list[_Tried] = []
-        self.slide = None  # a planned slide (planning.slide.SlidePlan) instead of a pick and place
+        self.slide = None  # a planned slide (planning.types.SlidePlan) instead of a pick and place
         self.scene_epoch = 0  # placements so far (staging included): planning failures are per epoch
         self.unverified: list[str] = []  # gone from the sink but not seen at the target
         self.unplannable: list[ObjectPose] = []

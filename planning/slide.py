@@ -15,8 +15,7 @@ rests on are allowed for the whole slide (it slides on them).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
-from typing import ClassVar
+from dataclasses import replace
 
 import coal
 import numpy as np
@@ -26,32 +25,11 @@ from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import Held
 from kitchenbot.planning.grasps import _tf, object_name
 from kitchenbot.planning.motion import cartesian_line
-from kitchenbot.planning.types import CartesianPathFailed, NoIK, PlanningFailure, Trajectory
+from kitchenbot.planning.types import CartesianPathFailed, NoIK, PlanningFailure, SlidePlan
 from kitchenbot.transforms import inv, make_T, rot_z, trans
 
 PRESS_DEPTH = 0.003  # m the finger tips go into the surface (the simulator's tips; see fakes.arm._press_drag)
 SIM_TIP = 0.010  # m past the TCP where the fingers end (fakes.collision.GripperGeometry.tip_z)
-
-
-@dataclass
-class SlidePlan:
-    """``approach`` (joint motion to above the press point, gripper closed), ``press`` (straight down),
-    ``slide`` (level, sideways by ``distance`` along ``direction``), ``release`` (straight up)."""
-
-    target: ObjectPose
-    T_base_obj_after: np.ndarray  # where the item should end (before it settles)
-    direction: np.ndarray  # unit, horizontal
-    distance: float
-    approach: Trajectory
-    press: Trajectory
-    slide: Trajectory
-    release: Trajectory
-    timings_ms: dict = field(default_factory=dict)
-    ok: ClassVar[bool] = True
-
-    @property
-    def trajectories(self) -> list[Trajectory]:
-        return [self.approach, self.press, self.slide, self.release]
 
 
 def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
@@ -208,6 +186,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     if not cands:
         return CartesianPathFailed("slide: no direction with room to slide the item", {"segment": "slide"})
     support = SupportHeight(planner, target, others)
+    voxels = planner._voxels(map_points, [o for o in objects if o.obj_id in planner.inventory.models])
     base_scene = planner.scene(objects, map_points)
     base_scene.set_opening(0.0)
     # the fingers press on the item, towards what it rests on (never reaching it: the item is between; the
@@ -247,7 +226,6 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
                 continue
             press, q_press = r
             held = Held(model, inv(T_press) @ np.asarray(target.T_base_obj, float), 0.0)
-            voxels = planner._voxels(map_points, [o for o in objects if o.obj_id in planner.inventory.models])
             slide_scene = planner.world.scene(planner._scene_objects(others), voxels, held, opening=0.0)
             slide_scene = slide_scene.for_grasp(None)  # grasp margins: the fingers work close to the item
             # it slides on what it rests on; the fingers press through it towards those items (never reaching

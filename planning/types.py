@@ -261,6 +261,27 @@ class PlacePlan:
 
 
 @dataclass
+class SlidePlan:
+    """``approach`` (joint motion to above the press point, gripper closed), ``press`` (straight down),
+    ``slide`` (level, sideways by ``distance`` along ``direction``), ``release`` (straight up)."""
+
+    target: ObjectPose
+    T_base_obj_after: np.ndarray  # where the item should end (before it settles)
+    direction: np.ndarray  # unit, horizontal
+    distance: float
+    approach: Trajectory
+    press: Trajectory
+    slide: Trajectory
+    release: Trajectory
+    timings_ms: dict = field(default_factory=dict)
+    ok: ClassVar[bool] = True
+
+    @property
+    def trajectories(self) -> list[Trajectory]:
+        return [self.approach, self.press, self.slide, self.release]
+
+
+@dataclass
 class MovePlan:
     """A plain collision-free joint motion (e.g. to a scan waypoint or home)."""
 
