@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -56,6 +57,9 @@ def one(args: tuple) -> dict:
         "recoveries": rep.recoveries, "attempts": rep.attempts, "compute_per_cycle_s": cyc,
         "compute_s": rep.compute_time_s, "sim_s": rep.sim_time_s, "wall_s": time.perf_counter() - t0,
         "message": rep.message, "perception": rep.perception,
+        "failures": [f"{f['state']}:{f['kind']}" + (f":{f['details']['planning_kind']}"
+                                                    if f.get("details", {}).get("planning_kind") else "")
+                     for f in rep.failures],
     }
 
 
@@ -100,6 +104,10 @@ def run(args: argparse.Namespace) -> int:
                   f"{s['compute_per_cycle_median_s']:.2f}" if cyc else "-",
                   f"{s['compute_per_cycle_p90_s']:.2f}" if cyc else "-")
     console.print(t)
+    kinds = Counter(k for r in results for k in r.get("failures", []))
+    if kinds:
+        console.print("failures (state:kind[:planning kind], all runs): " +
+                      ", ".join(f"{k} {n}" for k, n in kinds.most_common()))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps({"summary": summary, "runs": results,
