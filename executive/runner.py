@@ -115,6 +115,7 @@ class RunReport:
     attempts: int = 0
     recoveries: int = 0
     slides: int = 0  # items slid sideways to free them (the top plate of a nested stack)
+    escapes: int = 0  # straight moves out of a stop within the collision margin (planning.escape)
     state_time_s: dict = field(default_factory=dict)  # wall seconds per state
     state_sim_time_s: dict = field(default_factory=dict)  # simulated seconds per state (simulation only)
     transitions: list = field(default_factory=list)
@@ -473,12 +474,16 @@ class TaskRunner:
         if np.max(np.abs(q_now - q)) < 1e-3:
             return
         if self.planner is not None:
-            plan = None
-            for _ in range(2):
+            plan, escaped = None, False
+            for _ in range(3):
                 plan = self.planner.plan_move(q_now, q, objects=self._scene_objects(), map_points=self.map_points)
                 if plan.ok:
                     self._run_trajectory(plan.trajectory)
                     return
+                if plan.kind == "start_in_collision" and not escaped:
+                    escaped = True  # stopped within the margin of something (a protective stop): jog out first
+                    if self._escape():
+                        q_now = self.arm.joint_positions()
             self._log("note", "no collision-free path; not moving", what=what, reason=str(plan))
             raise StepFailed("no_path", f"no collision-free path to {what}: {plan}")
         self._cmd("arm.move_joints", q=q, speed=self.opt.scan_speed, what=what)
@@ -486,6 +491,24 @@ class TaskRunner:
             self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
         dist = float(np.max(np.abs(q - q_now)))
         self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
+
+    def _escape(self) -> bool:
+        """The arm is within the collision margin of something (it stopped there): move the tool straight out
+        (planning.escape), so that planned motions can start again. False if no safe straight way out exists."""
+        held = self.pick.grasp if (self.pick is not None and self._holding()) else None
+        try:
+            opening = self.gripper.opening()
+        except DriverError:
+            opening = None
+        plan = self.planner.plan_escape(self.arm.joint_positions(), self._scene_objects(), map_points=self.map_points,
+                                        held=held, opening=opening)
+        if not plan.ok:
+            self._log("note", "no way out of the collision margin", reason=str(plan))
+            return False
+        self._log("note", "escaping the collision margin", **plan.timings_ms)
+        self._run_trajectory(plan.trajectory)
+        self.report.escapes += 1
+        return True
 
     def _holding(self) -> bool:
         try:
@@ -641,6 +664,10 @@ class TaskRunner:
         self._cmd("plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in self.targets])
         pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points,
                                       place_target=self.targets)
+        if not pick.ok and pick.kind == "start_in_collision" and self._escape():
+            q = self.arm.joint_positions()
+            pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points,
+                                          place_target=self.targets)
         self._check_deadline()
         targets = self.targets
         if (not pick.ok and pick.kind == "no_feasible_placement" and self.current_staged is None

@@ -404,6 +404,17 @@ class Scene:
                 other.gd.deactivateCollisionPair(k)
         return other
 
+    def touching_only(self, pairs: Iterable[tuple[str, str]]) -> "Scene":
+        """A copy of this scene in which the given (name, name) pairs keep no margin: they may come closer than
+        the collision margin but must not touch (escaping from a stop within the margin of a rack wall)."""
+        want = {tuple(p) for p in pairs} | {(b, a) for a, b in pairs}
+        other = self._variant()
+        for k, (a, b) in enumerate(self.pair_names):
+            m = self.gd.collisionRequests[k].security_margin
+            other.gd.collisionRequests[k].security_margin = 0.0 if (a, b) in want else m
+            other.gd.activateCollisionPair(k) if self.gd.activeCollisionPairs[k] else other.gd.deactivateCollisionPair(k)
+        return other
+
     def _variant(self) -> "Scene":
         other = object.__new__(Scene)
         other.__dict__.update(self.__dict__)

@@ -142,3 +142,26 @@ def test_regrasp_stages_upright_on_the_counter_then_picks_again(make_runner, saf
         assert report.truth["end"]["delivered"] == 1
     else:  # the planner could not invert it from the counter either: it is left staged, and the report says so
         assert "counter" in report.message and report.objects_done == 0
+
+
+def test_a_stop_within_the_collision_margin_is_escaped(make_runner, safe_end):
+    """An arm left a few millimetres above the sink floor (closer than the 1 cm every plan keeps: RRT-Connect
+    refuses that start) jogs straight out first, then runs the task."""
+    runner, world = make_runner()
+    planner = runner.planner
+    lo, hi = planner.cell.sink_interior
+    cup = next(o for o in world.objects.values())
+    # the sink corner farthest from the cup, finger tips (12 mm past the TCP) 5 mm above the floor
+    corners = [(x, y) for x in (lo[0] + 0.08, hi[0] - 0.08) for y in (lo[1] + 0.08, hi[1] - 0.08)]
+    xy = max(corners, key=lambda c: np.hypot(*(np.array(c) - cup.T_base_obj[:2, 3])))
+    home = np.asarray(runner.robot.config.robot.home, float)
+    T = planner.robot.fk_tcp(home)
+    T[:3, 3] = (xy[0], xy[1], lo[2] + 0.012 + 0.005)
+    q_stuck = planner.robot.ik_q(T, home)
+    assert q_stuck is not None and not planner.scene([]).valid(q_stuck)
+    world.set_joints(q_stuck)
+    rep = runner.run()
+    safe_end(runner, world)
+    assert rep.status == "succeeded", rep.message
+    assert rep.escapes == 1
+    assert rep.collisions == 0
