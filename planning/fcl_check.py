@@ -216,7 +216,7 @@ def verify_pick(checker: FclChecker, planner, plan, objects, map_points=None, st
         ("approach", checker.check_path(plan.approach.q, objects=named, opening=g.spec.opening, **kw)),
         ("grasp_in", checker.check_path(plan.grasp_in.q, objects=named, opening=g.spec.opening, allowed=pads, **kw)),
         ("lift", checker.check_path(plan.lift.q, objects=others, held=held, opening=g.spec.width,
-                                    start_travel=LIFT_CONTACT_TRAVEL, **kw)),
+                                    start_travel=max(LIFT_CONTACT_TRAVEL, plan.lift_contact_travel), **kw)),
     ]
 
 

@@ -225,11 +225,22 @@ def cartesian_line(
     check_start: bool = True,
     start_scene: Scene | None = None,
     start_travel: float = 0.0,
+    clear_within: float = 0.0,
+    clear_scene: Scene | None = None,
+    info: dict | None = None,
 ) -> np.ndarray | PlanningFailure:
     """Joint polyline moving the TCP on a straight line (orientation interpolated) from FK(q_start) to T_goal.
 
     IK at every `step` metres along the line, seeded with the previous solution (no branch switches: a joint
     jump larger than the line step can explain is a failure), each segment densely checked in `scene`.
+
+    `start_scene` (e.g. the lift's scene without the contacts the held object rests in) is used for the first
+    `start_travel` metres of TCP travel, `scene` after that. With `clear_within` > `start_travel`, what
+    `scene` rejects may also last longer, up to `clear_within` metres, when it is one contact that starts at
+    `q_start` and, once it has cleared, never comes back (an item lifted out of a neighbour whose estimated pose
+    overlaps it by more than `start_travel`); beyond `start_travel` the states must also be valid in
+    `clear_scene` (default `start_scene`: which start contacts may last longer). `info` (a dict) receives
+    ``contact_travel``: the metres of travel in which start contacts were allowed.
     """
     from scipy.spatial.transform import Rotation, Slerp
 
@@ -262,6 +273,11 @@ def cartesian_line(
         q = res.q
         Q.append(q)
     Q = np.asarray(Q)
+    if start_scene is not None and clear_within > start_travel:
+        return _check_leaving_contacts(robot, scene, start_scene, clear_scene or start_scene, Q, p0, r, check_step,
+                                       start_travel, clear_within, info)
+    if info is not None:
+        info["contact_travel"] = start_travel if start_scene is not None else 0.0
     if start_scene is not None and start_travel > 0:
         # the first `start_travel` metres are checked in `start_scene` (e.g. without the held object, which
         # leaves the contacts it rests in), the rest in `scene`
@@ -283,3 +299,48 @@ def cartesian_line(
         return _line_collides(scene, densify(checked, r, check_step)[bad], None)
     return Q
 
+
+
+def _check_leaving_contacts(robot: RobotModel, scene: Scene, start_scene: Scene, clear_scene: Scene, Q: np.ndarray,
+                            p0: np.ndarray, r: np.ndarray, check_step: float, start_travel: float, clear_within: float,
+                            info: dict | None) -> np.ndarray | PlanningFailure:
+    """The check of :func:`cartesian_line` with a contact window that lasts until the start contacts clear.
+
+    Every densified state must be valid in `start_scene` (no contact but the start ones), those beyond
+    `start_travel` also in `clear_scene` (no start contact but those that may last). The states `scene`
+    rejects must all lie within `start_travel` of the start, or form one unbroken run from the start that ends
+    within `clear_within` (the contact is left and not made again: the simulator, like a real arm's contact
+    detection, tolerates a resting contact that lasts while the item is lifted out, not one that breaks and
+    comes back)."""
+    from kitchenbot.planning.collision import tcp_positions
+
+    dense = densify(Q, r, check_step)
+    travel = np.linalg.norm(tcp_positions(robot, dense) - p0, axis=1)
+    ok_start = start_scene.valid_batch(dense)
+    if not ok_start.all():
+        return _line_collides(start_scene, dense[int(np.argmin(ok_start))], None)
+    beyond = np.flatnonzero(travel > start_travel)
+    if clear_scene is not start_scene and len(beyond):
+        ok_clear = clear_scene.valid_batch(dense[beyond])
+        if not ok_clear.all():
+            k = int(beyond[np.argmin(ok_clear)])
+            f = _line_collides(clear_scene, dense[k], None)
+            f.details["travel"] = float(travel[k])
+            return f
+    bad = np.flatnonzero(~scene.valid_batch(dense))
+    window = start_travel
+    if len(bad):
+        last = int(bad[-1])
+        if travel[last] > start_travel:
+            unbroken = len(bad) == last + 1  # every state from the start up to `last` is in contact
+            if not unbroken or travel[last] > clear_within:
+                k = int(bad[np.argmax(travel[bad] > start_travel)])
+                f = _line_collides(scene, dense[k], None)
+                f.message = (f"{f.message[:-1]}, {travel[k] * 100:.1f} cm into the line: "
+                             + ("a start contact lasts too long)" if unbroken else "a contact after the start)"))
+                f.details["travel"] = float(travel[k])
+                return f
+            window = float(travel[min(last + 1, len(travel) - 1)])
+    if info is not None:
+        info["contact_travel"] = window
+    return Q

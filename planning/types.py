@@ -219,6 +219,9 @@ class PickPlan:
     lift: Trajectory
     candidates_tried: int = 0
     timings_ms: dict = field(default_factory=dict)
+    # metres of lift (TCP travel from the grasp) during which the held object and fingers may keep the contacts
+    # they had at the grasp (3 cm, or until those contacts clear: planning.pick_place LIFT_CLEAR_TRAVEL)
+    lift_contact_travel: float = 0.03
     ok: ClassVar[bool] = True
 
     @property
