@@ -52,7 +52,8 @@ def one(args: tuple) -> dict:
     return {
         "task": task, "seed": seed, "status": rep.status, "wanted": rep.truth["start"]["in_sink"],
         "delivered": rep.truth["end"]["delivered"], "left_in_sink": rep.truth["end"]["in_sink"],
-        "elsewhere": rep.truth["end"]["elsewhere"], "objects_done": rep.objects_done,
+        "elsewhere": rep.truth["end"]["elsewhere"],
+        "elsewhere_items": rep.truth["end"].get("elsewhere_items", []), "objects_done": rep.objects_done,
         "collisions": rep.collisions, "limit_violations": rep.limit_violations, "slips": rep.slips,
         "recoveries": rep.recoveries, "attempts": rep.attempts, "compute_per_cycle_s": cyc,
         "compute_s": rep.compute_time_s, "sim_s": rep.sim_time_s, "wall_s": time.perf_counter() - t0,

@@ -35,8 +35,8 @@ from kitchenbot.executive import machine as M
 from kitchenbot.executive.journal import Journal
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.planning.types import NoFreeSlot, Trajectory
-from kitchenbot.transforms import inv
+from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
+from kitchenbot.transforms import inv, make_T, rot_z
 
 SLIDABLE = ("plate",)  # classes that nest flat in stacks and are slid sideways to free them
 
@@ -116,6 +116,7 @@ class RunReport:
     recoveries: int = 0
     slides: int = 0  # items slid sideways to free them (the top plate of a nested stack)
     escapes: int = 0  # straight moves out of a stop within the collision margin (planning.escape)
+    recovered_drops: int = 0  # items that slipped out over the counter, found there and picked up again
     state_time_s: dict = field(default_factory=dict)  # wall seconds per state
     state_sim_time_s: dict = field(default_factory=dict)  # simulated seconds per state (simulation only)
     transitions: list = field(default_factory=list)
@@ -251,6 +252,8 @@ class TaskRunner:
         self._cycle_t0 = (time.perf_counter(), 0.0, self._sim_now())
         self._first_total: int | None = None
         self.dropped = 0  # items that left the gripper on the way (slips, let go over the cell after a fault)
+        self.drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
+        self._table_perceiver = None  # perception without the cell (the counter as a table top), for drop sites
         self._deadline: float | None = None
         self._t_start = time.perf_counter()
 
@@ -429,7 +432,9 @@ class TaskRunner:
                     "objects_total": rt.objects_total})
 
     # ---- motion primitives (asynchronous + polled) ---------------------------------------------------------------
-    def _wait_motion(self, what: str, expected_s: float) -> None:
+    def _wait_motion(self, what: str, expected_s: float, carrying: bool = False) -> None:
+        """Poll a running motion until it ends (stop requests, time budget; `carrying`: the gripper too, so that an
+        object slipping out stops the arm right above where it fell)."""
         t0 = time.perf_counter()
         s0 = self._sim_now()
         limit = 2.0 * expected_s + 5.0  # driver seconds
@@ -440,6 +445,13 @@ class TaskRunner:
                 moving = self.arm.is_moving()
             if not moving:
                 break
+            if carrying and not self._holding():
+                slipped = self._slipped(what)  # the tool is about above where it fell now, not after stopping
+                self._cmd("arm.stop", reason=f"the held object slipped out during {what}")
+                with self._arm_lock:
+                    self.arm.stop()
+                self._motion_wall += time.perf_counter() - t0
+                raise slipped
             if self.advance is time.sleep:
                 time.sleep(self.opt.poll_period)
             else:
@@ -456,7 +468,7 @@ class TaskRunner:
         self._motion_wall += time.perf_counter() - t0
         self._check_deadline()
 
-    def _run_trajectory(self, traj: Trajectory) -> None:
+    def _run_trajectory(self, traj: Trajectory, carrying: bool = False) -> None:
         self._check_deadline()
         self._cmd("arm.execute_trajectory", name=traj.name, n=len(traj), duration=traj.duration,
                   q_start=traj.q[0], q_end=traj.q[-1])
@@ -464,7 +476,9 @@ class TaskRunner:
         with self._arm_lock:
             self.arm.execute_trajectory(traj.times, traj.q, asynchronous=True)
         self._motion_wall += time.perf_counter() - t0  # the (simulated) controller's work, not ours
-        self._wait_motion(f"trajectory {traj.name}", traj.duration)
+        self._wait_motion(f"trajectory {traj.name}", traj.duration, carrying)
+        if carrying and not self._holding():  # it slipped out in the last poll period
+            raise self._slipped(traj.name)
         self._log("result", "arm.execute_trajectory", name=traj.name, q=self.arm.joint_positions())
 
     def _move_joints(self, q: np.ndarray, what: str) -> None:
@@ -491,6 +505,14 @@ class TaskRunner:
             self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
         dist = float(np.max(np.abs(q - q_now)))
         self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
+
+    def _slipped(self, what: str) -> StepFailed:
+        """The held object slipped out: it fell straight down from about where the tool is now."""
+        self.dropped += 1
+        where = self.arm.tcp_pose()[:3, 3].copy()
+        self.drop_site = where
+        cls = self.current.cls if self.current is not None else "object"
+        return StepFailed("slip", f"the {cls} slipped out during {what}", at=where)
 
     def _escape(self) -> bool:
         """The arm is within the collision margin of something (it stopped there): move the tool straight out
@@ -728,12 +750,9 @@ class TaskRunner:
         if not res.holding:  # verify with the gripper: is it holding?
             raise StepFailed("grasp_missed", f"the gripper closed on nothing grasping the {obj.cls}",
                              opening=res.opening)
-        self._run_trajectory(pick.lift)
-        self._run_trajectory(place.transfer)
-        if not self._holding():
-            self.dropped += 1
-            raise StepFailed("slip", f"the {obj.cls} slipped out during transport")
-        self._run_trajectory(place.lower)
+        self._run_trajectory(pick.lift, carrying=True)
+        self._run_trajectory(place.transfer, carrying=True)
+        self._run_trajectory(place.lower, carrying=True)
         self._cmd("gripper.open", opening=pick.grasp.spec.opening, release=True)
         self.gripper.open(pick.grasp.spec.opening)
         self._run_trajectory(place.retreat)
@@ -902,6 +921,8 @@ class TaskRunner:
         if self._holding():
             self._put_down_held()
         self._back_out()
+        if f.kind == "slip":
+            self._search_drop_site()
         return "rescan"
 
     # ---- recovery actions --------------------------------------------------------------------------------------------
@@ -956,6 +977,78 @@ class TaskRunner:
 
                 if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
                     self.arm.unlock_protective_stop()
+
+    # Where the camera looks from at a drop site: straight down from this height (m above the counter), far
+    # enough for the OAK-D's minimum depth and for the view to cover where a falling item may roll.
+    SEARCH_CAMERA_HEIGHT = 0.50
+    SEARCH_RADIUS = 0.25  # m around the drop site an item found there may have come to rest
+
+    def _search_drop_site(self) -> None:
+        """An item slipped out outside the sink (over the counter): the sink scans never look there. Look straight
+        down at where it fell; an item of its class found there (and not one placed earlier) is picked up again
+        from there, as an item staged on the counter is."""
+        site, self.drop_site = self.drop_site, None
+        if site is None or self.current is None:
+            return
+        lo, hi = self.robot.cell.sink_interior
+        if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
+            return  # it fell back into the sink: the re-scan finds it
+        cls = self.current.cls
+        q = self._search_pose(site)
+        if q is None:
+            self._log("note", "no pose to look at the drop site", at=site)
+            return
+        try:
+            self._move_joints(q, "look at the drop site")
+            view = self._capture_view(f"drop{self.dropped}", "drop")
+        except (StepFailed, DriverTimeoutError) as e:
+            self._log("note", "drop site not seen", reason=str(e))
+            return
+        res = self._drop_perceiver().perceive([view])
+        placed = self.task.obstacles()
+        found = [p for p in res.poses if p.cls == cls
+                 and np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]) < self.SEARCH_RADIUS
+                 and not self.task.in_sink(p)
+                 and not any(np.linalg.norm(p.T_base_obj[:2, 3] - o.T_base_obj[:2, 3]) < 0.04 for o in placed)]
+        self._log("result", "drop site", at=site, found=[p.T_base_obj[:3, 3] for p in found])
+        if not found:
+            return
+        obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
+        where = PlaceTarget(np.array(obj.T_base_obj, float), "drop", support="counter (it fell there)")
+        self.staged.append(self.task.record_placed(obj, where, obj.T_base_obj))
+        self.report.recovered_drops += 1
+        self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
+
+    def _search_pose(self, site: np.ndarray) -> np.ndarray | None:
+        """Joint configuration putting the camera straight above `site` (looking down), collision-free, or None."""
+        planner = self.planner
+        if planner is None:
+            return None
+        home = np.asarray(self.robot.config.robot.home, float)
+        q_now = self.arm.joint_positions()
+        R_down = planner.robot.fk_tcp(home)[:3, :3]  # home points the tool down
+        d_cam = (np.linalg.inv(planner.robot.T_flange_tcp) @ self.robot.T_flange_cam)[:3, 3]  # camera in tcp frame
+        scene = planner.scene(self._scene_objects(), self.map_points)
+        for yaw in np.radians([0.0, 45.0, -45.0, 90.0, -90.0, 135.0, -135.0, 180.0]):
+            R = rot_z(yaw)[:3, :3] @ R_down
+            p_cam = np.array([site[0], site[1], self.SEARCH_CAMERA_HEIGHT])
+            T = make_T(R, p_cam - R @ d_cam)
+            for q in planner.robot.ik_all(T, q_now):
+                if scene.valid(q):
+                    return q
+        return None
+
+    def _drop_perceiver(self):
+        """The configured pipeline without the cell's geometry: the counter is the support plane (the pipeline's
+        sink-only segmentation would see nothing there). The oracle sees everything anyway."""
+        from kitchenbot.perception.pipeline import Perceiver
+
+        p = self.perceiver
+        if not isinstance(p, Perceiver):
+            return p
+        if self._table_perceiver is None:
+            self._table_perceiver = Perceiver(p.settings, p.inventory, database=p.database, use_cell=False)
+        return self._table_perceiver
 
     def _put_down_held(self) -> bool:
         """Something is in the gripper after a fault: place it at its target, else the fallback spot; if every

@@ -37,19 +37,21 @@ def truth_audit(world, task):
 
     def audit(phase: str) -> dict:
         in_sink = delivered = elsewhere = 0
+        lost = []  # where the ones neither in the sink nor delivered are
         for uid, o in world.objects.items():
             p = ObjectPose(o.model.obj_id, o.model.cls, o.T_base_obj, 1.0, instance_id=uid)
             if not task.wants(p):
                 continue
-            if uid == world.held_uid:
-                elsewhere += 1
-            elif world.cell.in_sink(o.T_base_obj[:3, 3])[0]:
+            if uid != world.held_uid and world.cell.in_sink(o.T_base_obj[:3, 3])[0]:
                 in_sink += 1
-            elif task.at_target(o.model.cls, o.T_base_obj):
+            elif uid != world.held_uid and task.at_target(o.model.cls, o.T_base_obj):
                 delivered += 1
             else:
                 elsewhere += 1
-        return {"in_sink": in_sink, "delivered": delivered, "elsewhere": elsewhere, "held": world.held_uid is not None}
+                lost.append({"cls": o.model.cls, "xyz": np.round(o.T_base_obj[:3, 3], 3).tolist(),
+                             "held": uid == world.held_uid})
+        return {"in_sink": in_sink, "delivered": delivered, "elsewhere": elsewhere, "held": world.held_uid is not None,
+                "elsewhere_items": lost}
 
     return audit
 

@@ -20,7 +20,7 @@ def test_oracle_cup_stacking_succeeds_with_full_report(make_runner, safe_end, tm
     assert report.status == "succeeded" and report.perception == "oracle"
     assert (report.objects_done, report.objects_total, report.attempts) == (1, 1, 1)
     assert report.collisions == 0 and report.limit_violations == 0
-    assert report.truth["end"] == {"in_sink": 0, "delivered": 1, "elsewhere": 0, "held": False}
+    assert report.truth["end"] == {"in_sink": 0, "delivered": 1, "elsewhere": 0, "held": False, "elsewhere_items": []}
     assert set(report.state_time_s) >= {"scan", "perceive", "select_grasp", "plan", "execute", "verify"}
     assert [t["trigger"] for t in report.transitions][:6] == ["start", "scanned", "perceived", "selected", "planned",
                                                              "executed"]
