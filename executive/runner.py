@@ -252,6 +252,7 @@ class TaskRunner:
         self._cycle_t0 = (time.perf_counter(), 0.0, self._sim_now())
         self._first_total: int | None = None
         self.dropped = 0  # items that left the gripper on the way (slips, let go over the cell after a fault)
+        self.prefer_instance: int | None = None  # perceived instance to try next (it blocks the last one tried)
         self.drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
         self._table_perceiver = None  # perception without the cell (the counter as a table top), for drop sites
         self._deadline: float | None = None
@@ -652,7 +653,11 @@ class TaskRunner:
             self.current, self.targets, self.current_staged = obj, targets, st
             self._log("note", "selected", obj_id=obj.obj_id, cls=obj.cls, xyz=obj.T_base_obj[:3, 3], staged=True)
             return "selected"
-        for obj in self._candidates(this_scan=True):
+        cands = self._candidates(this_scan=True)
+        prefer, self.prefer_instance = self.prefer_instance, None
+        if prefer is not None and prefer >= 0:
+            cands.sort(key=lambda p: p.instance_id != prefer)  # stable: otherwise the task's order
+        for obj in cands:
             targets = self.task.targets(obj)
             if isinstance(targets, NoFreeSlot):
                 t = self._tried_for(obj, create=True)
@@ -721,7 +726,8 @@ class TaskRunner:
                     return "planned"
                 self._log("note", "no slide", reason=str(slide))
         if not pick.ok:
-            raise StepFailed("planning", f"no pick plan for the {obj.cls}: {pick}", planning_kind=pick.kind)
+            raise StepFailed("planning", f"no pick plan for the {obj.cls}: {pick}", planning_kind=pick.kind,
+                             blocking=pick.details.get("blocking"))
         others = [p for p in scene_objs if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
         self._cmd("plan_place", grasp=pick.grasp.spec.name, staging=self.staging)
         place = self.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=self.map_points)
@@ -917,6 +923,8 @@ class TaskRunner:
         if f.kind == "planning" and f.state == "plan":
             if self.current is not None and self.current_staged is None:
                 self.unplannable.append(self.current)
+            # the planner names the item lying on this one (or in the way of its lift): that one next
+            self.prefer_instance = f.details.get("blocking")
             return "retry"  # the next object with the same perception; this one again after the next scan
         if self._holding():
             self._put_down_held()

@@ -165,3 +165,39 @@ def test_a_stop_within_the_collision_margin_is_escaped(make_runner, safe_end):
     assert rep.status == "succeeded", rep.message
     assert rep.escapes == 1
     assert rep.collisions == 0
+
+
+def test_the_item_a_failed_pick_names_as_blocking_is_tried_next(tmp_path):
+    """When the planner says which item is in the way (details['blocking']: the item lying on the target or in
+    the way of its lift), the executive tries that one next instead of the task's next in order."""
+    from kitchenbot.executive.assembly import assemble, make_sim_world
+    from kitchenbot.executive.config import load_config
+    from kitchenbot.executive.runner import RunOptions
+    from kitchenbot.executive.session import build_runner
+    from kitchenbot.planning.types import NoCollisionFreeGrasp
+
+    cfg = load_config()
+    cfg.sim.min_objects = cfg.sim.max_objects = 3
+    cfg.scan_waypoints = cfg.scan_waypoints[:1]
+    world = make_sim_world(cfg, 0)  # a plate under two nested cups
+    runner = build_runner(cfg, "sink-pick", 0, robot=assemble(cfg, world=world), oracle_perception=True,
+                          journal_path=tmp_path / "j.sqlite", options=RunOptions(poll_period=0.05))
+    real = runner.planner
+    calls = []
+
+    class NamesTheLowerCup:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_pick(self, q, objects, *, target=None, **kw):
+            calls.append(target.instance_id)
+            if len(calls) == 1:  # the first pick (the top cup) fails, naming the lower cup
+                cups = sorted([o for o in objects if o.cls == "cup"], key=lambda o: o.T_base_obj[2, 3])
+                assert target is cups[-1]
+                return NoCollisionFreeGrasp("test: in the way", {"blocking": cups[0].instance_id})
+            return real.plan_pick(q, objects, target=target, **kw)
+
+    runner.planner = NamesTheLowerCup()
+    runner.run()
+    order = [world.objects[u].model.cls for u in calls[:2]]
+    assert order == ["cup", "cup"] and calls[0] != calls[1]  # not the plate, the task's next in order
