@@ -929,7 +929,7 @@ class TaskRunner:
         if self._holding():
             self._put_down_held()
         self._back_out()
-        if f.kind == "slip":
+        if self.drop_site is not None:  # it slipped out, or was let go over the cell: look where it fell
             self._search_drop_site()
         return "rescan"
 
@@ -1095,6 +1095,7 @@ class TaskRunner:
         if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
             self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
             self.dropped += 1
+            self.drop_site = tcp.copy()
             self._cmd("gripper.open", release=True)
             self.gripper.open()
             return False
