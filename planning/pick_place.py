@@ -287,6 +287,8 @@ class Planner:
             for n in res.details.pop("lift_objects", ()):
                 hit[n] = hit.get(n, 0) + 1
             last = res
+            if res.details.pop("held_blocked", False):
+                break  # the held item itself cannot be lifted out in any direction: no other grasp changes that
         assert last is not None
         last.details["candidates_tried"] = tried
         if hit and target is not None:
@@ -382,7 +384,9 @@ class Planner:
         tool_contacts = [p for p in at_grasp if p not in start_contacts and any(x in TOOL_PARTS for x in p)]
         vertical_start_scene = lift_scene.allowing(start_contacts + tool_contacts) if tool_contacts else start_scene
         # Beyond LIFT_CONTACT_TRAVEL only the held object's contacts with other items may last (until they clear,
-        # see LIFT_CLEAR_TRAVEL): an item sliding up along a basin wall or dragging a finger is not lifted out.
+        # see LIFT_CLEAR_TRAVEL), and only on a lift straight up or along the item's axis: an item sliding up
+        # along a basin wall or dragging a finger is not lifted out, nor one pulled sideways through a neighbour
+        # whose estimated pose it overlaps (in the world it may be inside that neighbour, not beside it).
         item_contacts = [p for p in start_contacts if any(x.startswith("obj:") for x in p)]
         clear_scene = lift_scene.allowing(item_contacts)
         # Straight up first; an item resting tilted in a stack comes off along its own axis (as it was
@@ -390,35 +394,75 @@ class Planner:
         # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
         first: PlanningFailure | None = None
         lift_objects: set[str] = set()  # perceived objects the failed lifts ran into (reported as blockers)
+        # whether every direction failed because the held item itself runs into something (then every grasp of
+        # it fails the same way: the directions depend on the item only, not on the grasp)
+        held_only = True
         near_wall = self._near_sink_wall(g.obj)
-        directions = self._lift_directions(g.T_base_tcp[:3, 3], g.obj.T_base_obj, away_from_walls=near_wall)
-        for k, d in enumerate(directions):
+        centre = np.asarray(g.obj.T_base_obj, float)[:3, 3]
+        directions = self._lift_directions(centre, g.obj.T_base_obj, away_from_walls=near_wall)
+        n_base = len(directions)
+        k = 0
+        while k < len(directions):
+            d = directions[k]
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
             # the first one or two directions are straight up and along the item's axis (see _lift_directions)
             along = k == 0 or (k == 1 and self._tilted_axis(g.obj.T_base_obj) is not None)
+            k += 1
             info: dict = {}
             r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False,
                            start_scene=vertical_start_scene if along else start_scene,
-                           start_travel=LIFT_CONTACT_TRAVEL, clear_within=LIFT_CLEAR_TRAVEL, clear_scene=clear_scene,
-                           info=info)
+                           start_travel=LIFT_CONTACT_TRAVEL, clear_within=LIFT_CLEAR_TRAVEL if along else 0.0,
+                           clear_scene=clear_scene, info=info)
             if isinstance(r, PlanningFailure):
+                pairs = r.details.get("pairs", ())
+                held_only &= bool(pairs) and all("held" in p for p in pairs)
                 first = first or r
-                lift_objects.update(n[4:] for p in r.details.get("pairs", ()) for n in p if n.startswith("obj:"))
-                continue
-            lift, q_lifted = r
-            if not held_scene.valid(q_lifted):  # plan_place starts here with the full margins
+                lift_objects.update(n[4:] for p in pairs for n in p if n.startswith("obj:"))
+            else:
+                lift, q_lifted = r
+                if held_scene.valid(q_lifted):  # plan_place starts here with the full margins
+                    base_scene.set_opening(g.spec.opening)
+                    approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+                    if isinstance(approach, PlanningFailure):
+                        return approach
+                    return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
+                                    lift_contact_travel=float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)))
+                pairs = held_scene.colliding_pairs(q_lifted)
+                held_only &= bool(pairs) and all("held" in p for p in pairs)
                 first = first or CartesianPathFailed("lift: the lifted pose is within the collision margin",
-                                                     {"pairs": held_scene.colliding_pairs(q_lifted), "segment": "lift"})
-                continue
-            base_scene.set_opening(g.spec.opening)
-            approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
-            if isinstance(approach, PlanningFailure):
-                return approach
-            return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
-                            lift_contact_travel=float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)))
-        if first is not None and lift_objects:
-            first.details["lift_objects"] = sorted(lift_objects)
+                                                     {"pairs": pairs, "segment": "lift"})
+            if k == n_base and lift_objects:
+                # every planned direction ran into something; if items were among it, try tilting away from them
+                # (a cup under the rim of a glass leaning over it slips out from under it)
+                directions += self._lift_directions_away(centre, objects, lift_objects, directions)
+        if first is not None:
+            if lift_objects:
+                first.details["lift_objects"] = sorted(lift_objects)
+            first.details["held_blocked"] = held_only
         return first
+
+    @staticmethod
+    def _lift_directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.ndarray],
+                              tilts=(30.0, 45.0), turns=(0.0, 40.0, -40.0)) -> list[np.ndarray]:
+        """Unit lift directions tilted away (horizontally) from the named perceived objects' centres, not
+        within 10 degrees of one in `have`."""
+        away = np.zeros(2)
+        for k, o in enumerate(objects):
+            if object_name(o, k) in names:
+                v = centre[:2] - np.asarray(o.T_base_obj, float)[:2, 3]
+                if np.linalg.norm(v) > 1e-3:
+                    away += v / np.linalg.norm(v)
+        if np.linalg.norm(away) < 1e-6:
+            return []
+        a0 = float(np.arctan2(away[1], away[0]))
+        out: list[np.ndarray] = []
+        for tilt in tilts:
+            for da in turns:
+                t, a = np.radians(tilt), a0 + np.radians(da)
+                d = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)])
+                if all(float(d @ h) < np.cos(np.radians(10.0)) for h in [*have, *out]):
+                    out.append(d)
+        return out
 
     def _near_sink_wall(self, o: ObjectPose, clearance: float = 0.03) -> bool:
         """Whether the object reaches within `clearance` of a basin wall (its bounding sphere)."""
@@ -483,7 +527,14 @@ class Planner:
         Free-yaw targets are turned about the object's own axis in 30 degree steps. When `release_scene` is
         given, a release pose whose gripper/held object collides is raised in 1 cm steps up to
         ``settings.max_release_drop`` (the object then drops that far when released, e.g. a cup inverted over
-        a rack whose rails are taller than the gripper can reach past)."""
+        a rack whose rails are taller than the gripper can reach past).
+
+        Every closed-form IK branch of a release pose is tried (numerical IK only where there is none, at wrist
+        singularities): over a rack the branch nearest `q_ref` often has its elbow or wrist in a rack wall where
+        another branch is free. The answer then does not depend on `q_ref` either: the grasp filter (which asks
+        from the arm's configuration before the pick) and plan_place (from the lifted configuration) agree; with
+        one numerically found branch per pose they did not (a grasp chosen for its reachable release, then
+        ``no_feasible_placement`` in plan_place: dishwasher seeds 5 and 6)."""
         T_obj = np.asarray(target.T_base_obj, float)
         if obj_id is not None:
             turns = self._place_turns(target, obj_id)
@@ -491,28 +542,25 @@ class Planner:
             turns = [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if target.free_yaw else [np.eye(4)]
         c = float(max(target.clearance, 0.0))
         raises = np.arange(c, c + self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else [c]
-        seeds: dict[int, np.ndarray | None] = {}
         live = []
-        for k, Rt in enumerate(turns):
+        for Rt in turns:
             To0 = T_obj @ Rt  # about the object's own (symmetry) axis, possibly facing the other way
             if (To0 @ T_obj_tcp)[2, 2] <= self.settings.max_approach_up:
-                live.append((k, To0))
+                live.append(To0)
         out = []
         for dz in raises:  # lowest release first, over all turns
-            for k, To0 in live:
-                if k in seeds and seeds[k] is None:
-                    continue  # unreachable at a lower height: higher is no better for this turn
+            for To0 in live:
                 To = trans(0.0, 0.0, float(dz)) @ To0
                 T = To @ T_obj_tcp
-                q = self.robot.ik_q(T, q_ref if seeds.get(k) is None else seeds[k],
-                                    max_seeds=6 if seeds.get(k) is None else 0, max_iter=40)
-                seeds[k] = q
-                if q is None:
-                    continue
-                if release_scene is None or release_scene.valid(q):
-                    out.append((To, T, q))
-                    if first_only:
-                        return out
+                branches = self.robot.ik_all(T, q_ref)
+                if not branches:
+                    q = self.robot.ik_q(T, q_ref, max_seeds=6, max_iter=40)
+                    branches = [] if q is None else [q]
+                for q in branches:
+                    if release_scene is None or release_scene.valid(q):
+                        out.append((To, T, q))
+                        if first_only:
+                            return out
             if out:
                 break
         out.sort(key=lambda x: float(np.max(np.abs(x[2] - q_ref))))

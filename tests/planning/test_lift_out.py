@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.fcl_check import FclChecker, verify_pick
@@ -46,3 +47,29 @@ def test_a_pick_blocked_by_an_item_lying_on_it_names_that_item(planner, home, re
     # the cup itself is not blocked by the plate it stands on
     assert planner.plan_pick(home, [plate, cup], target=cup).ok
     assert planner._lies_on(cup, plate) and not planner._lies_on(plate, cup)
+
+
+def test_a_held_item_that_cannot_leave_is_tried_with_one_grasp_only(planner, home, resting):
+    """Every lift direction depends on the item, not on the grasp: when the item itself runs into something in
+    every direction, the other grasp candidates are not tried (they would fail the same way)."""
+    plate = resting("side_plate", (0.45, 0.0), 7)
+    cup = _on(planner, "cup", plate, 9, sink=0.015)
+    res = planner.plan_pick(home, [plate, cup], target=plate)
+    if res.kind == "cartesian_path_failed":  # (no_collision_free_grasp when no grasp of the plate fits at all)
+        assert res.details["candidates_tried"] == 1
+        assert all("held" in p for p in res.details["pairs"])
+
+
+def test_lift_directions_away_from_what_the_lift_ran_into(planner, resting):
+    cup = resting("cup", (0.50, 0.0), 1)
+    glass = resting("glass", (0.55, 0.03), 2)
+    centre = cup.T_base_obj[:3, 3]
+    up = [np.array([0.0, 0.0, 1.0])]
+    ds = planner._lift_directions_away(centre, [cup, glass], {"2"}, up)
+    away = (centre - glass.T_base_obj[:3, 3])[:2]
+    assert len(ds) == 6
+    for d in ds:
+        assert abs(np.linalg.norm(d) - 1) < 1e-9
+        assert d[:2] @ away > 0  # away from the glass
+        assert np.degrees(np.arccos(d[2])) in (pytest.approx(30.0), pytest.approx(45.0))
+    assert planner._lift_directions_away(centre, [cup, glass], {"nothing"}, up) == []
