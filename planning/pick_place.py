@@ -553,8 +553,8 @@ class Planner:
                 To = trans(0.0, 0.0, float(dz)) @ To0
                 T = To @ T_obj_tcp
                 branches = self.robot.ik_all(T, q_ref)
-                if not branches:
-                    q = self.robot.ik_q(T, q_ref, max_seeds=6, max_iter=40)
+                if not branches and self._within_reach(T):  # no closed-form branch: a wrist singularity?
+                    q = self.robot.ik_q(T, q_ref, max_seeds=2, max_iter=40)
                     branches = [] if q is None else [q]
                 for q in branches:
                     if release_scene is None or release_scene.valid(q):
@@ -565,6 +565,13 @@ class Planner:
                 break
         out.sort(key=lambda x: float(np.max(np.abs(x[2] - q_ref))))
         return out
+
+    def _within_reach(self, T_base_tcp: np.ndarray) -> bool:
+        """Whether the wrist centre of a TCP pose is within the arm's reach of the shoulder (an IK pre-filter)."""
+        ur = self.robot.ur
+        reach = abs(ur.a[1]) + abs(ur.a[2]) + np.hypot(ur.d[3], ur.d[4]) + 0.02
+        wrist = T_base_tcp[:3, 3] - T_base_tcp[:3, :3] @ self.robot.T_flange_tcp[:3, 3]
+        return bool(np.linalg.norm(wrist - np.array([0.0, 0.0, ur.d[0]])) <= reach)
 
     def plan_place(
         self,
