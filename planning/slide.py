@@ -103,6 +103,10 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
         if coal.collide(bvh, _tf(T0), planner.world.bvh(planner.inventory[o.obj_id]), _tf(o.T_base_obj), req,
                         coal.CollisionResult()):
             touching.add(k)
+        elif planner._lies_on(target, o):
+            # further down the stack the item rests on (the plate under the one under it): the item climbs over
+            # it as it slides (the path follows its resting height), which this level shift does not model
+            touching.add(k)
     out = []
     for a in np.radians(np.arange(0, 360, 45)):
         d = np.array([np.cos(a), np.sin(a), 0.0])
@@ -177,6 +181,13 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     if k_t is None:
         return CartesianPathFailed("slide: the target is not among the objects", {})
     others = [o for o in objects if o is not target]
+    on_it = planner._resting_on(target, objects)
+    if on_it:
+        # the fingers would press on (and through) what lies on it, and a loaded item is not pushed (the
+        # simulator stops the arm): the item on top goes first (dishwasher seed 7: the middle plate of a stack)
+        f = CartesianPathFailed(f"slide: the {on_it[0].cls} lies on the item", {"segment": "slide"})
+        planner._report_blocking(f, target, objects, on_it)
+        return f
     p = press_point(model, target.T_base_obj)
     if p is None:
         return NoIK("slide: no top surface above the item's centre", {})

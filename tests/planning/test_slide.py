@@ -86,3 +86,24 @@ def test_fingers_pressing_too_deep_are_stopped(nested):
     T_end[1, 3] += 0.03
     with pytest.raises(ProtectiveStopError, match="more than 6 mm"):
         arm.move_linear(T_end, speed=0.05)
+
+
+def test_three_plate_stack_only_the_top_one_is_slid(nested):
+    """Dishwasher seed 7 (oracle): the executive asked to slide the middle plate of a three-plate stack; the
+    fingers pressed through the top plate (stopped: 10 mm deep). The slide of an item with something on it is
+    refused and names that item; the top plate slides (it climbs over both plates below it)."""
+    cfg, world, arm, planner = nested
+    T1, T2 = world.objects[1].T_base_obj, world.objects[2].T_base_obj
+    top_uid = world.add_object(world.objects[2].model, T2 @ np.linalg.inv(T1) @ T2)  # nested like 2 on 1
+    poses = OraclePerceiver(world).perceive([]).poses
+    middle = next(p for p in poses if p.instance_id == 2)
+    top = next(p for p in poses if p.instance_id == top_uid)
+    q0 = world.q.copy()
+    refused = planner.plan_slide(q0, poses, middle)
+    assert not refused.ok and refused.details.get("blocking") == top_uid, refused
+    plan = planner.plan_slide(q0, poses, top)
+    assert plan.ok, plan
+    for traj in plan.trajectories:
+        arm.execute_trajectory(traj.times, traj.q)
+    assert arm.log.collisions == 0 and arm.log.protective_stops == 0
+    assert np.linalg.norm(world.objects[top_uid].T_base_obj[:2, 3] - top.T_base_obj[:2, 3]) > 0.02
