@@ -18,7 +18,7 @@ import numpy as np
 from kitchenbot.perception import bop
 from kitchenbot.perception.cell import Cell
 from kitchenbot.perception.inventory import Inventory
-from kitchenbot.perception.metrics import adi, auc_adds, match_image
+from kitchenbot.perception.metrics import adi, auc_adds, grasp_error_summary, match_image, match_scan
 from kitchenbot.perception.pipeline import Perceiver
 from kitchenbot.perception.rgbd import project_pixels
 from kitchenbot.perception.settings import PerceptionSettings
@@ -80,6 +80,7 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
     pose_ms: list[float] = []
     scan_ms: list[float] = []
     per_scan = []
+    grasp_err: dict[str, list] = {}  # class name -> [translations, tilts, extra count]
     pts = {m.obj_id: m.points for m in inventory}
     n_images = 0
     bar = None
@@ -99,6 +100,8 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
             pose_ms += res.pose_ms
             for k, v in res.timings_ms.items():
                 timings.setdefault(k, []).append(v)
+            if len(group) > 1 or group[0].has_world_pose:
+                _scan_errors(group, res.poses, inventory, min_visib, grasp_err)
             for im, view in zip(group, res.views):
                 n_images += 1
                 est = []
@@ -153,8 +156,37 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
         "pose_ms_per_object_median": float(np.median(pose_ms)) if pose_ms else 0.0,
         "scan_ms_median": float(np.median(scan_ms)) if scan_ms else 0.0,
         "settings": settings.model_dump(mode="json"),
+        # Per scan in the base frame, per model: position and axis errors, missed and extra (duplicate or
+        # phantom) objects; `within`: fraction of objects within 1 cm and 5 deg (what a grasp can absorb).
+        "grasp_errors": {name: grasp_error_summary(*v) for name, v in sorted(grasp_err.items())},
     }
+    if grasp_err:
+        report["grasp_errors"]["all"] = grasp_error_summary(
+            [t for v in grasp_err.values() for t in v[0]], [a for v in grasp_err.values() for a in v[1]],
+            sum(v[2] for v in grasp_err.values()))
     return EvalResult(estimates, report, per_scan)
+
+
+def _scan_errors(group: list, poses: list, inventory: Inventory, min_visib: float, acc: dict) -> None:
+    """Add one scan's grasp-relevant errors to `acc` (class name -> [translations, tilts, extra count]): the
+    scan's ground truth (objects at least `min_visib` visible in one of its images, base frame) matched to
+    its estimates by position (metrics.match_scan)."""
+    gt: list[tuple[int, np.ndarray]] = []
+    for im in group:
+        for g in im.gt:
+            if g.visib_fract < min_visib or g.obj_id not in inventory.models:
+                continue
+            T = im.view.T_base_cam @ g.T_cam_obj
+            if not any(o == g.obj_id and np.linalg.norm(Tg[:3, 3] - T[:3, 3]) < 0.005 for o, Tg in gt):
+                gt.append((g.obj_id, T))
+    est = [(p.obj_id, p.T_base_obj) for p in poses]
+    matches, extra = match_scan(gt, est, {m.obj_id: m.diameter for m in inventory})
+    for mt in matches:
+        v = acc.setdefault(inventory[gt[mt.gt_index][0]].name, [[], [], 0])
+        v[0].append(mt.translation)
+        v[1].append(mt.tilt)
+    for j in extra:
+        acc.setdefault(inventory[est[j][0]].name, [[], [], 0])[2] += 1
 
 
 def write_bop_csv(estimates: list[Estimate], path: str | Path) -> None:

@@ -25,7 +25,7 @@ from kitchenbot.perception.features import FusedCloud, fuse_instance, voxel_keys
 from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.map import InstanceMap, align_to_cell, align_views, build_map, consolidate
 from kitchenbot.perception.register import (Hypothesis, RegistrationConfig, Scorer, clean_depths, propose, refine,
-                                           screen_candidate, snap_upright)
+                                           on_surface, screen_candidate, snap_upright, surface_fit)
 from kitchenbot.perception.rgbd import check_view
 from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
@@ -36,6 +36,9 @@ from kitchenbot.transforms import inv
 # Classes whose items nest / stack on copies of themselves (a plate on a plate, a bowl in a bowl, a cup in a
 # cup): what a pose of one of them leaves over is re-fitted at the tight tolerance.
 NESTING_CLASSES = ("plate", "bowl", "cup")
+# How far a fit started upright (or upside down) may lean and still count as "near upright" (settled stacks in
+# the simulator lean up to ~30 deg; beyond that the gravity prior is no prior).
+MAX_REST_TILT = np.radians(30)
 
 
 @dataclass
@@ -181,7 +184,8 @@ class Perceiver:
                 # 1.5 voxels of this one's surface (stack pitch ~1 cm).
                 tight = explained
                 if self.inventory[hyp.obj_id].cls in NESTING_CLASSES:
-                    tight = self._explained(hyp, m.points[sel], self.settings.residual_tolerance)
+                    tight = self._explained(hyp, m.points[sel], self.settings.residual_tolerance,
+                                            self._map_normals(m, sel))
                 # Explain away: points of blob parts still waiting in the queue that this pose explains are
                 # this object's too (an item cut in two by the blob partition must not be fitted twice).
                 waiting_parts = [q for q in queue if q in parts]
@@ -217,7 +221,14 @@ class Perceiver:
                     scorer = Scorer(db[hyp.obj_id], _voxel_centres(m.points[joint], vox), views, vox,
                                     inside_solid=self._inside_solid(getattr(self.detector, "support_normal", None)
                                                                     if self.cell is None else None))
-                    if scorer(hyp.T_base_obj)[0] > scorer(twin[0].T_base_obj)[0]:
+                    # The overlap score (epsilon one voxel) decides clear cases; between near-equals, the fit
+                    # that puts more of the points on its surface within 3 mm (facing the right way) wins.
+                    s_new, s_old = scorer(hyp.T_base_obj)[0], scorer(twin[0].T_base_obj)[0]
+                    if abs(s_new - s_old) < 0.05:
+                        P_joint, N_joint = m.points[joint], self._map_normals(m, joint)
+                        s_new, s_old = (on_surface(P_joint, N_joint, db[h.obj_id], h.T_base_obj, 0.3 * vox).mean()
+                                        for h in (hyp, twin[0]))
+                    if s_new > s_old:
                         twin[0] = hyp
                     twin[2] = joint
                     continue
@@ -225,8 +236,10 @@ class Perceiver:
                 for k in kept:
                     # A copy of the same model stacked along its axis (a plate under a plate) shares most of
                     # its visible surface within 1.5 voxels: judged at the tight residual tolerance.
-                    tol = self.settings.residual_tolerance if self._stacked(k[0], hyp) else 1.5
-                    taken |= self._explained(k[0], P, tol)
+                    if self._stacked(k[0], hyp):
+                        taken |= self._explained(k[0], P, self.settings.residual_tolerance, self._map_normals(m, own))
+                    else:
+                        taken |= self._explained(k[0], P)
                 if taken.mean() > 0.6:
                     continue
                 kept.append([hyp, iid, own])
@@ -279,41 +292,78 @@ class Perceiver:
         return 0.6 + 0.4 * max(0.0, sim)
 
     def _offset(self, a: Hypothesis, b: Hypothesis):
-        """(model, distance along a's axis, distance across it) for two copies of one model whose axes are
-        within 30 deg; None otherwise."""
+        """(model, distance along the axes, distance across a's axis) for two copies of one model whose axes
+        are within 30 deg; None otherwise. Along: the larger of the offsets along a's and b's axes (a plate
+        resting 10 deg tilted and 2 cm off-centre on another has its centre 3 mm above the lower one along its
+        own axis, 6 mm along the lower one's)."""
         if a.obj_id != b.obj_id:
             return None
         z = a.T_base_obj[:3, 2]
         if abs(z @ b.T_base_obj[:3, 2]) < np.cos(np.radians(30)):
             return None
         d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
-        return self.inventory[a.obj_id], abs(d @ z), np.linalg.norm(d - (d @ z) * z)
+        along = max(abs(d @ z), abs(d @ b.T_base_obj[:3, 2]))
+        return self.inventory[a.obj_id], along, np.linalg.norm(d - (d @ z) * z)
+
+    @staticmethod
+    def _min_along(model) -> float:
+        """Below this distance along a shared axis two copies of one model are one object: 0.12 height, or 0.6
+        of the model's nest pitch (a cup in a cup sits 2.6 cm higher; two cup poses 1.3 cm apart along the axis
+        would interpenetrate: the second was a fit of the first one's leftovers)."""
+        return max(0.12 * float(model.extents[2]), 0.6 * model.nest_pitch)
 
     def _same_place(self, a: Hypothesis, b: Hypothesis) -> bool:
-        """Same model, axes within 30 deg, centres closer than 0.2 diameter across and 0.12 height along."""
+        """Same model, axes within 30 deg, centres closer than 0.2 diameter across and _min_along along."""
         off = self._offset(a, b)
         if off is None:
             return False
         model, along, across = off
-        return across < 0.2 * model.diameter and along < 0.12 * float(model.extents[2])
+        return across < 0.2 * model.diameter and along < self._min_along(model)
 
     def _stacked(self, a: Hypothesis, b: Hypothesis) -> bool:
-        """Same model, axes within 30 deg, centres apart along the axis by more than 0.12 height and across
-        by under half a diameter (nested or stacked copies)."""
+        """Same model, axes within 30 deg, centres apart along the axis by at least _min_along and across by
+        under half a diameter (nested or stacked copies)."""
         off = self._offset(a, b)
         if off is None:
             return False
         model, along, across = off
-        return across < 0.5 * model.diameter and along >= 0.12 * float(model.extents[2])
+        return across < 0.5 * model.diameter and along >= self._min_along(model)
 
-    def _explained(self, hyp: Hypothesis, points: np.ndarray, voxels: float = 1.5) -> np.ndarray:
-        """Which points lie on the posed model's surface (within `voxels` voxels)."""
-        if len(points) == 0:
-            return np.zeros(0, bool)
-        Ti = inv(hyp.T_base_obj)
-        d, _ = self.database[hyp.obj_id].tree.query(points @ Ti[:3, :3].T + Ti[:3, 3],
-                                                     distance_upper_bound=voxels * self.settings.voxel_size)
-        return np.isfinite(d)
+    def _explained(self, hyp: Hypothesis, points: np.ndarray, voxels: float = 1.5,
+                   normals: np.ndarray | None = None) -> np.ndarray:
+        """Which points lie on the posed model's surface (within `voxels` voxels); with `normals`, on a side of
+        it facing the same way (register.on_surface)."""
+        return on_surface(points, normals, self.database[hyp.obj_id], hyp.T_base_obj,
+                          voxels * self.settings.voxel_size)
+
+    def _map_normals(self, m: InstanceMap, idx: np.ndarray) -> np.ndarray:
+        """Normals of map points m.points[idx], from their neighbours within 6 mm (finer than a voxel: a rim
+        peeking 2 mm under another item keeps its own normal), facing the camera that saw each point."""
+        P = m.points[idx]
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.006, max_nn=16))
+        n = np.asarray(pc.normals)
+        if len(n) != len(P):
+            return np.tile([0.0, 0.0, 1.0], (len(P), 1))
+        flip = np.einsum("ij,ij->i", n, m.cam_centres[m.view[idx]] - P) < 0
+        n[flip] *= -1
+        return n
+
+    def _near_upright(self, query: FusedCloud, oid: int, scorer: Scorer, T_base_obj: np.ndarray, source: str,
+                      up: np.ndarray) -> Hypothesis:
+        """The best fit near the gravity-aligned pose T_base_obj: ICP with the axis held, then with it free from
+        there; the free fit is taken unless it leans past MAX_REST_TILT or explains the data worse."""
+        entry = self.database[oid]
+        held = refine(query, entry, scorer, T_base_obj, self.reg_cfg, source, upright=True)
+        free = refine(query, entry, scorer, held.T_base_obj, self.reg_cfg, held.source)
+        # The overlap score (epsilon one voxel) hardly tells a fit leaning 15 deg from an upright one; the
+        # fraction of points on the surface within 3 mm does (a wrong lean leaves the far rim off).
+        tol = 0.3 * self.settings.voxel_size
+        if abs(free.T_base_obj[:3, 2] @ up) >= np.cos(MAX_REST_TILT) and free.score >= held.score - 0.03 and \
+                surface_fit(query.points, query.normals, entry, free.T_base_obj, tol) >= \
+                surface_fit(query.points, query.normals, entry, held.T_base_obj, tol):
+            return free
+        return held
 
     def estimate(self, inst: InstanceMap, views: list[View], found: list[Hypothesis] = ()) -> tuple[Hypothesis | None, FusedCloud]:
         """Class and pose of one instance (its map points), or None when no model explains it. `found`: poses
@@ -366,8 +416,10 @@ class Perceiver:
             h.score *= self._colour_weight(query, h, w)
             if best is None or h.score > best.score:
                 best = h
-        # Gravity prior: dishware rests on surfaces, so an upright / upside-down pose of the best model that
-        # explains the data about as well as a tilted one wins (tilted fits of stacks explain two items badly).
+        # Gravity prior: dishware rests on surfaces, so a pose near upright / upside down that explains the data
+        # about as well as a more tilted one wins (tilted fits of stacks explain two items badly). The fit
+        # starts exactly upright (axis kept) and is then freed: settled stacks and nested items really lean
+        # 5-25 deg, and an axis held exactly vertical put a 10 deg cup's rim 1 cm off and a nested bowl's 2 cm.
         up_vec = np.array([0.0, 0.0, 1.0]) if up is None else up
         if best is not None and abs(best.T_base_obj[:3, 2] @ up_vec) < 0.995:
             oid = best.obj_id
@@ -376,8 +428,7 @@ class Perceiver:
             for T in starts:
                 if abs(T[:3, 2] @ up_vec) < np.cos(np.radians(35)):
                     continue
-                h = refine(query, self.database[oid], scorers[oid], snap_upright(T, up_vec), self.reg_cfg,
-                           best.source, upright=True)
+                h = self._near_upright(query, oid, scorers[oid], snap_upright(T, up_vec), best.source, up_vec)
                 h.score *= w
                 if h.score >= best.score - 0.03:
                     best = h

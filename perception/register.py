@@ -26,7 +26,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from kitchenbot.perception.database import CadDatabase, ModelEntry
+from kitchenbot.perception.database import NORMAL_WEIGHT, CadDatabase, ModelEntry
 from kitchenbot.perception.features import FusedCloud
 from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.rgbd import project_pixels
@@ -186,7 +186,8 @@ def _exp_se3_small(x: np.ndarray) -> np.ndarray:
 
 
 def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...],
-                 iters: int = 10, coarse: bool = False, upright: bool = False) -> np.ndarray:
+                 iters: int = 10, coarse: bool = False, upright: bool = False,
+                 qn: np.ndarray | None = None) -> np.ndarray:
     """Point-to-plane ICP of query points (base frame) onto the model surface; returns T_obj_base.
 
     Hand-written (numpy + the model's prebuilt KD-tree) because Open3D's registration_icp rebuilds the target
@@ -194,18 +195,33 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
     faster at these sizes. Gauss-Newton on the linearised point-to-plane residual; correspondences farther
     than the current distance are dropped. `upright`: only translation and the rotation about the object's
     z axis are free (the axis stays where it is: gravity-aligned hypotheses stay gravity-aligned).
+    `qn`: the query points' normals (facing the cameras, base frame); with the dense model, each point is
+    then matched to a near model point on a surface facing the same way. Without them a thin wall's two
+    sides (a plate's top and underside, 4.5 mm apart) are equally good matches, and fits settled on the
+    wrong side: plates sat one wall thickness high, stacked ones more.
     """
     free = np.array([2, 3, 4, 5]) if upright else np.arange(6)
     T = T_obj_base.copy()
     if coarse:  # voxel-level model points: a smaller tree, good enough to screen hypotheses
         tree, mp, mn = entry.ref_tree, entry.ref.points, entry.ref.normals
+        qn = None  # the voxel-level model merges a thin wall's two sides into one point: no side to choose
     else:
         tree, mp, mn = entry.tree, entry.dense_points, entry.dense_normals
     for dmax in dists:
         for _ in range(iters):
             p = q @ T[:3, :3].T + T[:3, 3]
-            d, j = tree.query(p, distance_upper_bound=dmax)
-            ok = np.isfinite(d)
+            if qn is None:
+                d, j = tree.query(p, distance_upper_bound=dmax)
+                ok = np.isfinite(d)
+            else:
+                pn = qn @ T[:3, :3].T
+                d6, j = entry.oriented_tree.query(np.hstack([p, NORMAL_WEIGHT * pn]),
+                                                  distance_upper_bound=dmax + NORMAL_WEIGHT)
+                j = np.minimum(j, len(mp) - 1)
+                # Near in space and facing within ~60 deg of the query normal (normals of 1 cm voxel centres
+                # on a rim or a tight curve are rough).
+                ok = np.isfinite(d6) & (np.linalg.norm(p - mp[j], axis=1) <= dmax) & \
+                    (np.einsum("ij,ij->i", pn, mn[j]) > 0.5)
             if ok.sum() < 6:
                 break
             p, m, n = p[ok], mp[j[ok]].astype(np.float64), mn[j[ok]].astype(np.float64)
@@ -350,12 +366,16 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
             scored.append((scorer(Tb, coarse=True)[0], name, Tb))
         starts.clear()
 
-    # (0) stacking: the same model nested in / stacked on one already found, shifted along its axis.
+    # (0) stacking: the same model nested in / stacked on one already found, shifted along its axis (by its
+    # nest pitch, where a copy really rests, and by fractions of its height for copies that settled askew).
     height = float(model.extents[2])
+    shifts = [f * height for f in (-0.8, -0.5, -0.25, 0.25, 0.5, 0.8)]
+    if model.nest_pitch > 0:
+        shifts += [-model.nest_pitch, model.nest_pitch]
     for T in stacked_on:
-        for f in (-0.8, -0.5, -0.25, 0.25, 0.5, 0.8):
+        for dz in shifts:
             Ts = T.copy()
-            Ts[:3, 3] += f * height * T[:3, 2]
+            Ts[:3, 3] += dz * T[:3, 2]
             starts.append(("stack", Ts, True))
 
     # (1) fused-feature RANSAC: query -> model frame.
@@ -363,7 +383,10 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
         src = _pcd(query.points, query.normals)
         dst = _pcd(entry.ref.points, entry.ref.normals)
         fq, fr = _feature(query.fused), _feature(entry.ref.fused)
-        for _ in range(cfg.ransac_runs):
+        for run in range(cfg.ransac_runs):
+            # Seeded per call: Open3D's RANSAC draws from one global generator from several threads, so a
+            # seed set once per scan gave each call a timing-dependent stream (different poses, run to run).
+            o3d.utility.random.seed(cfg.seed + run)
             res = reg.registration_ransac_based_on_feature_matching(
                 src, dst, fq, fr, False, 1.5 * v, reg.TransformationEstimationPointToPoint(False), 3,
                 [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * v)],
@@ -397,10 +420,38 @@ def refine(query: FusedCloud, entry: ModelEntry, scorer: Scorer, T_base_obj: np.
            source: str = "", upright: bool = False) -> Hypothesis:
     """Fine ICP against the dense model surface (<= ~600 query points) and the full score."""
     v = cfg.voxel
-    q = query.points[:: max(1, len(query.points) // 600)]
+    step = max(1, len(query.points) // 600)
+    q, qn = query.points[::step], query.normals[::step]
     dists = (3 * v, 1.5 * v, v, 0.6 * v, 0.3 * v) if upright else (2 * v, v, 0.6 * v, 0.3 * v)
-    Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=10, upright=upright))
+    Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=10, upright=upright, qn=qn))
     return Hypothesis(entry.obj_id, Tb, *scorer(Tb), source=source + ("-upright" if upright else ""))
+
+
+def on_surface(points: np.ndarray, normals: np.ndarray | None, entry: ModelEntry, T_base_obj: np.ndarray,
+               tol: float) -> np.ndarray:
+    """Which points (base frame) lie within `tol` of the posed model's surface; with `normals` (facing the
+    cameras), on a side facing the same way (within ~60 deg): a point on the rim of a plate nested just under
+    this one is near this plate's underside, but faces the other way."""
+    if len(points) == 0:
+        return np.zeros(0, bool)
+    Ti = inv(T_base_obj)
+    p = points @ Ti[:3, :3].T + Ti[:3, 3]
+    if normals is None:
+        d, _ = entry.tree.query(p, distance_upper_bound=tol)
+        return np.isfinite(d)
+    pn = normals @ Ti[:3, :3].T
+    d6, j = entry.oriented_tree.query(np.hstack([p, NORMAL_WEIGHT * pn]), distance_upper_bound=tol + NORMAL_WEIGHT)
+    j = np.minimum(j, len(entry.dense_points) - 1)
+    return np.isfinite(d6) & (np.linalg.norm(p - entry.dense_points[j], axis=1) <= tol) & \
+        (np.einsum("ij,ij->i", pn, entry.dense_normals[j]) > 0.5)
+
+
+def surface_fit(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
+                tol: float) -> float:
+    """Fraction of the query points (normals facing the cameras) on the posed model's surface within `tol`, on
+    a side facing the same way. Finer than the overlap score (whose epsilon is a voxel): it tells two fits a
+    few millimetres or degrees apart."""
+    return float(on_surface(points, normals, entry, T_base_obj, tol).mean()) if len(points) else 0.0
 
 
 def snap_upright(T_base_obj: np.ndarray, up: np.ndarray) -> np.ndarray:

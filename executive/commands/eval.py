@@ -68,6 +68,14 @@ def run(args: argparse.Namespace) -> int:
           f"objects {r['objects']}  false positives {r['false_positives']}  scenes {r['scenes']}  images {r['images']}")
     for oid, o in r["per_object"].items():
         print(f"  {oid:>3} {o['name']:<16} recall {o['recall']:.3f}  (n={o['n']})")
+    if r.get("grasp_errors"):
+        print("per scan, base frame: position / axis error of matched objects (median, p90), missed, extra "
+              "(duplicates, phantoms), share within 1 cm and 5 deg")
+        for name, g in r["grasp_errors"].items():
+            fmt = lambda x: "   -" if x is None else f"{x:4.1f}"  # noqa: E731
+            print(f"  {name:<16} n {g['n']:3d}  pos mm {fmt(g['translation_mm_median'])} / "
+                  f"{fmt(g['translation_mm_p90'])}  tilt deg {fmt(g['tilt_deg_median'])} / {fmt(g['tilt_deg_p90'])}  "
+                  f"missed {g['missed']:2d}  extra {g['extra']:2d}  within {g['within']:.2f}")
     t = r["timing_median_ms"]
     print("median ms per scan: " + ", ".join(f"{k} {v:.0f}" for k, v in t.items())
           + f"; pose per object {r['pose_ms_per_object_median']:.0f}")
