@@ -273,9 +273,6 @@ def cartesian_line(
         q = res.q
         Q.append(q)
     Q = np.asarray(Q)
-    if start_scene is not None and clear_within > start_travel:
-        return _check_leaving_contacts(robot, scene, start_scene, clear_scene or start_scene, Q, p0, r, check_step,
-                                       start_travel, clear_within, info)
     if info is not None:
         info["contact_travel"] = start_travel if start_scene is not None else 0.0
     if start_scene is not None and start_travel > 0:
@@ -289,6 +286,9 @@ def cartesian_line(
             return _line_collides(start_scene, dense[bad], bad / max(len(dense) - 1, 1) * start_travel)
         bad = check_segment(scene, Q[m:], r, check_step)
         if bad >= 0:
+            if clear_within > start_travel:  # a start contact may last longer if it is then left for good
+                return _check_leaving_contacts(robot, scene, start_scene, clear_scene or start_scene, Q, p0, r,
+                                               check_step, start_travel, clear_within, info)
             dense = densify(Q[m:], r, check_step)
             return _line_collides(scene, dense[bad], None)
         return Q

@@ -232,8 +232,10 @@ class Planner:
                     others = self._scene_objects(objects, exclude=obj)
                     held = Held(self.inventory[obj.obj_id], inv(spec.T_obj_tcp), spec.width)
                     release = self.world.scene(others, voxels, held).for_release(None)
+                    pre = self.world.scene(others, voxels, held)  # full margins above the release (plan_place)
                     self._placeable[key] = any(
-                        self._place_tcp_options(t, spec.T_obj_tcp, q, release, first_only=True, obj_id=obj.obj_id)
+                        self._place_tcp_options(t, spec.T_obj_tcp, q, release, first_only=True, obj_id=obj.obj_id,
+                                                pre_scene=pre)
                         for t in targets
                     )
                     if len(self._placeable) > 5000:
@@ -388,7 +390,7 @@ class Planner:
         # along a basin wall or dragging a finger is not lifted out, nor one pulled sideways through a neighbour
         # whose estimated pose it overlaps (in the world it may be inside that neighbour, not beside it).
         item_contacts = [p for p in start_contacts if any(x.startswith("obj:") for x in p)]
-        clear_scene = lift_scene.allowing(item_contacts)
+        clear_scene = lift_scene.allowing(item_contacts) if item_contacts else None
         # Straight up first; an item resting tilted in a stack comes off along its own axis (as it was
         # stacked); an item leaning on a basin wall (or in a corner) would slide up along it, so then up and
         # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
@@ -411,7 +413,8 @@ class Planner:
             info: dict = {}
             r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False,
                            start_scene=vertical_start_scene if along else start_scene,
-                           start_travel=LIFT_CONTACT_TRAVEL, clear_within=LIFT_CLEAR_TRAVEL if along else 0.0,
+                           start_travel=LIFT_CONTACT_TRAVEL,
+                           clear_within=LIFT_CLEAR_TRAVEL if along and clear_scene is not None else 0.0,
                            clear_scene=clear_scene, info=info)
             if isinstance(r, PlanningFailure):
                 pairs = r.details.get("pairs", ())
@@ -521,8 +524,15 @@ class Planner:
         return turns
 
     def _place_tcp_options(self, target: PlaceTarget, T_obj_tcp: np.ndarray, q_ref: np.ndarray,
-                           release_scene: Scene | None = None, first_only: bool = False, obj_id: int | None = None):
+                           release_scene: Scene | None = None, first_only: bool = False, obj_id: int | None = None,
+                           pre_scene: Scene | None = None):
         """[(T_base_obj, T_base_tcp, q)] reachable release poses for `target` with this grasp, closest first.
+
+        With `pre_scene` (the transfer's scene: full margins, the object held), a release pose counts only if
+        its pre-place pose (straight above it by the approach distance, reached from it without changing the IK
+        branch) is free too: plan_place comes down from there. Without this check the grasp filter kept grasps
+        whose only release poses had the wrist in the gripper's palm 10 cm higher up (a cup turned over with a
+        level side grasp, dishwasher seeds 1 and 4: staged items never picked again).
 
         Free-yaw targets are turned about the object's own axis in 30 degree steps. When `release_scene` is
         given, a release pose whose gripper/held object collides is raised in 1 cm steps up to
@@ -542,6 +552,7 @@ class Planner:
             turns = [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if target.free_yaw else [np.eye(4)]
         c = float(max(target.clearance, 0.0))
         raises = np.arange(c, c + self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else [c]
+        up = target.approach_distance if target.approach_distance is not None else self.settings.approach_distance
         live = []
         for Rt in turns:
             To0 = T_obj @ Rt  # about the object's own (symmetry) axis, possibly facing the other way
@@ -557,10 +568,15 @@ class Planner:
                     q = self.robot.ik_q(T, q_ref, max_seeds=2, max_iter=40)
                     branches = [] if q is None else [q]
                 for q in branches:
-                    if release_scene is None or release_scene.valid(q):
-                        out.append((To, T, q))
-                        if first_only:
-                            return out
+                    if release_scene is not None and not release_scene.valid(q):
+                        continue
+                    if pre_scene is not None:
+                        q_pre = self.robot.ik_q(trans(0.0, 0.0, up) @ T, q, max_seeds=0)
+                        if q_pre is None or not pre_scene.valid(q_pre):
+                            continue
+                    out.append((To, T, q))
+                    if first_only:
+                        return out
             if out:
                 break
         out.sort(key=lambda x: float(np.max(np.abs(x[2] - q_ref))))
@@ -607,7 +623,8 @@ class Planner:
         release_scene = held_scene.for_release(None)
         last: PlanningFailure | None = None
         for tgt in targets:
-            options = self._place_tcp_options(tgt, grasp.T_obj_tcp, q0, release_scene, obj_id=grasp.obj.obj_id)
+            options = self._place_tcp_options(tgt, grasp.T_obj_tcp, q0, release_scene, obj_id=grasp.obj.obj_id,
+                                              pre_scene=held_scene)
             if not options:
                 if last is None or last.kind == "no_feasible_placement":  # keep a more specific failure
                     last = NoFeasiblePlacement(f"no reachable release pose for target {tgt.slot or tgt.kind}")
@@ -665,6 +682,19 @@ class Planner:
         if isinstance(q0, PlanningFailure):
             return q0
         return plan_slide(self, q0, list(objects), target, map_points=map_points, distance=distance)
+
+    def plan_line(self, q_start: np.ndarray, T_goal: np.ndarray, objects: Sequence[ObjectPose] = (), *,
+                  map_points: np.ndarray | None = None) -> MovePlan | PlanningFailure:
+        """A straight TCP line (orientation interpolated) from q_start to `T_goal` (base frame), collision-checked
+        with every margin: for motions whose sweep must stay predictable, e.g. rising from over an item the
+        scene does not know yet."""
+        q0 = self._check_q(q_start, "q_start")
+        if isinstance(q0, PlanningFailure):
+            return q0
+        r = self._line(self.scene(objects, map_points), q0, np.asarray(T_goal, float), "line")
+        if isinstance(r, PlanningFailure):
+            return r
+        return MovePlan(r[0])
 
     def plan_escape(self, q_start: np.ndarray, objects: Sequence[ObjectPose] = (), *,
                     map_points: np.ndarray | None = None, held: Grasp | None = None,
