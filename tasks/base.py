@@ -181,21 +181,24 @@ class Task:
         return {"name": self.name, "description": self.description, "success": self.success_criteria}
 
 
+def nearest_the_robot(xy) -> float:
+    """Sort key for spots: distance from the robot base (area corners far from it are often out of reach)."""
+    return float(np.hypot(*xy))
+
+
 def area_spots(model: ObjectModel, lo_xy, hi_xy, z: float, placed: list[Placed], pose=upright, limit: int = 3,
                preferred: list | None = None, step: float = 0.02, centre_inside: bool = False,
-               clearance: float | np.ndarray = CLEARANCE) -> list[np.ndarray]:
+               clearance: float | np.ndarray = CLEARANCE, order=nearest_the_robot) -> list[np.ndarray]:
     """Free poses for `model` in the xy box [lo_xy, hi_xy] resting at height z: the `preferred` xy first
-    (e.g. rack slots), then a `step` grid. The footprint must stay inside the box (or only the centre when
-    `centre_inside`, for items larger than the area) and `clearance` away from everything placed (per axis when
-    an xy array)."""
+    (e.g. rack slots), then a `step` grid, each in `order` (a sort key of the xy; nearest the robot first by
+    default). The footprint must stay inside the box (or only the centre when `centre_inside`, for items larger
+    than the area) and `clearance` away from everything placed (per axis when an xy array)."""
     lo_xy, hi_xy = np.asarray(lo_xy, float), np.asarray(hi_xy, float)
     c = (lo_xy + hi_xy) / 2
     nx, ny = (np.ceil((hi_xy - lo_xy) / 2 / step) + 1).astype(int)
-    # A grid centred on the area (so a centred spot exists for items as wide as the area), nearest the robot
-    # first: rack/area corners far from the base are often out of reach with a tool.
+    # A grid centred on the area (so a centred spot exists for items as wide as the area).
     grid = [(c[0] + i * step, c[1] + j * step) for i in range(-nx, nx + 1) for j in range(-ny, ny + 1)]
-    cands = sorted(list(preferred or []), key=lambda xy: float(np.hypot(*xy))) + \
-        sorted(grid, key=lambda xy: float(np.hypot(*xy)))
+    cands = sorted(list(preferred or []), key=order) + sorted(grid, key=order)
     out: list[np.ndarray] = []
     for xy in cands:
         T = pose(model, xy, z)

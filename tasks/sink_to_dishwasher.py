@@ -17,6 +17,12 @@ from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Placed, Task, area_spots,
 VESSELS = ("cup", "glass", "bowl", "mug")
 
 
+def from_the_back(xy) -> tuple[float, float]:
+    """Sort key for upper-rack spots: largest x first (away from the side the arm reaches level), then the
+    smallest y (the rack's far end from the robot)."""
+    return (-round(float(xy[0]), 4), round(float(xy[1]), 4))
+
+
 class SinkToDishwasher(Task):
     name = "sink-to-dishwasher"
     description = "plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack"
@@ -74,15 +80,29 @@ class SinkToDishwasher(Task):
             preferred = [(x, (lo[1] + hi[1]) / 2) for x in xs] + slots
             poses = area_spots(model, lo, hi, spec.floor_z, self.placed, on_edge, 3, preferred, step=0.015)
         else:
-            # Packed from the corner nearest the robot on a fine grid (the nominal slots leave gaps a bowl needs).
-            # An item not already mouth-down is turned over with a near-level side grasp (after a regrasp on the
-            # counter): it is released and backed out of with open pads ~31 mm beyond it on both sides of the
-            # closing axis, so it goes where its neighbours leave that room, as a person loading a rack leaves
-            # room for the hand. The arm reaches the upper rack level only coming in along +x..+30 degrees (a
-            # scan of release poses over the rack), so the pads open along ~y: PAD_ROOM in y, 1 cm in x. An item
-            # already mouth-down is carried from above (a base grasp): 1 cm is enough.
-            room = CLEARANCE if obj.T_base_obj[2, 2] < -0.5 else np.array([CLEARANCE, PAD_ROOM])
-            poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room)
+            # On a fine grid (the nominal slots leave gaps a bowl needs). An item not already mouth-down is turned
+            # over with a near-level side grasp (after a regrasp on the counter): it is released and backed out of
+            # with open pads ~31 mm beyond it on both sides of the closing axis, so it goes where its neighbours
+            # leave that room, as a person loading a rack leaves room for the hand. The arm reaches the upper rack
+            # level only coming in along +x..+30 degrees (a scan of release poses over the rack), so the pads open
+            # along ~y: PAD_ROOM in y, 1 cm in x. An item already mouth-down is carried from above (a base grasp):
+            # 1 cm is enough.
+            mouth_down = obj.T_base_obj[2, 2] < -0.5
+            room = CLEARANCE if mouth_down else np.array([CLEARANCE, PAD_ROOM])
+            near = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room)
+            if obj.T_base_obj[2, 2] > 0.5:
+                # Upright (in the sink or staged on the counter): only a level side grasp turns it over, and a
+                # level tool reaches only the rack's near part in x (centres up to ~0.53 m, a scan of release
+                # poses): nearest the robot first.
+                poses = near
+            else:
+                # Mouth-down or lying: carried from above, which reaches the whole rack. Loaded from the back, as a
+                # person loads a rack (largest x first, then the far end in y): the near part, the only one a level
+                # grasp reaches, stays free for the upright items still to come, and no placed item stands between
+                # the arm and a later spot. The near spots follow in case none at the back can be reached.
+                back = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room,
+                                  order=from_the_back)
+                poses = back + [T for T in near if not any(np.allclose(T, B) for B in back)]
         names = {tuple(np.round(xy, 4)): s.name for xy, s in
                  zip(slots, [s for s in self.cell.slots if s.rack == rack])}
         # Plates on edge keep their face normal along x (tines); mugs have a handle: no free yaw for either.
