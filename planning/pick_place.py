@@ -338,6 +338,11 @@ class Planner:
         up_target = self._vertical_clear_travel(target, other)
         return up_target > 0 and up_target > self._vertical_clear_travel(other, target)
 
+    def items_on(self, target: ObjectPose, objects: Sequence[ObjectPose]) -> list[ObjectPose]:
+        """The perceived items lying on (or over) `target`, most in the way first: pick those before it (what
+        a pick failure names in ``details["blocking"]``; cheap: a few ms per neighbour, no IK)."""
+        return self._resting_on(target, objects)
+
     def _resting_on(self, target: ObjectPose, objects, reach: float = 0.01) -> list[ObjectPose]:
         """Perceived items that lie on `target` (see _lies_on), within `reach` of it, most overlapping first."""
         if target.obj_id not in self.inventory.models:

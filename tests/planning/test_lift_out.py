@@ -73,3 +73,11 @@ def test_lift_directions_away_from_what_the_lift_ran_into(planner, resting):
         assert d[:2] @ away > 0  # away from the glass
         assert np.degrees(np.arccos(d[2])) in (pytest.approx(30.0), pytest.approx(45.0))
     assert planner._lift_directions_away(centre, [cup, glass], {"nothing"}, up) == []
+
+
+def test_items_on_lists_what_lies_on_the_target(planner, resting):
+    plate = resting("side_plate", (0.45, 0.0), 7)
+    cup = _on(planner, "cup", plate, 9, sink=0.015)
+    glass = resting("glass", (0.62, 0.10), 11)  # beside, not on it
+    assert [o.instance_id for o in planner.items_on(plate, [plate, cup, glass])] == [9]
+    assert planner.items_on(cup, [plate, cup, glass]) == []
