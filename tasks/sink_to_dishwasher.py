@@ -41,6 +41,9 @@ class SinkToDishwasher(Task):
             # Not mouth-down: a bowl (16 cm) has no level side grasp to turn it over, and its foot ring faces
             # down. As people load one, it stands on its rim in the lower rack between the tines, facing the
             # spray arm like a plate, carried by a rim pinch; mouth-down in the upper rack only if that is full.
+            # (A mouth-down bowl goes to the upper rack, carried from above by a foot-ring pinch. Turned on its
+            # rim with that pinch it is released 5 cm up, over the lower rack's rails, and in a test at three
+            # spots the pads' retreat then hit it.)
             lower = self._bowl_on_edge(obj)
             upper = self._targets(obj, "upper")
             out = lower + (upper if isinstance(upper, list) else [])
@@ -63,8 +66,11 @@ class SinkToDishwasher(Task):
         y = (lo[1] + hi[1]) / 2
         xs = np.arange(hi[0] - 0.01, lo[0], -0.015)
         pref = [(float(x), float(y)) for x in xs]
-        poses = area_spots(model, lo, hi, spec.floor_z, taken, on_edge, 3, pref, step=0.015)
-        poses = sorted(poses, key=lambda T: -T[0, 3])
+
+        def far_end_first(xy):  # the largest x first, on the rack's centre line first
+            return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
+
+        poses = area_spots(model, lo, hi, spec.floor_z, taken, on_edge, 3, pref, step=0.015, order=far_end_first)
         return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=False,
                             support="rack_lower (on its rim)") for T in poses]
 
