@@ -39,6 +39,10 @@ NESTING_CLASSES = ("plate", "bowl", "cup")
 # How far a fit started upright (or upside down) may lean and still count as "near upright" (settled stacks in
 # the simulator lean up to ~30 deg; beyond that the gravity prior is no prior).
 MAX_REST_TILT = np.radians(30)
+# Voxels: a point within this of a pose's surface (facing the same way) lies on it, for deciding between fits
+# (which lean is right, which of two twins stays, whether a stacked copy is a duplicate): finer than the
+# overlap score's one voxel, coarser than the depth noise at the scan distance (~1-2 mm).
+SURFACE_TOL = 0.3
 
 
 @dataclass
@@ -226,7 +230,8 @@ class Perceiver:
                     s_new, s_old = scorer(hyp.T_base_obj)[0], scorer(twin[0].T_base_obj)[0]
                     if abs(s_new - s_old) < 0.05:
                         P_joint, N_joint = m.points[joint], self._map_normals(m, joint)
-                        s_new, s_old = (on_surface(P_joint, N_joint, db[h.obj_id], h.T_base_obj, 0.3 * vox).mean()
+                        s_new, s_old = (on_surface(P_joint, N_joint, db[h.obj_id], h.T_base_obj,
+                                                   SURFACE_TOL * vox).mean()
                                         for h in (hyp, twin[0]))
                     if s_new > s_old:
                         twin[0] = hyp
@@ -234,10 +239,14 @@ class Perceiver:
                     continue
                 taken = np.zeros(len(P), bool)
                 for k in kept:
-                    # A copy of the same model stacked along its axis (a plate under a plate) shares most of
-                    # its visible surface within 1.5 voxels: judged at the tight residual tolerance.
+                    # A copy of the same model stacked along its axis (a plate under a plate, a cup in a cup)
+                    # has most of its visible surface within a voxel of the other one's (hidden) surface: only
+                    # points on the other's surface within 3 mm, facing the same way, count as the other's.
+                    # (Fits are millimetre-accurate; a nested cup's outer wall lies >= its wall thickness, 3.5
+                    # mm, outside the wall of the cup in it. At 8 mm, a lower cup's own points were 85 % "taken"
+                    # by the cup nested in it, and the lower cup dropped.)
                     if self._stacked(k[0], hyp):
-                        taken |= self._explained(k[0], P, self.settings.residual_tolerance, self._map_normals(m, own))
+                        taken |= self._explained(k[0], P, SURFACE_TOL, self._map_normals(m, own))
                     else:
                         taken |= self._explained(k[0], P)
                 if taken.mean() > 0.6:
@@ -307,10 +316,11 @@ class Perceiver:
 
     @staticmethod
     def _min_along(model) -> float:
-        """Below this distance along a shared axis two copies of one model are one object: 0.12 height, or 0.6
-        of the model's nest pitch (a cup in a cup sits 2.6 cm higher; two cup poses 1.3 cm apart along the axis
-        would interpenetrate: the second was a fit of the first one's leftovers)."""
-        return max(0.12 * float(model.extents[2]), 0.6 * model.nest_pitch)
+        """Below this distance along a shared axis two copies of one model are one object: 0.12 height, or 0.8
+        of the model's nest pitch (a cup in a cup sits 2.6 cm higher; two cup poses 1.6 cm apart along the axis
+        would interpenetrate: the second was a fit of the first one's leftovers). The margin, 0.2 pitch (1 mm
+        for plates), is what the fits' errors may take."""
+        return max(0.12 * float(model.extents[2]), 0.8 * model.nest_pitch)
 
     def _same_place(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Same model, axes within 30 deg, centres closer than 0.2 diameter across and _min_along along."""
@@ -354,11 +364,12 @@ class Perceiver:
         """The best fit near the gravity-aligned pose T_base_obj: ICP with the axis held, then with it free from
         there; the free fit is taken unless it leans past MAX_REST_TILT or explains the data worse."""
         entry = self.database[oid]
-        held = refine(query, entry, scorer, T_base_obj, self.reg_cfg, source, upright=True)
-        free = refine(query, entry, scorer, held.T_base_obj, self.reg_cfg, held.source)
+        sym = self.inventory[oid].is_rotationally_symmetric
+        held = refine(query, entry, scorer, T_base_obj, self.reg_cfg, source, upright=True, symmetric=sym)
+        free = refine(query, entry, scorer, held.T_base_obj, self.reg_cfg, held.source, symmetric=sym)
         # The overlap score (epsilon one voxel) hardly tells a fit leaning 15 deg from an upright one; the
         # fraction of points on the surface within 3 mm does (a wrong lean leaves the far rim off).
-        tol = 0.3 * self.settings.voxel_size
+        tol = SURFACE_TOL * self.settings.voxel_size
         if abs(free.T_base_obj[:3, 2] @ up) >= np.cos(MAX_REST_TILT) and free.score >= held.score - 0.03 and \
                 surface_fit(query.points, query.normals, entry, free.T_base_obj, tol) >= \
                 surface_fit(query.points, query.normals, entry, held.T_base_obj, tol):
@@ -412,7 +423,8 @@ class Perceiver:
                 seen.add(t[1])
         best: Hypothesis | None = None
         for _, oid, name, T, w in picks:
-            h = refine(query, self.database[oid], scorers[oid], T, self.reg_cfg, name)
+            h = refine(query, self.database[oid], scorers[oid], T, self.reg_cfg, name,
+                       symmetric=self.inventory[oid].is_rotationally_symmetric)
             h.score *= self._colour_weight(query, h, w)
             if best is None or h.score > best.score:
                 best = h

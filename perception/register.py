@@ -187,7 +187,7 @@ def _exp_se3_small(x: np.ndarray) -> np.ndarray:
 
 def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...],
                  iters: int = 10, coarse: bool = False, upright: bool = False,
-                 qn: np.ndarray | None = None) -> np.ndarray:
+                 qn: np.ndarray | None = None, symmetric: bool = False) -> np.ndarray:
     """Point-to-plane ICP of query points (base frame) onto the model surface; returns T_obj_base.
 
     Hand-written (numpy + the model's prebuilt KD-tree) because Open3D's registration_icp rebuilds the target
@@ -199,8 +199,12 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
     then matched to a near model point on a surface facing the same way. Without them a thin wall's two
     sides (a plate's top and underside, 4.5 mm apart) are equally good matches, and fits settled on the
     wrong side: plates sat one wall thickness high, stacked ones more.
+    `symmetric`: the model is a surface of revolution about its z axis; the turn about it is left out (the
+    data cannot fix it: it drifted by degrees per iteration and the ICP never met its convergence test).
     """
     free = np.array([2, 3, 4, 5]) if upright else np.arange(6)
+    if symmetric:
+        free = free[free != 2]
     T = T_obj_base.copy()
     if coarse:  # voxel-level model points: a smaller tree, good enough to screen hypotheses
         tree, mp, mn = entry.ref_tree, entry.ref.points, entry.ref.normals
@@ -215,8 +219,9 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
                 ok = np.isfinite(d)
             else:
                 pn = qn @ T[:3, :3].T
+                # (a match facing within 60 deg is at most sqrt(dmax^2 + NORMAL_WEIGHT^2) away in the 6-D tree)
                 d6, j = entry.oriented_tree.query(np.hstack([p, NORMAL_WEIGHT * pn]),
-                                                  distance_upper_bound=dmax + NORMAL_WEIGHT)
+                                                  distance_upper_bound=np.hypot(dmax, NORMAL_WEIGHT))
                 j = np.minimum(j, len(mp) - 1)
                 # Near in space and facing within ~60 deg of the query normal (normals of 1 cm voxel centres
                 # on a rim or a tight curve are rough).
@@ -258,7 +263,7 @@ def _exp_se3_batch(x: np.ndarray) -> np.ndarray:
 
 
 def icp_batch(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...], iters: int = 5,
-              coarse: bool = True, keep_axis: np.ndarray | None = None) -> np.ndarray:
+              coarse: bool = True, keep_axis: np.ndarray | None = None, symmetric: bool = False) -> np.ndarray:
     """`icp_to_model` for H starting poses at once ((H, 4, 4) T_obj_base -> (H, 4, 4)): one KD-tree query and
     one batched 6x6 solve per iteration for all hypotheses (the per-call Python overhead dominated).
     `keep_axis[h]`: hypothesis h keeps its object z axis (translation and yaw only)."""
@@ -293,6 +298,11 @@ def icp_batch(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: t
                 A[lk, :, c] = 0.0
                 A[lk, c, c] = 1.0
                 bvec[lk, c] = 0.0
+            if symmetric:  # no turn about the axis of a surface of revolution (undetermined)
+                A[:, 2, :] = 0.0
+                A[:, :, 2] = 0.0
+                A[:, 2, 2] = 1.0
+                bvec[:, 2] = 0.0
             x = -np.linalg.solve(A, bvec[..., None])[..., 0]
             x[ok.sum(axis=1) < 6] = 0.0
             T[idx] = _exp_se3_batch(x) @ Ta
@@ -360,7 +370,7 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
             return
         T0 = np.array([inv(T) for _, T, _ in starts])
         Ts = icp_batch(qs, entry, T0, (4 * v, 1.5 * v), iters=5, coarse=True,
-                       keep_axis=np.array([k for _, _, k in starts]))
+                       keep_axis=np.array([k for _, _, k in starts]), symmetric=model.is_rotationally_symmetric)
         for (name, _, _), T_ob in zip(starts, Ts):
             Tb = inv(T_ob)
             scored.append((scorer(Tb, coarse=True)[0], name, Tb))
@@ -417,13 +427,13 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
 
 
 def refine(query: FusedCloud, entry: ModelEntry, scorer: Scorer, T_base_obj: np.ndarray, cfg: RegistrationConfig,
-           source: str = "", upright: bool = False) -> Hypothesis:
+           source: str = "", upright: bool = False, symmetric: bool = False) -> Hypothesis:
     """Fine ICP against the dense model surface (<= ~600 query points) and the full score."""
     v = cfg.voxel
     step = max(1, len(query.points) // 600)
     q, qn = query.points[::step], query.normals[::step]
     dists = (3 * v, 1.5 * v, v, 0.6 * v, 0.3 * v) if upright else (2 * v, v, 0.6 * v, 0.3 * v)
-    Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=10, upright=upright, qn=qn))
+    Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=10, upright=upright, qn=qn, symmetric=symmetric))
     return Hypothesis(entry.obj_id, Tb, *scorer(Tb), source=source + ("-upright" if upright else ""))
 
 
@@ -440,7 +450,7 @@ def on_surface(points: np.ndarray, normals: np.ndarray | None, entry: ModelEntry
         d, _ = entry.tree.query(p, distance_upper_bound=tol)
         return np.isfinite(d)
     pn = normals @ Ti[:3, :3].T
-    d6, j = entry.oriented_tree.query(np.hstack([p, NORMAL_WEIGHT * pn]), distance_upper_bound=tol + NORMAL_WEIGHT)
+    d6, j = entry.oriented_tree.query(np.hstack([p, NORMAL_WEIGHT * pn]), distance_upper_bound=np.hypot(tol, NORMAL_WEIGHT))
     j = np.minimum(j, len(entry.dense_points) - 1)
     return np.isfinite(d6) & (np.linalg.norm(p - entry.dense_points[j], axis=1) <= tol) & \
         (np.einsum("ij,ij->i", pn, entry.dense_normals[j]) > 0.5)
@@ -472,7 +482,7 @@ def register_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel,
     """Screen hypotheses for one model, refine the best few, return the best."""
     best = None
     for _, name, Tb in screen_candidate(query, entry, model, scorer, cfg, up)[: cfg.keep_for_refine]:
-        h = refine(query, entry, scorer, Tb, cfg, name)
+        h = refine(query, entry, scorer, Tb, cfg, name, symmetric=model.is_rotationally_symmetric)
         if best is None or h.score > best.score:
             best = h
     return best if best is not None else Hypothesis(entry.obj_id, np.eye(4))
