@@ -23,6 +23,12 @@ def from_the_back(xy) -> tuple[float, float]:
     return (-round(float(xy[0]), 4), round(float(xy[1]), 4))
 
 
+def from_the_front(xy) -> tuple[float, float]:
+    """Sort key for upper-rack spots a level tool must reach: smallest x first, then the largest y (nearest the
+    robot)."""
+    return (round(float(xy[0]), 4), -round(float(xy[1]), 4))
+
+
 class SinkToDishwasher(Task):
     name = "sink-to-dishwasher"
     description = "plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack"
@@ -37,42 +43,64 @@ class SinkToDishwasher(Task):
         return [(np.array(s.origin_xy), np.array(s.origin_xy) + np.array(s.size_xy)) for s in specs]
 
     def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
-        if obj.cls == "bowl" and obj.T_base_obj[2, 2] > -0.5:
-            # Not mouth-down: a bowl (16 cm) has no level side grasp to turn it over, and its foot ring faces
-            # down. As people load one, it stands on its rim in the lower rack between the tines, facing the
-            # spray arm like a plate, carried by a rim pinch; mouth-down in the upper rack only if that is full.
-            # (A mouth-down bowl goes to the upper rack, carried from above by a foot-ring pinch. Turned on its
-            # rim with that pinch it is released 5 cm up, over the lower rack's rails, and in a test at three
-            # spots the pads' retreat then hit it.)
-            lower = self._bowl_on_edge(obj)
+        if obj.cls == "bowl":
+            # As people load bowls: in the lower rack, the upper one (16 cm a bowl, the room of two or three
+            # cups) only if the lower one is full. A bowl not mouth-down stands on its rim between the tines,
+            # facing the spray arm like a plate, carried by a rim pinch (it has no level side grasp to turn it
+            # over: 16 cm, its foot ring faces down). A mouth-down bowl, carried from above by a foot-ring pinch,
+            # goes in mouth-down as it lies (turned on its rim with that pinch it is released 5 cm up, over the
+            # rails, and in a test at three spots the pads' retreat then hit it). Seed 9: two mouth-down bowls
+            # in the upper rack left no room for a mug and a cup.
+            if obj.T_base_obj[2, 2] > -0.5:
+                lower = self._bowl_in_lower_rack(obj, on_edge, "on its rim")
+            else:
+                lower = self._bowl_in_lower_rack(obj, inverted, "mouth-down")
             upper = self._targets(obj, "upper")
             out = lower + (upper if isinstance(upper, list) else [])
             return out or NoFreeSlot("no free slot for a bowl in the lower or upper rack")
         return self._targets(obj, "lower" if obj.cls == "plate" else "upper")
 
-    def _bowl_on_edge(self, obj: ObjectPose) -> list[PlaceTarget]:
-        """A bowl standing on its rim in the lower rack (its axis along x, as a plate), from the rack's far end
-        in x (plates are loaded from the end nearest the robot), with room for the largest plate still to come."""
+    def _bowl_in_lower_rack(self, obj: ObjectPose, pose, how: str) -> list[PlaceTarget]:
+        """A bowl in the lower rack, `pose` on_edge (on its rim, its axis along x, as a plate) or inverted, from
+        the rack's far end in x (plates are loaded from the end nearest the robot), with room kept for the plates
+        still in the sink (one plate thickness each, from the end nearest the robot)."""
         model = self.inventory[obj.obj_id]
         spec = self.cell.spec.dishwasher.lower
         lo = np.array(spec.origin_xy)
         hi = lo + np.array(spec.size_xy)
         taken = list(self.placed)
         plates = [m for m in self.pending if m.cls == "plate"]
-        if plates:  # keep the plates' end of the rack: one plate thickness per plate still to come, from x near 0
+        if plates:  # where the plates will go (the spots _plate_spots gives them, the largest plate in each)
             big = max(plates, key=lambda m: max(m.extents[:2]))
-            for T in area_spots(big, lo, hi, spec.floor_z, taken, on_edge, len(plates), step=0.015):
+            for T in self._plate_spots(big, taken, len(plates)):
                 taken.append(Placed(big.obj_id, big.cls, T, *footprint(big, T), None))
         y = (lo[1] + hi[1]) / 2
-        xs = np.arange(hi[0] - 0.01, lo[0], -0.015)
+        # On the centre line: flush beside what is in the rack (or kept for plates), CLEARANCE + 1 mm from it,
+        # then every 5 mm from the far end: on the 15 mm grid alone a second bowl missed the room left between
+        # the first one and the plates by 2 mm (seed 9).
+        r = max(model.extents[:2]) / 2 if pose is inverted else model.extents[2] / 2  # half its length along x
+        in_rack = [p for p in taken if lo[0] <= (p.lo[0] + p.hi[0]) / 2 <= hi[0] and lo[1] <= (p.lo[1] + p.hi[1]) / 2 <= hi[1]]
+        xs = [p.lo[0] - CLEARANCE - 0.001 - r for p in in_rack] + [p.hi[0] + CLEARANCE + 0.001 + r for p in in_rack]
+        xs += list(np.arange(hi[0] - 0.01, lo[0], -0.005))
         pref = [(float(x), float(y)) for x in xs]
 
         def far_end_first(xy):  # the largest x first, on the rack's centre line first
             return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
 
-        poses = area_spots(model, lo, hi, spec.floor_z, taken, on_edge, 3, pref, step=0.015, order=far_end_first)
-        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=False,
-                            support="rack_lower (on its rim)") for T in poses]
+        poses = area_spots(model, lo, hi, spec.floor_z, taken, pose, 3, pref, step=0.015, order=far_end_first)
+        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=pose is inverted,
+                            support=f"rack_lower ({how})") for T in poses]
+
+    def _plate_spots(self, model, placed: list[Placed], limit: int) -> list[np.ndarray]:
+        """Plates on edge in the lower rack (they span it in y): each slot's x on the rack's centre line first,
+        nearest the robot first."""
+        spec = self.cell.spec.dishwasher.lower
+        lo = np.array(spec.origin_xy)
+        hi = lo + np.array(spec.size_xy)
+        slots = [s.T_base_slot[:2, 3] for s in self.cell.slots if s.rack == "lower"]
+        xs = sorted({round(float(xy[0]), 4) for xy in slots})
+        preferred = [(x, (lo[1] + hi[1]) / 2) for x in xs] + slots
+        return area_spots(model, lo, hi, spec.floor_z, placed, on_edge, limit, preferred, step=0.015)
 
     def _targets(self, obj: ObjectPose, rack: str) -> list[PlaceTarget] | NoFreeSlot:
         model = self.inventory[obj.obj_id]
@@ -81,10 +109,7 @@ class SinkToDishwasher(Task):
         hi = lo + np.array(spec.size_xy)
         slots = [s.T_base_slot[:2, 3] for s in self.cell.slots if s.rack == rack]
         if obj.cls == "plate":
-            # Plates span the rack in y: try each slot's x at the rack's centre line first.
-            xs = sorted({round(float(xy[0]), 4) for xy in slots})
-            preferred = [(x, (lo[1] + hi[1]) / 2) for x in xs] + slots
-            poses = area_spots(model, lo, hi, spec.floor_z, self.placed, on_edge, 3, preferred, step=0.015)
+            poses = self._plate_spots(model, self.placed, 3)
         else:
             # On a fine grid (the nominal slots leave gaps a bowl needs). An item not already mouth-down is turned
             # over with a near-level side grasp (after a regrasp on the counter): it is released and backed out of
@@ -95,19 +120,22 @@ class SinkToDishwasher(Task):
             # 1 cm is enough.
             mouth_down = obj.T_base_obj[2, 2] < -0.5
             room = CLEARANCE if mouth_down else np.array([CLEARANCE, PAD_ROOM])
-            near = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room)
             if obj.T_base_obj[2, 2] > 0.5:
                 # Upright (in the sink or staged on the counter): only a level side grasp turns it over, and a
                 # level tool reaches only the rack's near part in x (centres up to ~0.53 m, a scan of release
-                # poses): nearest the robot first.
-                poses = near
+                # poses): the smallest x first, then nearest the robot in y. Six of them: the three nearest the
+                # robot were often beyond that x where the near part still had room (seed 6: a staged cup).
+                poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 6, clearance=room,
+                                   order=from_the_front)
             else:
                 # Mouth-down or lying: carried from above, which reaches the whole rack. Loaded from the back, as a
                 # person loads a rack (largest x first, then the far end in y): the near part, the only one a level
                 # grasp reaches, stays free for the upright items still to come, and no placed item stands between
-                # the arm and a later spot. The near spots follow in case none at the back can be reached.
-                back = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room,
+                # the arm and a later spot. Six spots (the back column and the next), then the three nearest the
+                # robot in case none at the back can be reached with the item's grasps.
+                back = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 6, clearance=room,
                                   order=from_the_back)
+                near = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room)
                 poses = back + [T for T in near if not any(np.allclose(T, B) for B in back)]
         names = {tuple(np.round(xy, 4)): s.name for xy, s in
                  zip(slots, [s for s in self.cell.slots if s.rack == rack])}

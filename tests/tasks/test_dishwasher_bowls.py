@@ -1,5 +1,6 @@
 """sink-to-dishwasher: a bowl that is not mouth-down (no level side grasp turns a 16 cm bowl over) stands on its
-rim in the lower rack like a plate, away from the plates' end; a mouth-down bowl still goes into the upper rack."""
+rim in the lower rack like a plate, away from the plates' end; a mouth-down bowl goes mouth-down into the lower
+rack, the upper rack (16 cm a bowl: the room of two or three cups) only when the lower one is full."""
 
 from __future__ import annotations
 
@@ -53,10 +54,25 @@ def test_upright_bowls_stand_on_their_rim_in_the_lower_rack(inv):
     assert len(task.placed) == 4
 
 
-def test_a_mouth_down_bowl_still_goes_into_the_upper_rack(inv):
+def test_a_mouth_down_bowl_goes_mouth_down_into_the_lower_rack_then_the_upper(inv):
     cell = Cell()
     task = make_task("sink-to-dishwasher", inv, cell)
-    ts = task.targets(in_sink(inv, "bowl", MOUTH_DOWN))
-    up = cell.spec.dishwasher.upper
-    assert ts and all(t.T_base_obj[2, 2] < -0.99 for t in ts)
-    assert all(up.origin_xy[0] <= t.T_base_obj[0, 3] <= up.origin_xy[0] + up.size_xy[0] for t in ts)
+    bowl = in_sink(inv, "bowl", MOUTH_DOWN)
+    low, up = cell.spec.dishwasher.lower, cell.spec.dishwasher.upper
+
+    def in_rack(rack, T):
+        return all(rack.origin_xy[i] <= T[i, 3] <= rack.origin_xy[i] + rack.size_xy[i] for i in (0, 1))
+
+    ts = task.targets(bowl)
+    assert ts and all(t.T_base_obj[2, 2] < -0.99 for t in ts)  # mouth-down everywhere
+    racks = ["lower" if in_rack(low, t.T_base_obj) else "upper" if in_rack(up, t.T_base_obj) else "?" for t in ts]
+    assert "?" not in racks and racks[0] == "lower" and "upper" in racks
+    assert racks == sorted(racks)  # every lower-rack spot before the upper rack's
+    lower = [t for t, r in zip(ts, racks) if r == "lower"]
+    xs = [t.T_base_obj[0, 3] for t in lower]
+    assert xs == sorted(xs, reverse=True)  # from the rack's far end (plates fill it from the robot's end)
+    assert min(t.T_base_obj[2, 3] for t in lower) - inv.by_name("bowl").extents[2] / 2 <= low.floor_z + 0.02
+    # with the lower rack kept for plates still in the sink, the bowl goes to the upper rack
+    task.remaining([bowl] + [in_sink(inv, "dinner_plate", k=k) for k in range(1, 12)])
+    ts = task.targets(bowl)
+    assert ts and all(in_rack(up, t.T_base_obj) for t in ts)
