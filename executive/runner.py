@@ -252,6 +252,8 @@ class TaskRunner:
         self._cycle_t0 = (time.perf_counter(), 0.0, self._sim_now())
         self._first_total: int | None = None
         self.dropped = 0  # items that left the gripper on the way (slips, let go over the cell after a fault)
+        self._searching = False  # looking for a fallen item (see _search_drop_site)
+        self._last_traj: Trajectory | None = None  # the last motion commanded (to retrace it after a stop)
         self.prefer_instance: int | None = None  # perceived instance to try next (it blocks the last one tried)
         self.drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
         self._table_perceiver = None  # perception without the cell (the counter as a table top), for drop sites
@@ -471,6 +473,7 @@ class TaskRunner:
 
     def _run_trajectory(self, traj: Trajectory, carrying: bool = False) -> None:
         self._check_deadline()
+        self._last_traj = traj
         self._cmd("arm.execute_trajectory", name=traj.name, n=len(traj), duration=traj.duration,
                   q_start=traj.q[0], q_end=traj.q[-1])
         t0 = time.perf_counter()
@@ -507,6 +510,18 @@ class TaskRunner:
         dist = float(np.max(np.abs(q - q_now)))
         self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
 
+    def _retrace(self, traj: Trajectory | None, name: str) -> bool:
+        """If the arm stands on `traj` (it was stopped along it), go back along it to its start: the way it came
+        is free in the world as it is, whatever the perceived poses say. False if the arm is not on it."""
+        if traj is None:
+            return False
+        d = np.max(np.abs(traj.q - self.arm.joint_positions()), axis=1)
+        k = int(np.argmin(d))
+        if d[k] >= 0.01 or k == 0:
+            return False
+        self._run_trajectory(Trajectory(traj.times[k] - traj.times[k::-1], traj.q[k::-1].copy(), name))
+        return True
+
     def _slipped(self, what: str) -> StepFailed:
         """The held object slipped out: it fell straight down from about where the tool is now."""
         self.dropped += 1
@@ -519,13 +534,17 @@ class TaskRunner:
         """The arm is within the collision margin of something (it stopped there): move the tool straight out
         (planning.escape), so that planned motions can start again. False if no safe straight way out exists."""
         held = self.pick.grasp if (self.pick is not None and self._holding()) else None
-        try:
-            opening = self.gripper.opening()
-        except DriverError:
-            opening = None
         plan = self.planner.plan_escape(self.arm.joint_positions(), self._scene_objects(), map_points=self.map_points,
-                                        held=held, opening=opening)
+                                        held=held)
         if not plan.ok:
+            # Inside something as perceived (a pose error: the arm was stopped before real contact): back along
+            # the motion that brought it here (not when looking for a fallen item: it may lie on that way now).
+            last = self._last_traj
+            if not self._searching and self._retrace(last, "retrace"):
+                self._log("note", "retraced the stopped motion out of the collision margin", reason=str(plan),
+                          motion=last.name)
+                self.report.escapes += 1
+                return True
             self._log("note", "no way out of the collision margin", reason=str(plan))
             return False
         self._log("note", "escaping the collision margin", **plan.timings_ms)
@@ -959,19 +978,14 @@ class TaskRunner:
         """After a failed grasp the gripper may be around an object in the sink: open, then straight back out."""
         if self.failure is None or self.failure.state != "execute":
             return
-        q = self.arm.joint_positions()
-        d, k = np.array([np.inf]), 0
         if self.pick is not None:
-            gi = self.pick.grasp_in
             if not self._holding():
                 self._cmd("gripper.open", opening=self.pick.grasp.spec.opening)
                 self.gripper.open(self.pick.grasp.spec.opening)
-            d = np.max(np.abs(gi.q - q), axis=1)
-            k = int(np.argmin(d))
+            if self._retrace(self.pick.grasp_in, "back_out"):  # it was on the grasp-in line
+                return
         # (no pick: a slide was cut short, the fingers may still press on the item: straight up)
-        if d[k] < 0.01 and k > 0:  # on the grasp-in line: retrace it
-            self._run_trajectory(Trajectory(gi.times[k] - gi.times[k::-1], gi.q[k::-1].copy(), "back_out"))
-        elif self.arm.tcp_pose()[2, 3] < 0.05:  # deep in the sink elsewhere: straight up a little
+        if self.arm.tcp_pose()[2, 3] < 0.05:  # deep in the sink elsewhere: straight up a little
             T = self.arm.tcp_pose()
             T[2, 3] += 0.08
             self._cmd("arm.move_linear", up=0.08)
@@ -996,22 +1010,26 @@ class TaskRunner:
         down at where it fell; an item of its class found there (and not one placed earlier) is picked up again
         from there, as an item staged on the counter is."""
         site, self.drop_site = self.drop_site, None
-        if site is None or self.current is None:
+        if site is None or self.current is None or self.planner is None:
             return
         lo, hi = self.robot.cell.sink_interior
         if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
             return  # it fell back into the sink: the re-scan finds it
         cls = self.current.cls
-        q = self._search_pose(site)
-        if q is None:
-            self._log("note", "no pose to look at the drop site", at=site)
-            return
+        map_points, self.map_points = self.map_points, self._keep_out(site, cls)
+        self._searching = True
         try:
-            self._move_joints(q, "look at the drop site")
+            why = self._look_down_at(site)
+            if why:
+                self._log("note", "no way to look at the drop site", at=site, reason=why)
+                return
             view = self._capture_view(f"drop{self.dropped}", "drop")
-        except (StepFailed, DriverTimeoutError) as e:
+        except (StepFailed, DriverTimeoutError, ProtectiveStopError) as e:
             self._log("note", "drop site not seen", reason=str(e))
+            self._restore_devices(self.failure)
             return
+        finally:
+            self.map_points, self._searching = map_points, False
         res = self._drop_perceiver().perceive([view])
         placed = self.task.obstacles()
         found = [p for p in res.poses if p.cls == cls
@@ -1027,24 +1045,47 @@ class TaskRunner:
         self.report.recovered_drops += 1
         self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
 
-    def _search_pose(self, site: np.ndarray) -> np.ndarray | None:
-        """Joint configuration putting the camera straight above `site` (looking down), collision-free, or None."""
+    def _look_down_at(self, site: np.ndarray) -> str:
+        """Put the camera straight above `site`, looking down, by a planned collision-free motion. Returns "" when
+        there, else why not."""
         planner = self.planner
-        if planner is None:
-            return None
         home = np.asarray(self.robot.config.robot.home, float)
-        q_now = self.arm.joint_positions()
         R_down = planner.robot.fk_tcp(home)[:3, :3]  # home points the tool down
         d_cam = (np.linalg.inv(planner.robot.T_flange_tcp) @ self.robot.T_flange_cam)[:3, 3]  # camera in tcp frame
+        p_cam = np.array([site[0], site[1], self.SEARCH_CAMERA_HEIGHT])
         scene = planner.scene(self._scene_objects(), self.map_points)
-        for yaw in np.radians([0.0, 45.0, -45.0, 90.0, -90.0, 135.0, -135.0, 180.0]):
+        why = "no collision-free camera pose above it"
+        for yaw in np.radians([0.0, 90.0, -90.0, 180.0]):
             R = rot_z(yaw)[:3, :3] @ R_down
-            p_cam = np.array([site[0], site[1], self.SEARCH_CAMERA_HEIGHT])
-            T = make_T(R, p_cam - R @ d_cam)
-            for q in planner.robot.ik_all(T, q_now):
-                if scene.valid(q):
-                    return q
-        return None
+            for q in planner.robot.ik_all(make_T(R, p_cam - R @ d_cam), self.arm.joint_positions())[:2]:
+                if not scene.valid(q):
+                    continue
+                try:
+                    self._move_joints(q, "look at the drop site")
+                    return ""
+                except StepFailed as e:
+                    why = str(e)
+        return why
+
+    def _keep_out(self, site: np.ndarray, cls: str) -> np.ndarray | None:
+        """Points filling an upright cylinder under the drop site, as wide and high as the fallen item may lie (no
+        scene knows it yet): as map points no object explains, the planner keeps clear of them like of any unknown
+        obstacle. The item fell from the tool, so the cylinder ends below the tool as it is now (lowered in 2 cm
+        steps until the tool clears it; what is left within the margin is escaped straight up)."""
+        models = [m for m in self.robot.inventory.models.values() if m.cls == cls]
+        radius = max((m.diameter for m in models), default=0.3) / 2 + 0.03
+        height = max((float(np.max(m.extents)) for m in models), default=0.3) + 0.01  # however it came to rest
+        g = np.arange(-radius, radius + 1e-9, 0.01)
+        X, Y = np.meshgrid(g, g)
+        disc = np.c_[X.ravel(), Y.ravel()][np.hypot(X.ravel(), Y.ravel()) <= radius] + site[:2]
+        q = self.arm.joint_positions()
+        while height > 0.02:
+            pts = np.concatenate([np.c_[disc, np.full(len(disc), z)] for z in np.arange(0.005, height, 0.01)])
+            scene = self.planner.scene([], pts)
+            if scene.touching_only(scene.colliding_pairs(q)).valid(q):
+                return pts if self.map_points is None else np.vstack([self.map_points, pts])
+            height -= 0.02
+        return self.map_points
 
     def _drop_perceiver(self):
         """The configured pipeline without the cell's geometry: the counter is the support plane (the pipeline's

@@ -33,14 +33,12 @@ def escape_directions() -> list[np.ndarray]:
 
 
 def plan_escape(planner, q_start: np.ndarray, objects: Sequence[ObjectPose] = (), *,
-                map_points: np.ndarray | None = None, held: Grasp | None = None,
-                opening: float | None = None) -> MovePlan | PlanningFailure:
+                map_points: np.ndarray | None = None, held: Grasp | None = None) -> MovePlan | PlanningFailure:
     """A short straight TCP line from `q_start` (within the margin of something) to a configuration that keeps
-    every margin. `opening`: the gripper's present opening (m; default: fully open, or the held item's width).
-    `StartInCollision` when q_start actually touches something (zero margin): that needs a person."""
+    every margin, in the scene `Planner.plan_move` plans in (the gripper fully open, or around `held`), so that the
+    next planned motion can start there. `StartInCollision` when q_start touches something (zero margin)."""
     q0 = np.asarray(q_start, float)
-    scene = planner.scene(objects, map_points, exclude=held.obj if held is not None else None, held=held,
-                          opening=opening if held is None else None)
+    scene = planner.scene(objects, map_points, exclude=held.obj if held is not None else None, held=held)
     pairs = scene.colliding_pairs(q0)
     if not pairs:
         return StartInCollision("nothing to escape from: the start keeps every margin", {"q": q0.tolist()})

@@ -201,3 +201,37 @@ def test_the_item_a_failed_pick_names_as_blocking_is_tried_next(tmp_path):
     runner.run()
     order = [world.objects[u].model.cls for u in calls[:2]]
     assert order == ["cup", "cup"] and calls[0] != calls[1]  # not the plate, the task's next in order
+
+
+def test_stopped_inside_a_perceived_item_retraces_the_motion(make_runner):
+    """When the planner sees the stopped arm *inside* an item (a pose error: the real arm was stopped before
+    contact) no straight way out is safe as perceived: the arm goes back along the motion that brought it there."""
+    from kitchenbot.drivers.errors import ProtectiveStopError
+    from kitchenbot.planning.types import StartInCollision
+
+    runner, world = make_runner(journal=False)
+    for dev in (runner.arm, runner.gripper, runner.camera):
+        dev.connect()
+    q0 = runner.arm.joint_positions()
+    q1 = np.asarray(runner.robot.config.scan_waypoints[0], float)
+    traj = runner.planner.plan_move(q0, q1).trajectory
+    world.faults.protective_stop = 1  # the motion stops halfway
+    with pytest.raises(ProtectiveStopError):
+        runner._run_trajectory(traj)
+    runner.arm.unlock_protective_stop()
+    q_stop = runner.arm.joint_positions()
+    assert np.max(np.abs(q_stop - q0)) > 0.05 and np.max(np.abs(q_stop - q1)) > 0.05
+
+    real = runner.planner
+
+    class SeesTheArmInsideAnItem:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_escape(self, *a, **kw):
+            return StartInCollision("test: the start touches obj:0")
+
+    runner.planner = SeesTheArmInsideAnItem()
+    assert runner._escape()
+    assert np.max(np.abs(runner.arm.joint_positions() - q0)) < 1e-3
+    assert runner.report.escapes == 1 and runner.arm.log.collisions == 0
