@@ -781,19 +781,33 @@ class TaskRunner:
         self._cmd("gripper.open", opening=pick.grasp.spec.opening, release=True)
         self.gripper.open(pick.grasp.spec.opening)
         self._run_trajectory(place.retreat)
-        view = None
-        if self.opt.verify_target_view:
-            try:
-                view = self._capture_view(f"target{self.report.attempts}", "target")
-            except (DriverTimeoutError, StepFailed) as e:  # the re-scan still verifies the sink side
-                self._log("note", "no target view", reason=str(e))
         # Where it should rest: the release pose (turned as the planner chose) at the target's height (the
         # planner may release higher up when the gripper cannot reach lower; the object then drops).
         T_expected = np.array(place.T_base_obj, float)
         T_expected[2, 3] = min(T_expected[2, 3], float(place.target.T_base_obj[2, 3]))
-        self.pending = _Pending(obj, place.target, T_expected, view, self.staging, self.current_staged,
+        self.pending = _Pending(obj, place.target, T_expected, None, self.staging, self.current_staged,
                                 near_before=max(1, len(self._same_class_near(obj))))
+        if self.opt.verify_target_view:
+            self.pending.target_view = self._target_view(T_expected[:3, 3])
         return "executed"
+
+    def _target_view(self, where: np.ndarray) -> View | None:
+        """A view of the item just placed at `where`: from the retreat pose, else from straight above it (a rack
+        below the counter is closer to the retreating camera than the depth camera's 20 cm minimum). None when
+        neither gives one: the re-scan still verifies the sink side."""
+        key = f"target{self.report.attempts}"
+        try:
+            return self._capture_view(key, "target")
+        except (DriverTimeoutError, StepFailed) as e:
+            self._log("note", "no target view from the retreat pose", reason=str(e))
+        try:
+            why = self._look_down_at(where)
+            if not why:
+                return self._capture_view(key + "_above", "target")
+            self._log("note", "no target view", reason=why)
+        except (DriverTimeoutError, StepFailed) as e:
+            self._log("note", "no target view", reason=str(e))
+        return None
 
     def _execute_slide(self) -> str:
         """Close the fingers, press on the item, slide it, go back up; the re-scan (verify) sees where it went."""
@@ -1000,9 +1014,10 @@ class TaskRunner:
                 if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
                     self.arm.unlock_protective_stop()
 
-    # Where the camera looks from at a drop site: straight down from this height (m above the counter), far
-    # enough for the OAK-D's minimum depth and for the view to cover where a falling item may roll.
-    SEARCH_CAMERA_HEIGHT = 0.50
+    # Where the camera looks down from at a drop site or a target (m above the counter top), highest first: far
+    # enough for the OAK-D's 20 cm minimum depth and for the view to cover where a falling item may roll; lower
+    # ones where the arm does not reach that high over the far end of a rack.
+    LOOK_DOWN_HEIGHTS = (0.50, 0.40, 0.30)
     SEARCH_RADIUS = 0.25  # m around the drop site an item found there may have come to rest
 
     def _search_drop_site(self) -> None:
@@ -1052,19 +1067,24 @@ class TaskRunner:
         home = np.asarray(self.robot.config.robot.home, float)
         R_down = planner.robot.fk_tcp(home)[:3, :3]  # home points the tool down
         d_cam = (np.linalg.inv(planner.robot.T_flange_tcp) @ self.robot.T_flange_cam)[:3, 3]  # camera in tcp frame
-        p_cam = np.array([site[0], site[1], self.SEARCH_CAMERA_HEIGHT])
         scene = planner.scene(self._scene_objects(), self.map_points)
         why = "no collision-free camera pose above it"
-        for yaw in np.radians([0.0, 90.0, -90.0, 180.0]):
-            R = rot_z(yaw)[:3, :3] @ R_down
-            for q in planner.robot.ik_all(make_T(R, p_cam - R @ d_cam), self.arm.joint_positions())[:2]:
-                if not scene.valid(q):
-                    continue
-                try:
-                    self._move_joints(q, "look at the drop site")
-                    return ""
-                except StepFailed as e:
-                    why = str(e)
+        tries = 0
+        for height in self.LOOK_DOWN_HEIGHTS:
+            p_cam = np.array([site[0], site[1], height])
+            for yaw in np.radians([0.0, 90.0, -90.0, 180.0]):
+                R = rot_z(yaw)[:3, :3] @ R_down
+                for q in planner.robot.ik_all(make_T(R, p_cam - R @ d_cam), self.arm.joint_positions()):
+                    if not scene.valid(q):
+                        continue
+                    try:
+                        self._move_joints(q, "look down")
+                        return ""
+                    except StepFailed as e:
+                        why = str(e)
+                        tries += 1
+                        if tries >= 3:  # each is up to three RRT-Connect queries
+                            return why
         return why
 
     def _keep_out(self, site: np.ndarray, cls: str) -> np.ndarray | None:
