@@ -172,15 +172,26 @@ def _scan_errors(group: list, poses: list, inventory: Inventory, min_visib: floa
     scan's ground truth (objects at least `min_visib` visible in one of its images, base frame) matched to
     its estimates by position (metrics.match_scan)."""
     gt: list[tuple[int, np.ndarray]] = []
+    low: list[tuple[int, np.ndarray]] = []  # seen too little in every image to be a target
     for im in group:
         for g in im.gt:
-            if g.visib_fract < min_visib or g.obj_id not in inventory.models:
+            if g.obj_id not in inventory.models:
                 continue
             T = im.view.T_base_cam @ g.T_cam_obj
-            if not any(o == g.obj_id and np.linalg.norm(Tg[:3, 3] - T[:3, 3]) < 0.005 for o, Tg in gt):
-                gt.append((g.obj_id, T))
+            if not any(o == g.obj_id and np.linalg.norm(Tg[:3, 3] - T[:3, 3]) < 0.005 for o, Tg in gt + low):
+                (gt if g.visib_fract >= min_visib else low).append((g.obj_id, T))
+            elif g.visib_fract >= min_visib:  # a target in this image, though too little seen in an earlier one
+                low = [(o, Tg) for o, Tg in low if not (o == g.obj_id and np.linalg.norm(Tg[:3, 3] - T[:3, 3]) < 0.005)]
+                if not any(o == g.obj_id and np.linalg.norm(Tg[:3, 3] - T[:3, 3]) < 0.005 for o, Tg in gt):
+                    gt.append((g.obj_id, T))
     est = [(p.obj_id, p.T_base_obj) for p in poses]
-    matches, extra = match_scan(gt, est, {m.obj_id: m.diameter for m in inventory})
+    diam = {m.obj_id: m.diameter for m in inventory}
+    matches, extra = match_scan(gt, est, diam)
+    # An estimate of an object no image saw enough to make it a target (the lowest plate of a stack) is right,
+    # not extra (as for the per-image false positives).
+    if low:
+        _, still = match_scan(low, [est[j] for j in extra], diam)
+        extra = [extra[k] for k in still]
     for mt in matches:
         v = acc.setdefault(inventory[gt[mt.gt_index][0]].name, [[], [], 0])
         v[0].append(mt.translation)
