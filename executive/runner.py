@@ -36,6 +36,7 @@ from kitchenbot.executive.journal import Journal
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
+from kitchenbot.tasks.base import DROP_HEIGHT
 from kitchenbot.transforms import inv, make_T, rot_z
 
 SLIDABLE = ("plate",)  # classes that nest flat in stacks and are slid sideways to free them
@@ -675,6 +676,13 @@ class TaskRunner:
         cands = self._candidates(this_scan=True)
         prefer, self.prefer_instance = self.prefer_instance, None
         if prefer is not None and prefer >= 0:
+            if not any(p.instance_id == prefer for p in cands):
+                # an item the task does not want lies on the one it does (a glass on a mug on a cup): it is
+                # moved out of the way (the task's targets for it) if it is in the sink and not tried out
+                extra = [p for p in self.poses if p.instance_id == prefer and self.task.in_sink(p)]
+                t = self._tried_for(extra[0]) if extra else None
+                if extra and (t is None or not t.exhausted(self.scene_epoch)):
+                    cands.insert(0, extra[0])
             cands.sort(key=lambda p: p.instance_id != prefer)  # stable: otherwise the task's order
         for obj in cands:
             targets = self.task.targets(obj)
@@ -1055,9 +1063,17 @@ class TaskRunner:
         if not found:
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
-        where = PlaceTarget(np.array(obj.T_base_obj, float), "drop", support="counter (it fell there)")
-        self.staged.append(self.task.record_placed(obj, where, obj.T_base_obj))
+        T_release = np.array(obj.T_base_obj, float)
+        T_release[2, 3] += DROP_HEIGHT  # as if released there (place targets are release poses)
+        where = PlaceTarget(T_release, "drop", support="counter (it fell there)")
+        placed = self.task.record_placed(obj, where, obj.T_base_obj)
         self.report.recovered_drops += 1
+        if self.task.accepts_as_it_lies(obj):  # it fell where the task wants it (the drop zone takes it as it is)
+            self.report.objects_done += int(self.task.wants(obj))
+            self.scene_epoch += 1
+            self._log("note", "the dropped item lies at its target", cls=cls, xyz=obj.T_base_obj[:3, 3])
+            return
+        self.staged.append(placed)
         self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
 
     def _look_down_at(self, site: np.ndarray) -> str:

@@ -164,6 +164,11 @@ class Task:
             t.kind, t.support = "stage", "counter (regrasp)"
         return out or NoFreeSlot("drop zone has no free spot to stage a regrasp")
 
+    def accepts_as_it_lies(self, obj: ObjectPose) -> bool:
+        """Whether an item found outside the sink (it fell there) is done where it lies. Most targets want a pose
+        (a rack slot, a stack), so by default it is picked up again."""
+        return False
+
     def complete(self, poses: list[ObjectPose]) -> bool:
         """Success criterion: nothing this task wants is left in the sink."""
         return not self.remaining(poses)

@@ -156,3 +156,18 @@ def test_upside_down_bowls_set_down_as_they_lay_nest_onto_each_other(inv):
     np.testing.assert_allclose(T[:3, :3], first.T_base_obj[:3, :3], atol=1e-9)  # lying the same way
     np.testing.assert_allclose(T[:2, 3], first.T_base_obj[:2, 3], atol=1e-9)
     assert T[2, 3] == pytest.approx(first.T_base_obj[2, 3] + nesting_height(m))  # the first rests DROP_HEIGHT lower
+
+
+def test_an_item_that_fell_into_the_drop_zone_is_done_where_it_lies_elsewhere_not(inv):
+    """A dropped item found in the drop zone is done for sink-pick (it takes items as they lie); one on the counter
+    outside it is not, and no other task takes an item where it fell."""
+    cell = Cell()
+    z = cell.spec.drop_zone
+    cup = inv.by_name("cup")
+    lying = make_T(np.eye(3), (z.origin_xy[0] + 0.1, z.origin_xy[1] + 0.1, 0.04))
+    beside = make_T(np.eye(3), (0.5, 0.30, 0.04))  # the counter between the sink and the stacking area
+    task = make_task("sink-pick", inv, cell)
+    assert task.accepts_as_it_lies(ObjectPose(cup.obj_id, "cup", lying, 1.0))
+    assert not task.accepts_as_it_lies(ObjectPose(cup.obj_id, "cup", beside, 1.0))
+    for name in ("sink-to-dishwasher", "cup-stacking"):
+        assert not make_task(name, inv, cell).accepts_as_it_lies(ObjectPose(cup.obj_id, "cup", lying, 1.0))
