@@ -77,6 +77,9 @@ def run(args: argparse.Namespace) -> int:
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as ex:
         for r in ex.map(one, jobs):
             results.append(r)
+            if args.json:  # every finished run is kept, even if the benchmark is cut short
+                Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+                Path(args.json + ".partial").write_text(json.dumps({"runs": results}, default=str))
             console.print(f"{r['task']:<20} seed {r['seed']:>3}: {r['status']:<9} {r['delivered']}/{r['wanted']} placed"
                           f"{'  ' + r.get('message', '')[:70] if r['status'] != 'succeeded' else ''}")
     t = Table(title=f"kitchenbot bench tasks ({'oracle' if args.oracle_perception else 'pipeline'} perception, "
