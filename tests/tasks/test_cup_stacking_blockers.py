@@ -4,19 +4,12 @@ then picks the cup; items beside or below a cup stay in the sink."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.tasks import make_task
 from kitchenbot.transforms import make_T, rot_y
-
-
-@pytest.fixture(scope="module")
-def inv():
-    return Inventory.builtin()
 
 
 def put(inv, name, xyz, R=np.eye(3), k=0):

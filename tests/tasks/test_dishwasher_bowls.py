@@ -5,21 +5,14 @@ rack, the upper rack (16 cm a bowl: the room of two or three cups) only when the
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.tasks import make_task
 from kitchenbot.transforms import make_T
 
 MOUTH_DOWN = np.diag([1.0, -1.0, -1.0])
-
-
-@pytest.fixture(scope="module")
-def inv():
-    return Inventory.builtin()
 
 
 def in_sink(inv, name, R=np.eye(3), k=0):

@@ -6,27 +6,13 @@ mouth-down is set in from above and may stand 1 cm from them."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
-from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.tasks import make_task
 from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, footprint
-from kitchenbot.transforms import make_T
 
 MOUTH_DOWN = np.diag([1.0, -1.0, -1.0])
-
-
-@pytest.fixture(scope="module")
-def inv():
-    return Inventory.builtin()
-
-
-def in_sink(inv, name, R=np.eye(3)):
-    m = inv.by_name(name)
-    return ObjectPose(m.obj_id, m.cls, make_T(R, (0.5, 0.0, -0.15)), 1.0)
 
 
 def gap(task, inv, obj, T, room=(1.0, 1.0)):
@@ -40,10 +26,10 @@ def gap(task, inv, obj, T, room=(1.0, 1.0)):
     return out
 
 
-def test_an_upright_cup_gets_room_for_the_open_pads(inv):
+def test_an_upright_cup_gets_room_for_the_open_pads(inv, sink_item):
     task = make_task("sink-to-dishwasher", inv, Cell())
     for name, R in [("mug", MOUTH_DOWN), ("glass", MOUTH_DOWN), ("cup", np.eye(3)), ("cup", np.eye(3))]:
-        o = in_sink(inv, name, R)
+        o = sink_item(name, R)
         ts = task.targets(o)
         assert not isinstance(ts, NoFreeSlot), ts
         for t in ts:
@@ -55,15 +41,15 @@ def test_an_upright_cup_gets_room_for_the_open_pads(inv):
                 assert g >= CLEARANCE - 1e-6, (name, g)
         task.record_placed(o, ts[0], ts[0].T_base_obj)
     # and mouth-down items still pack tight: the second glass may stand closer than PAD_ROOM
-    o = in_sink(inv, "glass", MOUTH_DOWN)
+    o = sink_item("glass", MOUTH_DOWN)
     assert min(gap(task, inv, o, t.T_base_obj) for t in task.targets(o)) < PAD_ROOM
 
 
-def test_a_turned_round_item_records_its_disc_not_its_turned_box(inv):
+def test_a_turned_round_item_records_its_disc_not_its_turned_box(inv, sink_item):
     from kitchenbot.transforms import rot_z
 
     task = make_task("sink-to-dishwasher", inv, Cell())
-    o = in_sink(inv, "cup")
+    o = sink_item("cup")
     t = task.targets(o)[0]
     T = t.T_base_obj @ rot_z(np.pi / 4)  # the planner turned it 45 degrees about its axis
     p = task.record_placed(o, t, T)

@@ -5,40 +5,27 @@ grasp turns over and which a level tool sets down only in the rack's near part, 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
-from kitchenbot.perception.types import ObjectPose
 from kitchenbot.tasks import make_task
-from kitchenbot.transforms import make_T, rot_x, rot_y
+from kitchenbot.transforms import rot_x, rot_y
 
 MOUTH_DOWN = rot_x(np.pi)[:3, :3]
 LYING = rot_y(np.pi / 2)[:3, :3]
 
 
-@pytest.fixture(scope="module")
-def inv():
-    return Inventory.builtin()
-
-
-def in_sink(inv, name, R=np.eye(3)):
-    m = inv.by_name(name)
-    return ObjectPose(m.obj_id, m.cls, make_T(R, (0.5, 0.0, -0.15)), 1.0)
-
-
-def test_items_carried_from_above_fill_the_back_and_upright_ones_the_front(inv):
+def test_items_carried_from_above_fill_the_back_and_upright_ones_the_front(inv, sink_item):
     cell = Cell()
     upper = cell.spec.dishwasher.upper
     x_mid = upper.origin_xy[0] + upper.size_xy[0] / 2
     task = make_task("sink-to-dishwasher", inv, cell)
     for name, R in [("glass", MOUTH_DOWN), ("cup", LYING), ("mug", MOUTH_DOWN)]:
-        ts = task.targets(in_sink(inv, name, R))
+        ts = task.targets(sink_item(name, R))
         assert ts[0].T_base_obj[0, 3] > x_mid, (name, ts[0].T_base_obj[:3, 3])
         # the nearest spots follow, should none at the back be reachable with the item's grasps
         assert min(t.T_base_obj[0, 3] for t in ts) < x_mid
-        task.record_placed(in_sink(inv, name, R), ts[0], ts[0].T_base_obj)
-    ts = task.targets(in_sink(inv, "cup"))  # upright: the smallest x first, all in the near half
+        task.record_placed(sink_item(name, R), ts[0], ts[0].T_base_obj)
+    ts = task.targets(sink_item("cup"))  # upright: the smallest x first, all in the near half
     assert all(t.T_base_obj[0, 3] < x_mid for t in ts)
     xs = [round(float(t.T_base_obj[0, 3]), 4) for t in ts]
     assert xs == sorted(xs) and len(ts) > 3

@@ -16,11 +16,6 @@ from kitchenbot.tasks.base import DROP_HEIGHT
 from kitchenbot.transforms import make_T
 
 
-@pytest.fixture(scope="module")
-def inv():
-    return Inventory.builtin()
-
-
 def in_sink(inv, name, k):
     m = inv.by_name(name)
     return ObjectPose(m.obj_id, m.cls, make_T(np.eye(3), (0.45 + 0.01 * k, 0.0, -0.15)), 1.0, instance_id=k)
