@@ -23,6 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tasks", nargs="+", choices=TASKS, default=TASKS)
     p.add_argument("--seeds", type=int, default=50, help="scenes per task")
     p.add_argument("--start", type=int, default=0, help="first seed")
+    p.add_argument("--seed-list", type=_seed_list, default=None, metavar="N,N,...",
+                   help="run exactly these seeds (overrides --seeds/--start), e.g. the failing ones of a past run")
     p.add_argument("--slip", type=float, default=0.05, help="slip probability per transport motion")
     p.add_argument("--objects", type=int, default=None, help="objects per scene (default: config sim min..max)")
     p.add_argument("--config", help="cell config YAML (default: the shipped simulation config)")
@@ -30,6 +32,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--jobs", type=int, default=1, help="parallel processes")
     p.add_argument("--json", help="write every run's numbers here")
     p.set_defaults(func=run)
+
+
+def _seed_list(text: str) -> list[int]:
+    try:
+        seeds = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seed-list: expected comma-separated integers, got {text!r}") from None
+    if not seeds:
+        raise argparse.ArgumentTypeError("--seed-list: expected at least one seed")
+    return seeds
 
 
 def one(args: tuple) -> dict:
@@ -70,8 +82,9 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    seeds = args.seed_list if args.seed_list else range(args.start, args.start + args.seeds)
     jobs = [(args.config, t, s, args.slip, args.objects, args.oracle_perception)
-            for t in args.tasks for s in range(args.start, args.start + args.seeds)]
+            for t in args.tasks for s in seeds]
     console = Console(width=160)
     results = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as ex:
