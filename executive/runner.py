@@ -725,10 +725,11 @@ class TaskRunner:
         self._check_deadline()
         targets = self.targets
         if (not pick.ok and pick.kind == "no_feasible_placement" and self.current_staged is None
-                and self.task.needs_regrasp(self.targets)):
-            # No grasp of the object as it lies reaches the target orientation: set it down upright on the
-            # counter and grasp it again from there (its next pick offers other grasps).
-            stage = self.task.staging_targets(obj)
+                and self.task.needs_regrasp(self.targets, obj)):
+            # No grasp of the object as it lies reaches the target orientation: set it down on the counter (in a
+            # pose the task chooses for these targets) and grasp it again from there (its next pick offers other
+            # grasps).
+            stage = self.task.staging_targets(obj, self.targets)
             if not isinstance(stage, NoFreeSlot):
                 self._cmd("plan_pick", cls=obj.cls, staging=[t.T_base_obj[:3, 3] for t in stage])
                 staged_pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points,

@@ -152,14 +152,40 @@ class Task:
         """Placed items as object poses (for the planner's collision world)."""
         return [self.as_pose(p) for p in self.placed]
 
-    def needs_regrasp(self, targets: list[PlaceTarget]) -> bool:
-        """Targets that turn the object over (inverted / on edge) may need a different grasp than the one the
-        object offers in the sink: the executive then stages it upright on the counter and picks it again."""
-        return any(t.T_base_obj[2, 2] < 0.9 for t in targets)
+    def needs_regrasp(self, targets: list[PlaceTarget], obj: ObjectPose | None = None) -> bool:
+        """Whether the object may need a different grasp than the one it offers where it lies: the targets turn it
+        over (inverted / on edge), or (given `obj`) they turn it by more than 120 degrees from how it lies (a cup
+        upside down in the sink wanted upright on a stack). The executive then stages it on the counter
+        (`staging_targets`) and picks it again."""
+        if any(t.T_base_obj[2, 2] < 0.9 for t in targets):
+            return True
+        if obj is None:
+            return False
+        z = obj.T_base_obj[:3, 2]
+        return any(float(t.T_base_obj[:3, 2] @ z) < -0.5 for t in targets)
 
-    def staging_targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
-        """Upright spots in the counter drop zone to set an object down and grasp it again."""
-        out = _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, self.placed, 3)
+    def staging_targets(self, obj: ObjectPose, targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
+        """Spots in the counter drop zone to set an object down and grasp it again, in a pose from which `targets`
+        can be reached with another grasp.
+
+        Upright by default: an upright item wanted mouth-down (a rack) is turned over from there with a level side
+        grasp. An item upside down wanted upright (a stack) is set down upside down, as a person flips a cup in two
+        steps: it is carried there from above (a base grasp, no turn), then a level side grasp turns it over by
+        turning 180 degrees about the approach axis. No grasp of it as it lies in the sink does that: a turn of
+        180 degrees about a level axis reverses the approach's vertical component, so only a level approach stays
+        from above, and a 20 cm tool cannot come in level below the counter top. The open pads of that level grasp
+        reach ~31 mm beyond the item on both sides, so these spots keep PAD_ROOM from their neighbours."""
+        model = self.inventory[obj.obj_id]
+        zone = self.cell.spec.drop_zone
+        flip = (targets is not None and len(targets) > 0 and obj.T_base_obj[2, 2] < -0.5
+                and all(t.T_base_obj[2, 2] > 0.9 for t in targets))
+        if flip:
+            lo = np.array(zone.origin_xy)
+            spots = area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, self.placed, inverted, 3,
+                               centre_inside=True, clearance=PAD_ROOM)
+            out = [PlaceTarget(T, "stage", free_yaw=True, support="counter (upside down, to flip it)") for T in spots]
+            return out or NoFreeSlot("drop zone has no free spot to set the item down upside down for a flip")
+        out = _drop_zone_targets(model, zone, self.placed, 3)
         for t in out:
             t.kind, t.support = "stage", "counter (regrasp)"
         return out or NoFreeSlot("drop zone has no free spot to stage a regrasp")

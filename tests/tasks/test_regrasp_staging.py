@@ -1,0 +1,64 @@
+"""Regrasp staging: when a task's targets turn an item over from how it lies, the executive sets it down on the
+counter and picks it again. An upright item wanted mouth-down (the dishwasher's upper rack) is staged upright
+(turned over from there by a level side grasp); a cup upside down in the sink wanted upright (a stack) is staged
+upside down (carried there from above, then turned over by a level side grasp): staging it upright would need the
+very turn no grasp in the sink can make."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kitchenbot.perception.cell import Cell
+from kitchenbot.planning.types import NoFreeSlot
+from kitchenbot.tasks import make_task
+from kitchenbot.tasks.base import PAD_ROOM, footprint
+
+MOUTH_DOWN = np.diag([1.0, -1.0, -1.0])
+
+
+def lying(tilt_deg: float) -> np.ndarray:
+    a = np.radians(tilt_deg)
+    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+
+
+def test_an_upside_down_cup_needs_a_regrasp_for_its_stack(inv, sink_item):
+    task = make_task("cup-stacking", inv, Cell())
+    up, down = sink_item("cup"), sink_item("cup", MOUTH_DOWN)
+    assert not task.needs_regrasp(task.targets(up), up)
+    assert task.needs_regrasp(task.targets(down), down)
+    assert task.needs_regrasp(task.targets(sink_item("cup", lying(140))), sink_item("cup", lying(140)))
+    # lying on its side: a rolled rim pinch stands it up directly
+    assert not task.needs_regrasp(task.targets(sink_item("cup", lying(90))), sink_item("cup", lying(90)))
+    # without the object: only targets that turn it over (the old rule)
+    assert not task.needs_regrasp(task.targets(down))
+
+
+def test_an_upside_down_cup_is_staged_upside_down_with_room_for_the_pads(inv, sink_item):
+    task = make_task("cup-stacking", inv, Cell())
+    other = sink_item("glass")
+    zone = task.cell.spec.drop_zone
+    lo0 = np.array(zone.origin_xy)
+    first = task.targets(other)  # a glass is not wanted: moved out of the way into the drop zone
+    task.record_placed(other, first[0], first[0].T_base_obj)
+    down = sink_item("cup", MOUTH_DOWN)
+    stage = task.staging_targets(down, task.targets(down))
+    assert not isinstance(stage, NoFreeSlot), stage
+    for t in stage:
+        assert t.kind == "stage" and t.free_yaw
+        assert t.T_base_obj[2, 2] < -0.99  # upside down
+        xy = t.T_base_obj[:2, 3]
+        assert np.all(xy >= lo0) and np.all(xy <= lo0 + np.array(zone.size_xy))
+        lo, hi, _ = footprint(inv[down.obj_id], t.T_base_obj)
+        p = task.placed[0]
+        assert np.max(np.maximum(np.maximum(p.lo - hi, lo - p.hi), 0.0)) >= PAD_ROOM - 1e-6
+
+
+def test_an_upright_cup_is_still_staged_upright_for_the_rack(inv, sink_item):
+    task = make_task("sink-to-dishwasher", inv, Cell())
+    up = sink_item("cup")
+    ts = task.targets(up)
+    assert task.needs_regrasp(ts, up)
+    stage = task.staging_targets(up, ts)
+    assert not isinstance(stage, NoFreeSlot) and all(t.T_base_obj[2, 2] > 0.99 for t in stage)
+    # and without targets (the old call) too
+    assert all(t.T_base_obj[2, 2] > 0.99 for t in task.staging_targets(up))
