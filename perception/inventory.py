@@ -385,6 +385,10 @@ def _pads_clear(points: np.ndarray, T_obj_tcp: np.ndarray, opening: float, tol: 
     return not bool(np.any((y > o + tol) & (y < o + PAD_BOX_THICKNESS - tol)))
 
 
+# Rolls (degrees, about the closing axis) of the narrow plate rim pinch (see generate_grasps).
+NARROW_ROLLS = (0, 45, -45)
+
+
 def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, float, float] | None = None) -> list[GraspSpec]:
     """Predefined Fin-Ray grasps for a builtin item.
 
@@ -432,6 +436,17 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
             for lean in (25, 40):
                 grasps.append((f"rimlean{lean}", k,
                                _tcp_frame(np.array([0, 0, -1.0]), radial, p_lip) @ rot_x(np.radians(lean))))
+        if model.cls == "plate":
+            # A plate leaning against a basin wall (its upper lip touching the wall): the standard pinch (12 mm
+            # bite, 15 mm slack per pad) puts the outer pad into the wall, and a pinch of the lip's side, where
+            # there is room, comes in nearly level (along the plate's axis), which puts the wrist into the
+            # opposite wall. So a narrow pinch too (8 mm bite, opened 8 mm per pad past the lip, as `rimlean`),
+            # also rolled 45 degrees about its closing axis towards the rim's tangent: from above at a leaning
+            # plate's side. The inner pad overlaps the sloped lip as much as the standard pinch's does.
+            p_narrow = axis + radial * (r_rim - 0.004) + np.array([0, 0, z_top - 0.008])
+            T_narrow = _tcp_frame(np.array([0, 0, -1.0]), radial, p_narrow)
+            for roll in NARROW_ROLLS:
+                grasps.append((f"rimnarrow{roll:+d}", k, T_narrow @ rot_y(np.radians(roll))))
         if model.cls in ("plate", "bowl"):
             # A plate or bowl lying on a flat floor leaves no room for a pad under a vertical pinch; tilt the
             # approach inwards (gripper outside the rim, one pad under the lip, one on top of it).
@@ -474,7 +489,7 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
         w = pad_span(model, T, scene=scene)
         if w is None or w > GRIPPER_MAX_OPENING - 0.01 or w <= 0:
             continue
-        slack = 0.016 if kind.startswith(("rimlean", "foot")) else 0.03
+        slack = 0.016 if kind.startswith(("rimlean", "rimnarrow", "foot")) else 0.03
         opening = min(GRIPPER_MAX_OPENING, w + slack)
         if surface is not None and not _pads_clear(surface, T, opening):
             continue

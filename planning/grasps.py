@@ -112,6 +112,12 @@ def observed_in_grip(P_tcp: np.ndarray, opening: float, gripper, pad_depth: floa
     return int(np.count_nonzero(m))
 
 
+# Grasps kept for where nothing else fits (perception.inventory.generate_grasps: the narrow plate rim pinch, for a
+# plate leaning against a basin wall): opened only 8 mm per pad past the lip, they tolerate less pose error than
+# the standard pinches, so they rank after every feasible standard grasp.
+FALLBACK_GRASPS = ("rimnarrow",)
+FALLBACK_PENALTY = 1.0
+
 # Observed points inside the tool at a grasp that count as a real surface there (a few are depth noise).
 OBSERVED_HITS = 20
 # An item seen with at least this many points shows some of the surface a grasp closes on (a grasp whose grip
@@ -296,6 +302,8 @@ def select_grasps(
         motion = float(np.max(np.abs(q_pre - q_current)))
         down = -T[2, 2]  # 1 = straight down
         score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
+        if spec.name.startswith(FALLBACK_GRASPS):
+            score -= FALLBACK_PENALTY
         # The real surfaces (observed points of the item and of its neighbours) where a pad or the palm would be
         # at the grasp: the estimated pose is off there. Ranked last (below every grasp the points leave free).
         if k not in observed:
