@@ -187,6 +187,8 @@ class Planner:
             Q.message = f"{name}: {Q.message}"
             Q.details.setdefault("segment", name)
             return Q
+        if info is not None:
+            info["path"] = Q
         traj = self._time(Q, name, "along_path")
         if isinstance(traj, PlanningFailure):
             return traj
@@ -435,6 +437,12 @@ class Planner:
                 lift_objects.update(n[4:] for p in pairs for n in p if n.startswith("obj:"))
             else:
                 lift, q_lifted = r
+                if not held_scene.valid(q_lifted):
+                    # An item that rested against a basin wall is lifted along it with the grasp margin (2 mm)
+                    # and ends within the transport margin of it: move it on, away from the walls
+                    ext = self._lift_clear_of_walls(lift_scene, held_scene, q_lifted, info["path"], centre)
+                    if ext is not None:
+                        lift, q_lifted = ext
                 if held_scene.valid(q_lifted):  # plan_place starts here with the full margins
                     base_scene.set_opening(g.spec.opening)
                     approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
@@ -455,6 +463,31 @@ class Planner:
                 first.details["lift_objects"] = sorted(lift_objects)
             first.details["held_blocked"] = held_only
         return first
+
+    # after a lift that ends within the transport margin: short moves towards the sink's middle (level, then up)
+    LIFT_CLEAR_MOVES = ((0.02, 0.0), (0.04, 0.0), (0.03, 0.05))
+
+    def _lift_clear_of_walls(self, lift_scene: Scene, held_scene: Scene, q_lifted: np.ndarray, Q_lift: np.ndarray,
+                             centre: np.ndarray) -> tuple[Trajectory, np.ndarray] | None:
+        """(lift trajectory, end) extended by a short straight move towards the sink's middle (LIFT_CLEAR_MOVES:
+        metres level, metres up) after which the lifted pose keeps the full margins, or None. The move is
+        checked like the rest of the lift (grasp margins, no start contacts); the lift is re-timed as one path."""
+        lo, hi = self.cell.sink_interior
+        to_mid = (np.asarray(lo, float) + np.asarray(hi, float))[:2] / 2 - np.asarray(centre, float)[:2]
+        if np.linalg.norm(to_mid) < 1e-6:
+            return None
+        to_mid /= np.linalg.norm(to_mid)
+        T_end = self.robot.fk_tcp(q_lifted)
+        for level, up in self.LIFT_CLEAR_MOVES:
+            T_goal = trans(level * to_mid[0], level * to_mid[1], up) @ T_end
+            Q = cartesian_line(self.robot, lift_scene, q_lifted, T_goal, step=self.settings.validity_resolution,
+                               check_step=self.settings.validity_resolution, check_start=False)
+            if isinstance(Q, PlanningFailure) or not held_scene.valid(Q[-1]):
+                continue
+            traj = self._time(np.vstack([Q_lift, Q[1:]]), "lift", "along_path")
+            if not isinstance(traj, PlanningFailure):
+                return traj, Q[-1]
+        return None
 
     @staticmethod
     def _lift_directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.ndarray],

@@ -81,3 +81,31 @@ def test_items_on_lists_what_lies_on_the_target(planner, resting):
     glass = resting("glass", (0.62, 0.10), 11)  # beside, not on it
     assert [o.instance_id for o in planner.items_on(plate, [plate, cup, glass])] == [9]
     assert planner.items_on(cup, [plate, cup, glass]) == []
+
+
+def test_an_item_lifted_along_a_basin_wall_is_moved_clear_of_it(planner, home, resting):
+    """An upside-down bowl 4 mm from a basin wall, glasses around it (no tilted lift fits): lifted straight up it
+    stays 4 mm from the wall, inside the 1 cm transport margin, so the lift goes on 2-4 cm towards the sink's
+    middle (sink-pick seed 16); without that move there is no pick. The FCL re-check passes the whole lift."""
+    bowl_m, glass_m = planner.inventory.by_name("bowl"), planner.inventory.by_name("glass")
+    _, hi = planner.cell.sink_interior
+    r, rg = bowl_m.extents[0] / 2, glass_m.extents[0] / 2
+    y = hi[1] - r - 0.004
+    bowl = resting("bowl", (0.6, y), 1, upside_down=True)
+    glasses = [resting("glass", (0.6 + dx, y - r - rg - 0.01), 10 + i) for i, dx in enumerate((-0.08, 0.0, 0.08))]
+    glasses += [resting("glass", (0.6 + s * (r + rg + 0.01), y), 20 + i) for i, s in enumerate((-1, 1))]
+    objects = [bowl, *glasses]
+    pick = planner.plan_pick(home, objects, target=bowl)
+    assert pick.ok, str(pick)
+    p0, p1 = (planner.robot.fk_tcp(q)[:3, 3] for q in (pick.lift.q[0], pick.lift.q[-1]))
+    assert p1[1] < p0[1] - 0.015  # moved away from the wall (y = hi[1])
+    checker = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
+    assert all(r.ok for _, r in verify_pick(checker, planner, pick, objects, step=0.003))
+    saved = planner.LIFT_CLEAR_MOVES
+    try:
+        planner.LIFT_CLEAR_MOVES = ()
+        res = planner.plan_pick(home, objects, target=bowl)
+        assert not res.ok and res.kind == "cartesian_path_failed", res
+    finally:
+        del planner.LIFT_CLEAR_MOVES
+    assert planner.LIFT_CLEAR_MOVES == saved
