@@ -44,9 +44,13 @@ class ArmState:
 class Arm(Device):
     """A 6-axis arm. Units: radians, metres, seconds."""
 
+    # A guarded motion ends at the first contact whose force at the TCP exceeds this (N): set-down moves.
+    CONTACT_FORCE = 15.0
+
     def __init__(self, model: URModel, limits: SafetyLimits):
         self.model = model
         self.limits = limits
+        self.stopped_on_contact = False  # the last motion was guarded and ended at a contact, before its end
 
     # ---- state ------------------------------------------------------------------------------------
     @abstractmethod
@@ -72,6 +76,7 @@ class Arm(Device):
         q = self.limits.check_joints(q)
         self.limits.check_configuration(self.model, q)
         self.limits.check_speed(speed, accel)
+        self.stopped_on_contact = False
         self._move_joints(q, speed, accel, asynchronous)
 
     def move_linear(
@@ -84,10 +89,16 @@ class Arm(Device):
             raise ValueError(f"T_base_tcp: expected a finite 4x4 transform, got shape {T.shape}")
         self.limits.check_tcp_pose(T)
         self.limits.check_tcp_speed(speed, accel)
+        self.stopped_on_contact = False
         self._move_linear(T, speed, accel, asynchronous)
 
-    def execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool = False) -> None:
-        """Follow a timed joint trajectory (times from 0, seconds; q (N, 6)). It must start where we are."""
+    def execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool = False,
+                           guarded: bool = False) -> None:
+        """Follow a timed joint trajectory (times from 0, seconds; q (N, 6)). It must start where we are.
+
+        `guarded`: a set-down move. The first contact the tool or what it holds makes (TCP force past
+        CONTACT_FORCE) ends it early and normally, and `stopped_on_contact` says so: the item reached its support
+        sooner than planned. Any other contact still ends in a protective stop."""
         self._require_ready()
         self.limits.check_trajectory(self.model, times, q)
         start_error = float(np.max(np.abs(np.asarray(q)[0] - self.joint_positions())))
@@ -95,7 +106,8 @@ class Arm(Device):
             raise LimitViolation(
                 f"trajectory starts {start_error:.3f} rad away from the current joint positions (max 0.01)"
             )
-        self._execute_trajectory(np.asarray(times, float), np.asarray(q, float), asynchronous)
+        self.stopped_on_contact = False
+        self._execute_trajectory(np.asarray(times, float), np.asarray(q, float), asynchronous, guarded)
 
     @abstractmethod
     def is_moving(self) -> bool: ...
@@ -120,7 +132,8 @@ class Arm(Device):
     def _move_linear(self, T_base_tcp: np.ndarray, speed: float, accel: float, asynchronous: bool) -> None: ...
 
     @abstractmethod
-    def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool) -> None: ...
+    def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool,
+                            guarded: bool = False) -> None: ...
 
     @abstractmethod
     def _unlock_protective_stop(self) -> None: ...

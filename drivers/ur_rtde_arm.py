@@ -449,8 +449,10 @@ class URArm(Arm):
             dist = float(np.linalg.norm(p1 - p0))
             self.wait(timeout=2.0 * (dist / speed + speed / accel) + 2.0)
 
-    def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool) -> None:
-        """Stream servoJ at the RTDE frequency (initPeriod/waitPeriod keep the period), in a thread."""
+    def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool, guarded: bool = False) -> None:
+        """Stream servoJ at the RTDE frequency (initPeriod/waitPeriod keep the period), in a thread. Guarded: the
+        TCP force (getActualTCPForce, zeroed at the start) is read every sample; past CONTACT_FORCE the stream
+        ends there (servoStop), as ur_rtde's moveUntilContact does for a speed command."""
         c = self._ctrl()
         dt = 1.0 / self.frequency
         samples = resample_trajectory(times, q, dt)
@@ -459,17 +461,23 @@ class URArm(Arm):
         self._servo_error = None
         self._motion = "servo"
         self._servo_thread = threading.Thread(
-            target=self._servo_loop, args=(c, samples, dt), name="ur-rtde-servoj", daemon=True
+            target=self._servo_loop, args=(c, samples, dt, guarded), name="ur-rtde-servoj", daemon=True
         )
         self._servo_thread.start()
         if not asynchronous:
             self.wait(timeout=float(times[-1]) * 2.0 + 2.0)
 
-    def _servo_loop(self, c: Any, samples: np.ndarray, dt: float) -> None:
+    def _servo_loop(self, c: Any, samples: np.ndarray, dt: float, guarded: bool = False) -> None:
         try:
+            f0 = np.asarray(self._recv().getActualTCPForce()[:3], float) if guarded else None
             for k, qk in enumerate(samples):
                 if self._servo_stop.is_set():
                     break
+                if f0 is not None:
+                    f = np.asarray(self._recv().getActualTCPForce()[:3], float)
+                    if np.linalg.norm(f - f0) > self.CONTACT_FORCE:
+                        self.stopped_on_contact = True
+                        break
                 t0 = c.initPeriod()
                 if not c.servoJ(qk.tolist(), 0.0, 0.0, dt, self.servo_lookahead, self.servo_gain):
                     self._raise_for_safety()

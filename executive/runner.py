@@ -255,6 +255,7 @@ class TaskRunner:
         self.dropped = 0  # items that left the gripper on the way (slips, let go over the cell after a fault)
         self._searching = False  # looking for a fallen item (see _search_drop_site)
         self._last_traj: Trajectory | None = None  # the last motion commanded (to retrace it after a stop)
+        self._stopped_traj: Trajectory | None = None  # the motion the last protective stop cut short
         self.prefer_instance: int | None = None  # perceived instance to try next (it blocks the last one tried)
         self.drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
         self._table_perceiver = None  # perception without the cell (the counter as a table top), for drop sites
@@ -472,16 +473,22 @@ class TaskRunner:
         self._motion_wall += time.perf_counter() - t0
         self._check_deadline()
 
-    def _run_trajectory(self, traj: Trajectory, carrying: bool = False) -> None:
+    def _run_trajectory(self, traj: Trajectory, carrying: bool = False, guarded: bool = False) -> None:
+        """Execute a planned trajectory and wait for it. `guarded` (set-down moves): a contact of the held item
+        or a pad ends it early (`arm.stopped_on_contact`) instead of in a protective stop."""
         self._check_deadline()
         self._last_traj = traj
         self._cmd("arm.execute_trajectory", name=traj.name, n=len(traj), duration=traj.duration,
-                  q_start=traj.q[0], q_end=traj.q[-1])
+                  q_start=traj.q[0], q_end=traj.q[-1], **({"guarded": True} if guarded else {}))
         t0 = time.perf_counter()
         with self._arm_lock:
-            self.arm.execute_trajectory(traj.times, traj.q, asynchronous=True)
+            self.arm.execute_trajectory(traj.times, traj.q, asynchronous=True, guarded=guarded)
         self._motion_wall += time.perf_counter() - t0  # the (simulated) controller's work, not ours
-        self._wait_motion(f"trajectory {traj.name}", traj.duration, carrying)
+        try:
+            self._wait_motion(f"trajectory {traj.name}", traj.duration, carrying)
+        except ProtectiveStopError:
+            self._stopped_traj = traj
+            raise
         if carrying and not self._holding():  # it slipped out in the last poll period
             raise self._slipped(traj.name)
         self._log("result", "arm.execute_trajectory", name=traj.name, q=self.arm.joint_positions())
@@ -786,10 +793,22 @@ class TaskRunner:
                              opening=res.opening)
         self._run_trajectory(pick.lift, carrying=True)
         self._run_trajectory(place.transfer, carrying=True)
-        self._run_trajectory(place.lower, carrying=True)
+        try:
+            self._run_trajectory(place.lower, carrying=True, guarded=True)
+            stopped_short = self.arm.stopped_on_contact  # it met its support above the release pose
+        except ProtectiveStopError as e:
+            if not self._stopped_just_above(place.lower, e):
+                raise
+            stopped_short = True
+        if stopped_short:
+            self._log("note", "set down on contact before the release pose", cls=obj.cls,
+                      tcp=self.arm.tcp_pose()[:3, 3])
         self._cmd("gripper.open", opening=pick.grasp.spec.opening, release=True)
         self.gripper.open(pick.grasp.spec.opening)
-        self._run_trajectory(place.retreat)
+        if stopped_short:  # back up the way it came down (the planned retreat starts at the release pose)
+            self._retrace(place.lower, "retreat")
+        else:
+            self._run_trajectory(place.retreat)
         # Where it should rest: the release pose (turned as the planner chose) at the target's height (the
         # planner may release higher up when the gripper cannot reach lower; the object then drops).
         T_expected = np.array(place.T_base_obj, float)
@@ -799,6 +818,21 @@ class TaskRunner:
         if self.opt.verify_target_view:
             self.pending.target_view = self._target_view(T_expected[:3, 3])
         return "executed"
+
+    # A lowering stopped by contact this close above its release pose has set the item down on its support (the
+    # held item sat lower in the fingers than its perceived pose said): it is let go there, as from a guarded move.
+    RELEASE_IF_STOPPED_WITHIN = 0.03  # m of TCP descent left
+
+    def _stopped_just_above(self, lower: Trajectory, e: ProtectiveStopError) -> bool:
+        """The lowering was cut short (protective stop) within RELEASE_IF_STOPPED_WITHIN of its end: unlock and
+        say so; the caller releases there. False (nothing done) otherwise."""
+        left = float(self.arm.tcp_pose()[2, 3] - self.planner.robot.fk_tcp(lower.q[-1])[2, 3])
+        if not 0.0 <= left <= self.RELEASE_IF_STOPPED_WITHIN or not self._holding():
+            return False
+        self._log("fault", "stopped_above_target", message=str(e), left_m=round(left, 4))
+        self._cmd("arm.unlock_protective_stop", reason="stopped just above the release pose: releasing there")
+        self.arm.unlock_protective_stop()
+        return True
 
     def _target_view(self, where: np.ndarray) -> View | None:
         """A view of the item just placed at `where`: from the retreat pose, else from straight above it (a rack
@@ -968,8 +1002,11 @@ class TaskRunner:
             # the planner names the item lying on this one (or in the way of its lift): that one next
             self.prefer_instance = f.details.get("blocking")
             return "retry"  # the next object with the same perception; this one again after the next scan
-        if self._holding():
-            self._put_down_held()
+        stopped = self._stopped_traj.name if f.kind == "protective_stop" and self._stopped_traj else None
+        if stopped and stopped != "lift":  # (a stopped lift is put down from where it stopped, not back in the pile)
+            self._back_off()
+        if self._holding():  # not again where the held item was just stopped on its way down to its target
+            self._put_down_held(avoid_place_target=stopped in ("transfer", "lower"))
         self._back_out()
         if self.drop_site is not None:  # it slipped out, or was let go over the cell: look where it fell
             self._search_drop_site()
@@ -996,6 +1033,20 @@ class TaskRunner:
             self.gripper.open()
         if self.arm.is_moving():
             self.arm.stop()
+
+    def _back_off(self) -> None:
+        """After a protective stop (on the real arm: a contact) go back along the motion it cut short, to where
+        that motion started: the one way known to be free in the world as it is. Re-planning from the stop
+        point with the same world model would lead into the same contact."""
+        traj, self._stopped_traj = self._stopped_traj, None
+        if traj is None:
+            return
+        try:
+            if self._retrace(traj, "back_off"):
+                self._log("note", "backed off along the stopped motion", motion=traj.name)
+        except ProtectiveStopError as e:  # should not happen (the way back was free): leave it to the next rule
+            self._log("note", "back off stopped", reason=str(e))
+            self.arm.unlock_protective_stop()
 
     def _back_out(self) -> None:
         """After a failed grasp the gripper may be around an object in the sink: open, then straight back out."""
@@ -1136,10 +1187,13 @@ class TaskRunner:
             self._table_perceiver = Perceiver(p.settings, p.inventory, database=p.database, use_cell=False)
         return self._table_perceiver
 
-    def _put_down_held(self) -> bool:
+    PUT_DOWN_AVOID_RADIUS = 0.10  # m: no second put-down try this close to a target where the held item hit something
+
+    def _put_down_held(self, avoid_place_target: bool = False) -> bool:
         """Something is in the gripper after a fault: place it at its target, else the fallback spot; if every
         plan fails or is stopped by the arm, open where it is when that is over the cell (sink, counter, racks:
-        it drops a few centimetres onto them and the scan will find it). True if it was placed."""
+        it drops a few centimetres onto them and the scan will find it). True if it was placed.
+        `avoid_place_target`: the way to the planned target was just stopped; no target near it is tried."""
         grasp = self.pick.grasp if self.pick is not None else None
         targets = []
         if self.place is not None:
@@ -1148,8 +1202,13 @@ class TaskRunner:
             fb = self.task.fallback_target(self.current)
             if not isinstance(fb, NoFreeSlot):
                 targets.append(fb)
+        hit: list[np.ndarray] = []  # where a put-down was stopped: the world there is not as modelled
+        if avoid_place_target and self.place is not None:
+            hit.append(self.place.target.T_base_obj[:3, 3])
         if grasp is not None:
             for tgt in targets:
+                if any(np.linalg.norm(tgt.T_base_obj[:2, 3] - h[:2]) < self.PUT_DOWN_AVOID_RADIUS for h in hit):
+                    continue
                 q = self.arm.joint_positions()
                 plan = self.planner.plan_place(q, grasp, tgt, objects=self._scene_objects())
                 if not plan.ok:
@@ -1157,15 +1216,20 @@ class TaskRunner:
                 self._log("note", "putting down the held object", target=tgt.T_base_obj[:3, 3])
                 try:
                     self._run_trajectory(plan.transfer)
-                    self._run_trajectory(plan.lower)
+                    self._run_trajectory(plan.lower, guarded=True)
                     self._cmd("gripper.open", release=True)
                     self.gripper.open(grasp.spec.opening)
-                    self._run_trajectory(plan.retreat)
+                    if self.arm.stopped_on_contact:
+                        self._retrace(plan.lower, "retreat")
+                    else:
+                        self._run_trajectory(plan.retreat)
                     return True
                 except ProtectiveStopError as e:
                     self._log("fault", "put_down_stopped", message=str(e))
                     self._cmd("arm.unlock_protective_stop", reason="put down")
                     self.arm.unlock_protective_stop()
+                    hit.append(tgt.T_base_obj[:3, 3])
+                    self._back_off()
                     if not self._holding():
                         return False
         tcp = self.arm.tcp_pose()[:3, 3]

@@ -148,7 +148,7 @@ def ik_dls(model: URModel, T_target: np.ndarray, q_seed: np.ndarray, T_flange_tc
 @dataclass
 class ArmEvent:
     t: float  # simulated seconds
-    kind: str  # motion | done | protective_stop | collision | stopped | refused | slip | disconnected | unlock
+    kind: str  # motion | done | contact | protective_stop | collision | stopped | refused | slip | disconnected | unlock
     detail: str = ""
 
 
@@ -160,6 +160,7 @@ class ArmLog:
     completed: int = 0
     protective_stops: int = 0
     collisions: int = 0  # motions whose path would have hit something (stopped just before the contact)
+    contact_stops: int = 0  # guarded (set-down) motions that ended on the contact of the held item or a pad
     refused: int = 0  # commands refused by the safety limits (LimitViolation) before anything moved
     stops: int = 0  # stop() calls that cut a motion short
     slips: int = 0
@@ -179,7 +180,7 @@ class _Motion:
     duration: float  # nominal
     q_of_u: Callable[[float], np.ndarray]
     end_u: float  # nominal time where the motion ends (duration, or a stop point)
-    outcome: str  # done | protective_stop | disconnected | stopped
+    outcome: str  # done | contact | protective_stop | disconnected | stopped
     detail: str = ""
     slip_u: float | None = None
     dragged: int | None = None  # uid of an object the pressing fingers drag along (see FakeArm._press_drag)
@@ -294,9 +295,9 @@ class FakeArm(Arm):
         with self._counting_refusals():
             super().move_linear(T_base_tcp, speed, accel, asynchronous)
 
-    def execute_trajectory(self, times, q, asynchronous: bool = False) -> None:
+    def execute_trajectory(self, times, q, asynchronous: bool = False, guarded: bool = False) -> None:
         with self._counting_refusals():
-            super().execute_trajectory(times, q, asynchronous)
+            super().execute_trajectory(times, q, asynchronous, guarded)
 
     @contextmanager
     def _counting_refusals(self):
@@ -420,13 +421,13 @@ class FakeArm(Arm):
             stop_u = prof.t_of_s(s_ok * L)
         self._start("move_linear", prof.duration, q_of_u, (stop_u, bad) if bad else None, asynchronous)
 
-    def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool) -> None:
+    def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool, guarded: bool = False) -> None:
         t = times - times[0]
 
         def q_of_u(u: float) -> np.ndarray:
             return np.array([np.interp(u, t, q[:, j]) for j in range(6)])
 
-        self._start("execute_trajectory", float(t[-1]), q_of_u, None, asynchronous)
+        self._start("execute_trajectory", float(t[-1]), q_of_u, None, asynchronous, guarded)
 
     def _unlock_protective_stop(self) -> None:
         self._sync()
@@ -438,7 +439,12 @@ class FakeArm(Arm):
         self._event("unlock", "protective stop cleared")
 
     # ---- motion machinery ---------------------------------------------------------------------------------
-    def _start(self, kind: str, duration: float, q_of_u, preset_stop, asynchronous: bool) -> None:
+    # Parts whose contact a guarded (set-down) motion feels and stops on: what the tool holds and the finger pads.
+    # A palm, camera or link meeting something is a collision in any motion.
+    GUARDED_PARTS = ("held", "finger_pos", "finger_neg")
+
+    def _start(self, kind: str, duration: float, q_of_u, preset_stop, asynchronous: bool,
+               guarded: bool = False) -> None:
         if self._motion is not None:
             raise DriverError(f"FakeArm: {kind} while a motion is running; stop() or wait() first")
         self._pending = None
@@ -463,7 +469,10 @@ class FakeArm(Arm):
         contact = self.collision.check_path(qs[: k_bad if k_bad is not None else len(qs)], opening,
                                             sliding=dragged is not None)
         collided = False
-        if contact is not None:
+        if contact is not None and guarded and contact.part in self.GUARDED_PARTS:
+            # the controller feels the contact force and ends the motion there (just before the contact sample)
+            end_u, outcome, detail = (us[contact.index - 1] if contact.index > 0 else 0.0), "contact", str(contact)
+        elif contact is not None:
             k_bad, why, collided = contact.index, f"collision: {contact}", True
         if k_bad is not None:
             end_u, outcome, detail = (us[k_bad - 1] if k_bad > 0 else 0.0), "protective_stop", why
@@ -550,6 +559,10 @@ class FakeArm(Arm):
             self._event("disconnected", m.detail, t)
         elif m.outcome == "stopped":
             self._event("stopped", m.detail, t)
+        elif m.outcome == "contact":
+            self.stopped_on_contact = True
+            self.log.contact_stops += 1
+            self._event("contact", f"{m.kind} ended on contact: {m.detail}", t)
         else:
             self.log.completed += 1
             self._event("done", m.kind, t)

@@ -51,7 +51,7 @@ class JumpArm(Arm):
     def _move_linear(self, T, speed, accel, asynchronous):
         raise NotImplementedError
 
-    def _execute_trajectory(self, times, q, asynchronous):
+    def _execute_trajectory(self, times, q, asynchronous, guarded=False):
         raise NotImplementedError
 
     def _unlock_protective_stop(self): ...

@@ -51,6 +51,9 @@ class FakeReceive:
     def getActualQd(self):
         return [0.0] * 6
 
+    def getActualTCPForce(self):
+        return [0.0] * 6
+
     def getSafetyStatusBits(self):
         return self.safety_bits
 
@@ -343,6 +346,19 @@ def test_trajectory_is_streamed_with_servoj_at_the_rtde_rate(rig):
     servo = next(c for c in rig.control.calls if c[0] == "servoJ")
     assert servo[1] == pytest.approx(1 / 500)
     assert ("servoStop", 10.0) in rig.control.calls
+
+
+def test_guarded_trajectory_ends_where_the_tcp_force_rises(rig):
+    times = np.array([0.0, 0.2])
+    q = np.stack([HOME, HOME + 0.04])
+    sent = rig.control.servo_q
+    rig.receives[-1].getActualTCPForce = lambda: [0.0, 0.0, 20.0 if len(sent) >= 40 else 2.0, 0.0, 0.0, 0.0]
+    rig.arm.execute_trajectory(times, q, guarded=True)
+    assert len(sent) == 40 and rig.arm.stopped_on_contact
+    assert ("servoStop", 10.0) in rig.control.calls
+    rig.control.servo_q.clear()  # unguarded, the same force does not stop it
+    rig.arm.execute_trajectory(np.array([0.0, 0.2]), np.stack([HOME + 0.04 * 40 / 100, HOME]))
+    assert len(rig.control.servo_q) == 101 and not rig.arm.stopped_on_contact
 
 
 def test_resample_ends_on_the_last_waypoint():

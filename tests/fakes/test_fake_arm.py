@@ -314,3 +314,42 @@ def test_link_drop_seen_by_polling_then_reconnect():
     arm.connect()
     arm.wait(0.0)  # nothing stale left to raise
     assert not arm.is_moving() and arm.joint_positions()[0] == pytest.approx(HOME[0] - 0.5 * 0.3**2)
+
+
+def _down_trajectory(arm, dz: float, n: int = 20, speed: float = 0.05):
+    """A joint trajectory taking the TCP straight down by dz (IK per sample)."""
+    from kitchenbot.fakes.arm import ik_dls
+
+    T0, qs = arm.tcp_pose(), [arm.joint_positions()]
+    for s in np.linspace(0.0, 1.0, n)[1:]:
+        qs.append(ik_dls(arm.model, trans(0, 0, -dz * s) @ T0, qs[-1], arm.limits.T_flange_tcp))
+    return np.linspace(0.0, dz / speed, n), np.stack(qs)
+
+
+def test_guarded_set_down_ends_on_the_held_items_contact():
+    world, arm, uid = make_rig(with_cup=True)
+    gripper, T_grasp = _grasp_cup(world, arm, uid)
+    arm.move_linear(trans(0, 0, 0.03) @ T_grasp, speed=0.05)  # 3 cm up, then down 6 cm: 3 cm into the counter
+    times, q = _down_trajectory(arm, 0.06)
+    arm.execute_trajectory(times, q, guarded=True)
+    assert arm.stopped_on_contact and arm.safety_state() is SafetyState.NORMAL
+    assert arm.log.collisions == 0 and arm.log.contact_stops == 1
+    z_cup = world.objects[uid].T_base_obj[2, 3]
+    assert arm.tcp_pose()[2, 3] == pytest.approx(T_grasp[2, 3], abs=0.006)  # the cup is back on the counter
+    assert z_cup == pytest.approx(world.objects[uid].T_base_obj[2, 3])
+    arm.move_linear(trans(0, 0, 0.03) @ T_grasp, speed=0.05)
+    times, q = _down_trajectory(arm, 0.06)
+    with pytest.raises(ProtectiveStopError, match="held hits counter"):  # the same motion, not guarded
+        arm.execute_trajectory(times, q)
+    assert arm.log.collisions == 1 and not arm.stopped_on_contact
+
+
+def test_guarded_motion_ends_on_a_pad_contact_and_is_not_sticky():
+    world, arm, _ = make_rig()
+    arm.move_linear(tcp_down(0.35, 0.45, 0.10), speed=0.25, accel=1.0)
+    times, q = _down_trajectory(arm, 0.13, n=30)
+    arm.execute_trajectory(times, q, guarded=True)  # the pad tips meet the counter top first
+    z_tip = arm.tcp_pose()[2, 3] - arm.collision.gripper.tip_z
+    assert arm.stopped_on_contact and arm.log.collisions == 0 and -0.001 < z_tip < 0.008
+    arm.move_linear(tcp_down(0.35, 0.45, 0.10), speed=0.25, accel=1.0)
+    assert not arm.stopped_on_contact  # reset by the next command
