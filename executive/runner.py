@@ -256,6 +256,7 @@ class TaskRunner:
         self._searching = False  # looking for a fallen item (see _search_drop_site)
         self._last_traj: Trajectory | None = None  # the last motion commanded (to retrace it after a stop)
         self._stopped_traj: Trajectory | None = None  # the motion the last protective stop cut short
+        self.contact_points = np.zeros((0, 3))  # where stopped motions met something no model shows (see _mark_contact)
         self.prefer_instance: int | None = None  # perceived instance to try next (it blocks the last one tried)
         self.drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
         self._table_perceiver = None  # perception without the cell (the counter as a table top), for drop sites
@@ -621,7 +622,7 @@ class TaskRunner:
             poses = self.fault_hook(poses)
         self.poses = poses
         self.unplannable: list[ObjectPose] = []  # failed to plan with these poses
-        self.map_points = getattr(res, "map_points", None)
+        self.map_points = self._with_contacts(getattr(res, "map_points", None))
         self._log("result", "perceive", objects=[{"obj_id": p.obj_id, "cls": p.cls, "xyz": p.T_base_obj[:3, 3],
                                                   "score": p.score} for p in poses])
         if self.recorder is not None:
@@ -1041,12 +1042,84 @@ class TaskRunner:
         traj, self._stopped_traj = self._stopped_traj, None
         if traj is None:
             return
+        if self.planner is not None:
+            self._mark_contact(traj)
         try:
             if self._retrace(traj, "back_off"):
                 self._log("note", "backed off along the stopped motion", motion=traj.name)
         except ProtectiveStopError as e:  # should not happen (the way back was free): leave it to the next rule
             self._log("note", "back off stopped", reason=str(e))
             self.arm.unlock_protective_stop()
+
+    CONTACT_LOOKAHEAD = 0.015  # m of tool travel past a stop within which what it touched must lie
+
+    def _mark_contact(self, traj: Trajectory) -> None:
+        """A protective stop cut `traj` short: what the tool (or what it holds) touched lies in the space it was
+        about to sweep, the next CONTACT_LOOKAHEAD of its path. Fill that sliver with points and keep them as map
+        points no object explains, so plans keep clear of it as of any unknown obstacle (the same world model
+        would otherwise plan into the same contact). Points in the sink are dropped at the next scan, which
+        sees the sink anew."""
+        robot, g = self.planner.robot, self.planner.world.gripper
+        q = self.arm.joint_positions()
+        d = np.max(np.abs(traj.q - q), axis=1)
+        k = int(np.argmin(d))
+        if d[k] >= 0.01:
+            return
+        p0 = robot.fk_tcp(q)[:3, 3]
+        j = k
+        while j + 1 < len(traj) and np.linalg.norm(robot.fk_tcp(traj.q[j + 1])[:3, 3] - p0) < self.CONTACT_LOOKAHEAD:
+            j += 1
+        q_ahead = traj.q[min(j + 1, len(traj) - 1)]
+        opening = float(self.gripper.opening())
+        # the pads (and what they hold) lead the tool into whatever it meets; the palm and camera behind them are
+        # left out: their slivers would fill the space the arm itself needs to back away
+        boxes = g.pads(robot.T_flange_tcp, opening)
+
+        def flange(qq):
+            return robot.fk_tcp(qq) @ np.linalg.inv(robot.T_flange_tcp)
+
+        def inside(P, T_base_box, size, pad=0.003):
+            L = (P - T_base_box[:3, 3]) @ T_base_box[:3, :3]
+            return np.all(np.abs(L) <= np.asarray(size) / 2 + pad, axis=1)
+
+        F0, F1 = flange(q), flange(q_ahead)
+        out = []
+        for tb in boxes:  # grid points of each pad where it was about to be, and is not yet
+            size = np.asarray(tb.size, float)
+            axes = [np.linspace(-h / 2, h / 2, max(2, int(np.ceil(h / 0.01)) + 1)) for h in size]
+            G = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+            T1 = F1 @ tb.T_flange_box
+            P = G @ T1[:3, :3].T + T1[:3, 3]
+            keep = np.ones(len(P), bool)
+            for tb0 in boxes:
+                keep &= ~inside(P, F0 @ tb0.T_flange_box, tb0.size)
+            out.append(P[keep])
+        if self.pick is not None and self._holding():  # the held item's surface where it was about to be
+            from scipy.spatial import cKDTree
+
+            m = self.robot.inventory[self.pick.grasp.obj.obj_id]
+            T_tcp_obj = self.pick.grasp.T_tcp_obj
+            P0 = m.points @ (robot.fk_tcp(q) @ T_tcp_obj)[:3, :3].T + (robot.fk_tcp(q) @ T_tcp_obj)[:3, 3]
+            T1 = robot.fk_tcp(q_ahead) @ T_tcp_obj
+            P1 = m.points @ T1[:3, :3].T + T1[:3, 3]
+            out.append(P1[cKDTree(P0).query(P1)[0] > 0.005])
+        pts = np.concatenate(out) if out else np.zeros((0, 3))
+        if not len(pts):
+            return
+        self.contact_points = np.vstack([self.contact_points, pts])
+        self.map_points = pts if self.map_points is None else np.vstack([self.map_points, pts])
+        self._log("note", "marked where the stopped motion met something", points=len(pts),
+                  centre=pts.mean(axis=0))
+
+    def _with_contacts(self, map_points: np.ndarray | None) -> np.ndarray | None:
+        """Fresh map points plus the contact marks outside the sink (the scan saw the sink anew)."""
+        lo, hi = self.robot.cell.sink_interior
+        c = self.contact_points
+        c = c[~(np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1))]
+        self.contact_points = c
+        if not len(c):
+            return map_points
+        return c if map_points is None else np.vstack([map_points, c])
 
     def _back_out(self) -> None:
         """After a failed grasp the gripper may be around an object in the sink: open, then straight back out."""

@@ -1,0 +1,46 @@
+"""After a protective stop: the space the pads were about to enter is marked as an obstacle (map points no object
+explains), kept outside the sink, dropped inside it (the next scan sees the sink anew)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kitchenbot.planning.types import Trajectory
+
+
+def _inside(P, T_base_box, size, pad=0.0):
+    L = (P - T_base_box[:3, 3]) @ T_base_box[:3, :3]
+    return np.all(np.abs(L) <= np.asarray(size) / 2 + pad, axis=1)
+
+
+def test_a_stop_marks_the_space_the_pads_were_about_to_enter(make_runner):
+    runner, world = make_runner()
+    runner.arm.connect()
+    runner.gripper.connect()
+    robot, g = runner.planner.robot, runner.planner.world.gripper
+    q0 = np.asarray(runner.robot.config.robot.home, float)
+    q1 = q0 + np.array([0.6, 0.0, 0.0, 0.0, 0.0, 0.0])  # swing the base: the tool sweeps sideways
+    n = 200
+    traj = Trajectory(np.linspace(0.0, 4.0, n), np.linspace(q0, q1, n), "move")
+    k = 80
+    world.set_joints(traj.q[k])  # "stopped" here
+    runner.map_points = None
+    runner._mark_contact(traj)
+    P = runner.contact_points
+    assert len(P) > 10 and runner.map_points is not None and len(runner.map_points) == len(P)
+    opening = runner.gripper.opening()
+    F = robot.fk_tcp(traj.q[k]) @ np.linalg.inv(robot.T_flange_tcp)
+    for tb in g.pads(robot.T_flange_tcp, opening):  # not where the pads are now...
+        assert not _inside(P, F @ tb.T_flange_box, tb.size).any()
+    tcp_now = robot.fk_tcp(traj.q[k])[:3, 3]
+    assert np.max(np.linalg.norm(P - tcp_now, axis=1)) < 0.15  # ...but right ahead of them
+    moved = robot.fk_tcp(traj.q[k + 5])[:3, 3] - tcp_now
+    assert (P.mean(axis=0) - tcp_now) @ moved > 0  # on the side the tool was moving to
+
+    lo, hi = runner.robot.cell.sink_interior
+    in_sink = np.array([[(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, -0.1]])
+    runner.contact_points = np.vstack([P, in_sink])
+    fresh = np.zeros((5, 3))
+    out = runner._with_contacts(fresh)
+    sink_pts = np.all(P[:, :2] >= lo[:2], axis=1) & np.all(P[:, :2] <= hi[:2], axis=1)
+    assert len(out) == 5 + int((~sink_pts).sum())  # the fresh map, plus the marks outside the sink
