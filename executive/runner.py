@@ -257,6 +257,7 @@ class TaskRunner:
         self._last_traj: Trajectory | None = None  # the last motion commanded (to retrace it after a stop)
         self._stopped_traj: Trajectory | None = None  # the motion the last protective stop cut short
         self.contact_points = np.zeros((0, 3))  # where stopped motions met something no model shows (see _mark_contact)
+        self._map_base: np.ndarray | None = None  # the last perception's map points (map_points = these + contacts)
         self.prefer_instance: int | None = None  # perceived instance to try next (it blocks the last one tried)
         self.drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
         self._table_perceiver = None  # perception without the cell (the counter as a table top), for drop sites
@@ -507,6 +508,13 @@ class TaskRunner:
                 if plan.ok:
                     self._run_trajectory(plan.trajectory)
                     return
+                if plan.kind in ("start_in_collision", "goal_in_collision") and len(self.contact_points):
+                    # the marks of a stop (_mark_contact) block where the arm is or must go: they have done their
+                    # part (the arm backed off); a move the marks make impossible is planned without them
+                    self._log("note", "contact marks dropped: they block the move", what=what, reason=str(plan))
+                    self.contact_points = np.zeros((0, 3))
+                    self.map_points = self._map_base
+                    continue
                 if plan.kind == "start_in_collision" and not escaped:
                     escaped = True  # stopped within the margin of something (a protective stop): jog out first
                     if self._escape():
@@ -622,7 +630,8 @@ class TaskRunner:
             poses = self.fault_hook(poses)
         self.poses = poses
         self.unplannable: list[ObjectPose] = []  # failed to plan with these poses
-        self.map_points = self._with_contacts(getattr(res, "map_points", None))
+        self._map_base = getattr(res, "map_points", None)
+        self.map_points = self._with_contacts(self._map_base)
         self._log("result", "perceive", objects=[{"obj_id": p.obj_id, "cls": p.cls, "xyz": p.T_base_obj[:3, 3],
                                                   "score": p.score} for p in poses])
         if self.recorder is not None:
@@ -1164,20 +1173,30 @@ class TaskRunner:
         if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
             return  # it fell back into the sink: the re-scan finds it
         cls = self.current.cls
-        map_points, self.map_points = self.map_points, self._keep_out(site, cls)
+        keep_out = self._keep_out(site, cls)
+        map_points = self.map_points
+        if keep_out is not None:
+            self.map_points = keep_out if map_points is None else np.vstack([map_points, keep_out])
         self._searching = True
+        unseen = True
         try:
             why = self._look_down_at(site)
             if why:
                 self._log("note", "no way to look at the drop site", at=site, reason=why)
                 return
             view = self._capture_view(f"drop{self.dropped}", "drop")
+            unseen = False
         except (StepFailed, DriverTimeoutError, ProtectiveStopError) as e:
             self._log("note", "drop site not seen", reason=str(e))
             self._restore_devices(self.failure)
             return
         finally:
             self.map_points, self._searching = map_points, False
+            if unseen and keep_out is not None:
+                # the item lies somewhere under there, unseen: plans keep clear of it for the rest of the run
+                # (the part in the sink is dropped at the next scan, which sees the sink)
+                self.contact_points = np.vstack([self.contact_points, keep_out])
+                self.map_points = keep_out if self.map_points is None else np.vstack([self.map_points, keep_out])
         res = self._drop_perceiver().perceive([view])
         placed = self.task.obstacles()
         found = [p for p in res.poses if p.cls == cls
@@ -1228,25 +1247,29 @@ class TaskRunner:
                             return why
         return why
 
+    KEEP_OUT_DEPTH = 0.45  # m below the drop site a fallen item may have come to rest (a rack under the counter)
+
     def _keep_out(self, site: np.ndarray, cls: str) -> np.ndarray | None:
-        """Points filling an upright cylinder under the drop site, as wide and high as the fallen item may lie (no
-        scene knows it yet): as map points no object explains, the planner keeps clear of them like of any unknown
-        obstacle. The item fell from the tool, so the cylinder ends below the tool as it is now (lowered in 2 cm
-        steps until the tool clears it; what is left within the margin is escaped straight up)."""
+        """Points filling an upright cylinder under the drop site, as wide as the fallen item and reaching from
+        KEEP_OUT_DEPTH below the site up to where the item may stand (no scene knows it yet): as map points no
+        object explains, the planner keeps clear of them like of any unknown obstacle. The item fell from the
+        tool, so the cylinder ends below the tool as it is now (lowered in 2 cm steps until the tool clears it;
+        what is left within the margin is escaped straight up). None if no such cylinder clears the tool."""
         models = [m for m in self.robot.inventory.models.values() if m.cls == cls]
         radius = max((m.diameter for m in models), default=0.3) / 2 + 0.03
-        height = max((float(np.max(m.extents)) for m in models), default=0.3) + 0.01  # however it came to rest
+        z_lo = float(site[2]) - self.KEEP_OUT_DEPTH
+        z_hi = max(0.0, z_lo) + max((float(np.max(m.extents)) for m in models), default=0.3) + 0.01
         g = np.arange(-radius, radius + 1e-9, 0.01)
         X, Y = np.meshgrid(g, g)
         disc = np.c_[X.ravel(), Y.ravel()][np.hypot(X.ravel(), Y.ravel()) <= radius] + site[:2]
         q = self.arm.joint_positions()
-        while height > 0.02:
-            pts = np.concatenate([np.c_[disc, np.full(len(disc), z)] for z in np.arange(0.005, height, 0.01)])
+        while z_hi > z_lo + 0.02:
+            pts = np.concatenate([np.c_[disc, np.full(len(disc), z)] for z in np.arange(z_lo, z_hi, 0.01)])
             scene = self.planner.scene([], pts)
             if scene.touching_only(scene.colliding_pairs(q)).valid(q):
-                return pts if self.map_points is None else np.vstack([self.map_points, pts])
-            height -= 0.02
-        return self.map_points
+                return pts
+            z_hi -= 0.02
+        return None
 
     def _drop_perceiver(self):
         """The configured pipeline without the cell's geometry: the counter is the support plane (the pipeline's
