@@ -101,6 +101,10 @@ class RunOptions:
     scan_speed: float = 1.0  # rad/s for direct scan moves when planning is unavailable
     capture_retries: int = 2  # extra captures at a waypoint after a dropped frame / bad depth
     min_valid_depth: float = 0.3  # fraction of pixels with depth for a usable view
+    # ...for a view aimed at one spot (a placement, a drop site): a rack's wires and the open dishwasher leave
+    # much of the image without depth (edges, grazing angles) while the spot itself is measured; a failed
+    # camera gives none at all
+    min_valid_depth_spot: float = 0.1
     gone_radius: float = 0.02  # m: a same-class object this close to the picked one means it is still there
     max_reconnects: int = 3
     verify_target_view: bool = True  # capture at the retreat pose and check the object at its target
@@ -191,6 +195,22 @@ class _Pending:
     staging: bool = False  # set down upright on the counter to be grasped again (regrasp)
     staged: Any = None  # the tasks.Placed record this object was picked up from (a staged object)
     near_before: int = 1  # same-class objects within gone_radius of it in the scan it was picked from
+
+
+def _spot_measured(view: View, p_base: np.ndarray, half: int = 20) -> float:
+    """Fraction of pixels with depth in a (2 half + 1)^2 window around where `p_base` projects (0 when it does
+    not project into the image, or lies nearer than 5 cm)."""
+    p = (np.linalg.inv(view.T_base_cam) @ np.append(p_base, 1.0))[:3]
+    if p[2] < 0.05:
+        return 0.0
+    u, v = (view.K @ p)[:2] / p[2]
+    h, w = view.depth.shape
+    u0, u1 = int(max(u - half, 0)), int(min(u + half + 1, w))
+    v0, v1 = int(max(v - half, 0)), int(min(v + half + 1, h))
+    if u0 >= u1 or v0 >= v1:
+        return 0.0
+    d = view.depth[v0:v1, u0:u1]
+    return float(np.mean(np.isfinite(d) & (d > 0)))
 
 
 # ---- the runner --------------------------------------------------------------------------------------------------------
@@ -576,8 +596,10 @@ class TaskRunner:
             return False
 
     # ---- capture ---------------------------------------------------------------------------------------------
-    def _capture_view(self, where: str, key: str | None = None) -> View:
-        """Capture with bounded retries on dropped frames and unusable depth; View with its camera pose."""
+    def _capture_view(self, where: str, key: str | None = None, spot: bool = False) -> View:
+        """Capture with bounded retries on dropped frames and unusable depth; View with its camera pose. `spot`:
+        a view aimed at one spot, usable with less of the image measured (RunOptions.min_valid_depth_spot)."""
+        min_valid = self.opt.min_valid_depth_spot if spot else self.opt.min_valid_depth
         last: Exception | None = None
         for k in range(1 + self.opt.capture_retries):
             self._check_deadline()
@@ -589,7 +611,7 @@ class TaskRunner:
                 self._log("fault", "camera_timeout", where=where, message=str(e))
                 continue
             valid = np.isfinite(f.depth) & (f.depth > 0)
-            if valid.mean() < self.opt.min_valid_depth:
+            if valid.mean() < min_valid:
                 last = StepFailed("bad_depth", f"{where}: only {valid.mean():.0%} of the depth image is valid")
                 self._log("fault", "bad_depth", where=where, valid=float(valid.mean()))
                 continue
@@ -850,13 +872,17 @@ class TaskRunner:
         neither gives one: the re-scan still verifies the sink side."""
         key = f"target{self.report.attempts}"
         try:
-            return self._capture_view(key, "target")
+            view = self._capture_view(key, "target", spot=True)
+            seen = _spot_measured(view, where)
+            if seen >= 0.5:
+                return view
+            self._log("note", "no target view from the retreat pose", reason=f"{seen:.0%} of the spot has depth")
         except (DriverTimeoutError, StepFailed) as e:
             self._log("note", "no target view from the retreat pose", reason=str(e))
         try:
             why = self._look_down_at(where)
             if not why:
-                return self._capture_view(key + "_above", "target")
+                return self._capture_view(key + "_above", "target", spot=True)
             self._log("note", "no target view", reason=why)
         except (DriverTimeoutError, StepFailed) as e:
             self._log("note", "no target view", reason=str(e))
@@ -1184,7 +1210,7 @@ class TaskRunner:
             if why:
                 self._log("note", "no way to look at the drop site", at=site, reason=why)
                 return
-            view = self._capture_view(f"drop{self.dropped}", "drop")
+            view = self._capture_view(f"drop{self.dropped}", "drop", spot=True)
             unseen = False
         except (StepFailed, DriverTimeoutError, ProtectiveStopError) as e:
             self._log("note", "drop site not seen", reason=str(e))
