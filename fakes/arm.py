@@ -615,9 +615,21 @@ class FakeArm(Arm):
                 continue
             W = np.asarray(other.model.mesh.vertices) @ other.T_base_obj[:3, :3].T + other.T_base_obj[:3, 3]
             above = other.T_base_obj[2, 3] > o.T_base_obj[2, 3] + 0.005
-            if above and np.all(W.min(0) <= hi) and np.all(W.max(0) >= lo):
+            # higher up, its bounding box overlapping, and touching it (within 3 mm): an item standing beside
+            # the plate (a cup whose box overlaps the plate's corner, 4 cm away) or a neighbour the plate itself
+            # leans on without touching it does not load it
+            if above and np.all(W.min(0) <= hi) and np.all(W.max(0) >= lo) and self._touching(o, other, 0.003):
                 return None, f"pushing object {uid} with object {v} resting on it"
         return uid, ""
+
+    def _touching(self, a, b, within: float) -> bool:
+        """Whether two world objects' meshes come within `within` metres of each other (python-fcl)."""
+        import fcl
+
+        col = self.collision
+        objs = [fcl.CollisionObject(col._mesh_bvh(x.model), fcl.Transform(x.T_base_obj[:3, :3], x.T_base_obj[:3, 3]))
+                for x in (a, b)]
+        return fcl.distance(objs[0], objs[1], fcl.DistanceRequest(), fcl.DistanceResult()) <= within
 
     def _drag_profile(self, uid: int, q_of_u, end_u: float) -> tuple[float | None, float | None, str]:
         """(jam_u, release_u, why) of a drag: the item rides on what is under it while the fingers carry it

@@ -107,3 +107,52 @@ def test_three_plate_stack_only_the_top_one_is_slid(nested):
         arm.execute_trajectory(traj.times, traj.q)
     assert arm.log.collisions == 0 and arm.log.protective_stops == 0
     assert np.linalg.norm(world.objects[top_uid].T_base_obj[:2, 3] - top.T_base_obj[:2, 3]) > 0.02
+
+
+def test_an_item_beside_the_stack_does_not_load_the_plate(nested):
+    """Sink-pick seed 20 (oracle): a cup standing on the sink floor 2 cm from the top plate's rim, its bounding box
+    overlapping the plate's at a corner, was taken for an item resting on the plate (protective stop, the plate
+    never slid). Only an item that touches the plate loads it."""
+    cfg, world, arm, planner = nested
+    plate = world.objects[2]
+    cup = world.inventory.by_name("cup")
+    r_plate = np.linalg.norm(np.asarray(plate.model.mesh.vertices)[:, :2], axis=1).max()
+    Vc = np.asarray(cup.mesh.vertices)
+    r_cup = np.linalg.norm(Vc[:, :2], axis=1).max()
+    lo, _ = world.cell.sink_interior
+    c = plate.T_base_obj[:2, 3] + (r_plate + r_cup + 0.02) / np.sqrt(2) * np.array([1.0, 1.0])
+    T_cup = make_T(t=(c[0], c[1], lo[2] - Vc[:, 2].min() + 0.0005))
+    world.add_object(cup, T_cup)
+    W = np.asarray(cup.mesh.vertices) + T_cup[:3, 3]
+    Vp = np.asarray(plate.model.mesh.vertices) @ plate.T_base_obj[:3, :3].T + plate.T_base_obj[:3, 3]
+    assert np.all(W.min(0)[:2] <= Vp.max(0)[:2])  # the boxes overlap (the old test's false positive)
+    poses = OraclePerceiver(world).perceive([]).poses
+    top = next(p for p in poses if p.instance_id == 2)
+    plan = planner.plan_slide(world.q.copy(), poses, top)
+    assert plan.ok, plan
+    start = plate.T_base_obj[:2, 3].copy()
+    for traj in plan.trajectories:
+        arm.execute_trajectory(traj.times, traj.q)
+    assert arm.log.collisions == 0 and arm.log.protective_stops == 0
+    assert np.linalg.norm(world.objects[2].T_base_obj[:2, 3] - start) > 0.05
+
+
+def test_an_item_resting_on_the_plate_stops_the_slide(nested):
+    """A cup standing in the top plate's well (added after planning, as if unseen) loads it: protective stop."""
+    cfg, world, arm, planner = nested
+    poses = OraclePerceiver(world).perceive([]).poses
+    top = next(p for p in poses if p.instance_id == 2)
+    plan = planner.plan_slide(world.q.copy(), poses, top)
+    assert plan.ok, plan
+    plate = world.objects[2]
+    cup = world.inventory.by_name("cup")
+    from kitchenbot.fakes.placement import settle
+
+    # behind where the fingers press, as seen along the slide (they move away from it)
+    p = press_point(plate.model, plate.T_base_obj) - 0.045 * np.asarray(plan.direction, float)
+    T = make_T(t=(p[0], p[1], plate.T_base_obj[2, 3] + 0.08))
+    uid = world.add_object(cup, T)
+    world.objects[uid].T_base_obj = settle(world, uid, T)
+    with pytest.raises(ProtectiveStopError, match="resting on it"):
+        for traj in plan.trajectories:
+            arm.execute_trajectory(traj.times, traj.q)
