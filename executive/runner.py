@@ -277,6 +277,7 @@ class TaskRunner:
         self._last_traj: Trajectory | None = None  # the last motion commanded (to retrace it after a stop)
         self._stopped_traj: Trajectory | None = None  # the motion the last protective stop cut short
         self.contact_points = np.zeros((0, 3))  # where stopped motions met something no model shows (see _mark_contact)
+        self.contact_epochs = np.zeros(0, int)  # the scene_epoch each contact point was marked in
         self._map_base: np.ndarray | None = None  # the last perception's map points (map_points = these + contacts)
         self.prefer_instance: int | None = None  # perceived instance to try next (it blocks the last one tried)
         self.drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
@@ -532,7 +533,7 @@ class TaskRunner:
                     # the marks of a stop (_mark_contact) block where the arm is or must go: they have done their
                     # part (the arm backed off); a move the marks make impossible is planned without them
                     self._log("note", "contact marks dropped: they block the move", what=what, reason=str(plan))
-                    self.contact_points = np.zeros((0, 3))
+                    self.contact_points, self.contact_epochs = np.zeros((0, 3)), np.zeros(0, int)
                     self.map_points = self._map_base
                     continue
                 if plan.kind == "start_in_collision" and not escaped:
@@ -1039,10 +1040,16 @@ class TaskRunner:
             self.prefer_instance = f.details.get("blocking")
             return "retry"  # the next object with the same perception; this one again after the next scan
         stopped = self._stopped_traj.name if f.kind == "protective_stop" and self._stopped_traj else None
-        if stopped and stopped != "lift":  # (a stopped lift is put down from where it stopped, not back in the pile)
+        lift_marks = None
+        if stopped == "lift":  # put down from where it stopped, not back in the pile; marked after the put-down
+            lift_marks = self._contact_sliver(self._stopped_traj) if self.planner is not None else None
+            self._stopped_traj = None
+        elif stopped:
             self._back_off()
         if self._holding():  # not again where the held item was just stopped on its way down to its target
             self._put_down_held(avoid_place_target=stopped in ("transfer", "lower"))
+        if lift_marks is not None:  # the next try at this item lifts clear of what it met
+            self._add_contact_marks(lift_marks)
         self._back_out()
         if self.drop_site is not None:  # it slipped out, or was let go over the cell: look where it fell
             self._search_drop_site()
@@ -1078,7 +1085,7 @@ class TaskRunner:
         if traj is None:
             return
         if self.planner is not None:
-            self._mark_contact(traj)
+            self._add_contact_marks(self._contact_sliver(traj))
         try:
             if self._retrace(traj, "back_off"):
                 self._log("note", "backed off along the stopped motion", motion=traj.name)
@@ -1088,18 +1095,16 @@ class TaskRunner:
 
     CONTACT_LOOKAHEAD = 0.015  # m of tool travel past a stop within which what it touched must lie
 
-    def _mark_contact(self, traj: Trajectory) -> None:
-        """A protective stop cut `traj` short: what the tool (or what it holds) touched lies in the space it was
-        about to sweep, the next CONTACT_LOOKAHEAD of its path. Fill that sliver with points and keep them as map
-        points no object explains, so plans keep clear of it as of any unknown obstacle (the same world model
-        would otherwise plan into the same contact). Points in the sink are dropped at the next scan, which
-        sees the sink anew."""
+    def _contact_sliver(self, traj: Trajectory) -> np.ndarray | None:
+        """A protective stop cut `traj` short (the arm stands on it): what the tool (or what it holds) touched
+        lies in the space it was about to sweep, the next CONTACT_LOOKAHEAD of its path. Points filling that
+        sliver (base frame), or None."""
         robot, g = self.planner.robot, self.planner.world.gripper
         q = self.arm.joint_positions()
         d = np.max(np.abs(traj.q - q), axis=1)
         k = int(np.argmin(d))
         if d[k] >= 0.01:
-            return
+            return None
         p0 = robot.fk_tcp(q)[:3, 3]
         j = k
         while j + 1 < len(traj) and np.linalg.norm(robot.fk_tcp(traj.q[j + 1])[:3, 3] - p0) < self.CONTACT_LOOKAHEAD:
@@ -1139,19 +1144,33 @@ class TaskRunner:
             P1 = m.points @ T1[:3, :3].T + T1[:3, 3]
             out.append(P1[cKDTree(P0).query(P1)[0] > 0.005])
         pts = np.concatenate(out) if out else np.zeros((0, 3))
-        if not len(pts):
+        return pts if len(pts) else None
+
+    def _mark_contact(self, traj: Trajectory) -> None:
+        """Mark where the motion `traj`, cut short by a protective stop, met something (see _add_contact_marks)."""
+        self._add_contact_marks(self._contact_sliver(traj))
+
+    def _add_contact_marks(self, pts: np.ndarray | None) -> None:
+        """Keep `pts` (a contact sliver) as map points no object explains, so plans keep clear of it as of any
+        unknown obstacle: the same world model would otherwise plan into the same contact (a cup recorded where it
+        did not settle; a neighbour in a pile perceived a few mm off, which the next scan perceives the same way).
+        Marks in the sink last until an item has been placed (the scene changed; see _with_contacts)."""
+        if pts is None or not len(pts):
             return
         self.contact_points = np.vstack([self.contact_points, pts])
+        self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), self.scene_epoch)])
         self.map_points = pts if self.map_points is None else np.vstack([self.map_points, pts])
         self._log("note", "marked where the stopped motion met something", points=len(pts),
                   centre=pts.mean(axis=0))
 
     def _with_contacts(self, map_points: np.ndarray | None) -> np.ndarray | None:
-        """Fresh map points plus the contact marks outside the sink (the scan saw the sink anew)."""
+        """Fresh map points plus the contact marks, less those in the sink made before the last placement (the
+        sink changed since, and the scan saw it anew)."""
         lo, hi = self.robot.cell.sink_interior
+        c, e = self.contact_points, self.contact_epochs
+        old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
+        self.contact_points, self.contact_epochs = c[~old], e[~old]
         c = self.contact_points
-        c = c[~(np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1))]
-        self.contact_points = c
         if not len(c):
             return map_points
         return c if map_points is None else np.vstack([map_points, c])
@@ -1220,9 +1239,8 @@ class TaskRunner:
             self.map_points, self._searching = map_points, False
             if unseen and keep_out is not None:
                 # the item lies somewhere under there, unseen: plans keep clear of it for the rest of the run
-                # (the part in the sink is dropped at the next scan, which sees the sink)
-                self.contact_points = np.vstack([self.contact_points, keep_out])
-                self.map_points = keep_out if self.map_points is None else np.vstack([self.map_points, keep_out])
+                # (what is in the sink is dropped once an item has been placed: the scans see the sink)
+                self._add_contact_marks(keep_out)
         res = self._drop_perceiver().perceive([view])
         placed = self.task.obstacles()
         found = [p for p in res.poses if p.cls == cls

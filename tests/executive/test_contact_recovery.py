@@ -1,5 +1,5 @@
 """After a protective stop: the space the pads were about to enter is marked as an obstacle (map points no object
-explains), kept outside the sink, dropped inside it (the next scan sees the sink anew)."""
+explains), kept outside the sink, dropped inside it once an item has been placed (the sink changed)."""
 
 from __future__ import annotations
 
@@ -39,8 +39,9 @@ def test_a_stop_marks_the_space_the_pads_were_about_to_enter(make_runner):
 
     lo, hi = runner.robot.cell.sink_interior
     in_sink = np.array([[(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, -0.1]])
-    runner.contact_points = np.vstack([P, in_sink])
+    runner._add_contact_marks(in_sink)
     fresh = np.zeros((5, 3))
-    out = runner._with_contacts(fresh)
+    assert len(runner._with_contacts(fresh)) == 5 + len(P) + 1  # nothing placed since: every mark is kept
+    runner.scene_epoch += 1  # an item was placed: the sink changed, its marks go; the others stay
     sink_pts = np.all(P[:, :2] >= lo[:2], axis=1) & np.all(P[:, :2] <= hi[:2], axis=1)
-    assert len(out) == 5 + int((~sink_pts).sum())  # the fresh map, plus the marks outside the sink
+    assert len(runner._with_contacts(fresh)) == 5 + int((~sink_pts).sum())
