@@ -19,7 +19,7 @@ from kitchenbot.perception.cell import AreaSpec, Cell
 from kitchenbot.perception.inventory import Inventory, ObjectModel
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.transforms import make_T, rot_x, rot_y
+from kitchenbot.transforms import make_T, rot_x, rot_y, rot_z
 
 CLEARANCE = 0.01  # m between neighbouring placed items
 # m between an item released with a near-level side grasp and its neighbours: the open Fin-Ray pads reach ~31 mm
@@ -165,8 +165,9 @@ class Task:
         return any(float(t.T_base_obj[:3, 2] @ z) < -0.5 for t in targets)
 
     def staging_targets(self, obj: ObjectPose, targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
-        """Spots in the counter drop zone to set an object down and grasp it again, in a pose from which `targets`
-        can be reached with another grasp.
+        """Spots in the counter drop zone to set an object down and grasp it again, in poses from which `targets`
+        may be reached with another grasp, the most likely first (the executive keeps those from which the next
+        pick can reach them).
 
         Upright by default: an upright item wanted mouth-down (a rack) is turned over from there with a level side
         grasp. An item upside down wanted upright (a stack) is set down upside down, as a person flips a cup in two
@@ -174,21 +175,41 @@ class Task:
         turning 180 degrees about the approach axis. No grasp of it as it lies in the sink does that: a turn of
         180 degrees about a level axis reverses the approach's vertical component, so only a level approach stays
         from above, and a 20 cm tool cannot come in level below the counter top. The open pads of that level grasp
-        reach ~31 mm beyond the item on both sides, so these spots keep PAD_ROOM from their neighbours."""
+        reach ~31 mm beyond the item on both sides, so these spots keep PAD_ROOM from their neighbours.
+
+        A round cup or glass may also be laid on its side (`lying_spots`): a quarter turn each way, both from
+        above, which reaches places a level grasp does not (the back of the upper rack)."""
         model = self.inventory[obj.obj_id]
         zone = self.cell.spec.drop_zone
+        lo = np.array(zone.origin_xy)
+        hi = lo + np.array(zone.size_xy)
         flip = (targets is not None and len(targets) > 0 and obj.T_base_obj[2, 2] < -0.5
                 and all(t.T_base_obj[2, 2] > 0.9 for t in targets))
         if flip:
-            lo = np.array(zone.origin_xy)
-            spots = area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, self.placed, inverted, 3,
-                               centre_inside=True, clearance=PAD_ROOM)
+            spots = area_spots(model, lo, hi, zone.z, self.placed, inverted, 2, centre_inside=True, clearance=PAD_ROOM)
             out = [PlaceTarget(T, "stage", free_yaw=True, support="counter (upside down, to flip it)") for T in spots]
-            return out or NoFreeSlot("drop zone has no free spot to set the item down upside down for a flip")
-        out = _drop_zone_targets(model, zone, self.placed, 3)
-        for t in out:
-            t.kind, t.support = "stage", "counter (regrasp)"
+        else:
+            out = _drop_zone_targets(model, zone, self.placed, 2)
+            for t in out:
+                t.kind, t.support = "stage", "counter (regrasp)"
+        if targets is not None:
+            out += self.lying_spots(model)
         return out or NoFreeSlot("drop zone has no free spot to stage a regrasp")
+
+    def lying_spots(self, model: ObjectModel) -> list[PlaceTarget]:
+        """A round cup or glass lying on its side in the drop zone (its mouth towards +y, then -x), PAD_ROOM from its
+        neighbours; none for other items (a mug rolls onto its handle, a bowl or plate does not rest on its side)."""
+        if model.cls not in ("cup", "glass") or not model.is_rotationally_symmetric:
+            return []
+        zone = self.cell.spec.drop_zone
+        lo = np.array(zone.origin_xy)
+        out = []
+        for yaw in (np.pi / 2, np.pi):
+            R = rot_z(yaw)[:3, :3] @ rot_y(np.pi / 2)[:3, :3]  # the object's axis along base x turned by yaw
+            for T in area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, self.placed, as_is(R), 1,
+                                centre_inside=True, clearance=PAD_ROOM):
+                out.append(PlaceTarget(T, "stage", free_yaw=False, support="counter (on its side, to turn it)"))
+        return out
 
     def accepts_as_it_lies(self, obj: ObjectPose) -> bool:
         """Whether an item found outside the sink (it fell there) is done where it lies. Most targets want a pose

@@ -60,6 +60,16 @@ class SinkToDishwasher(Task):
             return out or NoFreeSlot("no free slot for a bowl in the lower or upper rack")
         return self._targets(obj, "lower" if obj.cls == "plate" else "upper")
 
+    def staging_targets(self, obj: ObjectPose, targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
+        """A round cup or glass is staged lying on its side first: from there a grasp from above turns it mouth-down
+        anywhere in the upper rack, where from upright only a level side grasp does, which reaches the rack's near
+        part only (seeds 4, 9, 21, 37: staged upright when that part was full, they stayed on the counter); that
+        part stays free for what must be turned over upright (a mug, which rolls onto its handle on its side)."""
+        out = super().staging_targets(obj, targets)
+        if isinstance(out, NoFreeSlot):
+            return out
+        return sorted(out, key=lambda t: abs(t.T_base_obj[2, 2]) > 0.5)  # lying first, stable
+
     def _bowl_in_lower_rack(self, obj: ObjectPose, pose, how: str) -> list[PlaceTarget]:
         """A bowl in the lower rack, `pose` on_edge (on its rim, its axis along x, as a plate) or inverted, from
         the rack's far end in x (plates are loaded from the end nearest the robot), with room kept for the plates

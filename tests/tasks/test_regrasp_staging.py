@@ -1,6 +1,6 @@
 """Regrasp staging: when a task's targets turn an item over from how it lies, the executive sets it down on the
-counter and picks it again. An upright item wanted mouth-down (the dishwasher's upper rack) is staged upright
-(turned over from there by a level side grasp); a cup upside down in the sink wanted upright (a stack) is staged
+counter and picks it again. An upright item wanted mouth-down (the dishwasher's upper rack) is staged lying on
+its side when it is a round cup or glass, else upright (turned over from there by a level side grasp); a cup upside down in the sink wanted upright (a stack) is staged
 upside down (carried there from above, then turned over by a level side grasp): staging it upright would need the
 very turn no grasp in the sink can make."""
 
@@ -43,22 +43,42 @@ def test_an_upside_down_cup_is_staged_upside_down_with_room_for_the_pads(inv, si
     down = sink_item("cup", MOUTH_DOWN)
     stage = task.staging_targets(down, task.targets(down))
     assert not isinstance(stage, NoFreeSlot), stage
+    assert stage[0].T_base_obj[2, 2] < -0.99  # upside down first, then lying on its side
     for t in stage:
-        assert t.kind == "stage" and t.free_yaw
-        assert t.T_base_obj[2, 2] < -0.99  # upside down
+        assert t.kind == "stage"
+        assert t.T_base_obj[2, 2] < -0.99 or abs(t.T_base_obj[2, 2]) < 1e-6
         xy = t.T_base_obj[:2, 3]
         assert np.all(xy >= lo0) and np.all(xy <= lo0 + np.array(zone.size_xy))
         lo, hi, _ = footprint(inv[down.obj_id], t.T_base_obj)
         p = task.placed[0]
         assert np.max(np.maximum(np.maximum(p.lo - hi, lo - p.hi), 0.0)) >= PAD_ROOM - 1e-6
+    assert any(abs(t.T_base_obj[2, 2]) < 1e-6 for t in stage)
 
 
-def test_an_upright_cup_is_still_staged_upright_for_the_rack(inv, sink_item):
+def test_only_round_cups_and_glasses_are_laid_on_their_side(inv):
+    task = make_task("sink-to-dishwasher", inv, Cell())
+    for name in ("cup", "glass"):
+        spots = task.lying_spots(inv.by_name(name))
+        assert spots and all(abs(t.T_base_obj[2, 2]) < 1e-6 for t in spots)
+        m = inv.by_name(name)
+        for t in spots:  # resting on the counter: its lowest point just above the drop zone
+            P = m.points @ t.T_base_obj[:3, :3].T + t.T_base_obj[:3, 3]
+            assert abs(P[:, 2].min() - task.cell.spec.drop_zone.z) < 0.02
+    for name in ("mug", "bowl"):
+        assert task.lying_spots(inv.by_name(name)) == []
+
+
+def test_an_upright_cup_for_the_rack_is_laid_on_its_side_first(inv, sink_item):
+    """From its side a grasp from above turns it mouth-down anywhere in the rack; upright (a level side grasp)
+    only in the rack's near part. A mug is not laid on its side (it rolls onto its handle)."""
     task = make_task("sink-to-dishwasher", inv, Cell())
     up = sink_item("cup")
     ts = task.targets(up)
     assert task.needs_regrasp(ts, up)
     stage = task.staging_targets(up, ts)
-    assert not isinstance(stage, NoFreeSlot) and all(t.T_base_obj[2, 2] > 0.99 for t in stage)
-    # and without targets (the old call) too
+    assert not isinstance(stage, NoFreeSlot) and abs(stage[0].T_base_obj[2, 2]) < 1e-6
+    assert any(t.T_base_obj[2, 2] > 0.99 for t in stage)  # upright ones after
+    # without targets (the old call): upright only
     assert all(t.T_base_obj[2, 2] > 0.99 for t in task.staging_targets(up))
+    mug = sink_item("mug")
+    assert all(t.T_base_obj[2, 2] > 0.99 for t in task.staging_targets(mug, task.targets(mug)))
