@@ -274,6 +274,7 @@ class TaskRunner:
         self._first_total: int | None = None
         self.dropped = 0  # items that left the gripper on the way (slips, let go over the cell after a fault)
         self._searching = False  # looking for a fallen item (see _search_drop_site)
+        self._unseen_placement = None  # the record of a placement its check did not see (see _verify_pending)
         self._last_traj: Trajectory | None = None  # the last motion commanded (to retrace it after a stop)
         self._stopped_traj: Trajectory | None = None  # the motion the last protective stop cut short
         self.contact_points = np.zeros((0, 3))  # where stopped motions met something no model shows (see _mark_contact)
@@ -983,7 +984,10 @@ class TaskRunner:
             if p.staged is not None:
                 self.task.unplace(p.staged.instance_id)
                 self.staged = [s for s in self.staged if s is not p.staged]
-            self.task.record_placed(p.obj, p.target, p.T_base_obj)
+            self._unseen_placement = self.task.record_placed(p.obj, p.target, p.T_base_obj)
+            # it may have tipped or fallen off a stack next to its target: the recovery looks there from above
+            # (as for a slip), and an item found there is picked up again (its record at the target goes)
+            self.drop_site = np.array(p.T_base_obj[:3, 3], float)
             raise StepFailed("verify_failed", f"the {p.obj.cls} was not seen at its target "
                              f"({presence.agree:.0%} of {presence.pixels} px agree)")
         T_settled = p.T_base_obj.copy()
@@ -1212,6 +1216,7 @@ class TaskRunner:
         down at where it fell; an item of its class found there (and not one placed earlier) is picked up again
         from there, as an item staged on the counter is."""
         site, self.drop_site = self.drop_site, None
+        unseen_rec, self._unseen_placement = self._unseen_placement, None  # (it stands where it was not seen)
         if site is None or self.current is None or self.planner is None:
             return
         lo, hi = self.robot.cell.sink_interior
@@ -1242,7 +1247,7 @@ class TaskRunner:
                 # (what is in the sink is dropped once an item has been placed: the scans see the sink)
                 self._add_contact_marks(keep_out)
         res = self._drop_perceiver().perceive([view])
-        placed = self.task.obstacles()
+        placed = [o for o in self.task.obstacles() if unseen_rec is None or o.instance_id != unseen_rec.instance_id]
         found = [p for p in res.poses if p.cls == cls
                  and np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]) < self.SEARCH_RADIUS
                  and not self.task.in_sink(p)
@@ -1251,6 +1256,12 @@ class TaskRunner:
         if not found:
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
+        if unseen_rec is not None and unseen_rec.cls == cls:  # nothing stands at its target; handled again from here
+            self.task.unplace(unseen_rec.instance_id)
+            if cls in self.unverified:
+                self.unverified.remove(cls)
+            self._log("note", "the item not seen at its target lies near it", cls=cls, xyz=obj.T_base_obj[:3, 3],
+                      target=unseen_rec.T_base_obj[:3, 3])
         T_release = np.array(obj.T_base_obj, float)
         T_release[2, 3] += DROP_HEIGHT  # as if released there (place targets are release poses)
         where = PlaceTarget(T_release, "drop", support="counter (it fell there)")

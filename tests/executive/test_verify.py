@@ -30,6 +30,9 @@ def test_present_absent_and_settled_offset(small_config, cup_world):
     above[2, 3] += 0.03  # released 3 cm higher: it settled; the search finds the offset
     settled = target_presence(view, obj.model, above)
     assert settled.present and abs(settled.dz + 0.03) <= 0.006
+    high = T.copy()
+    high[2, 3] += 0.05  # expected 5 cm higher (on a stack): what is 5 cm below is not it settling
+    assert not target_presence(view, obj.model, high).present
     empty = T.copy()
     empty[:2, 3] += (-0.12, 0.10)  # an empty spot on the sink floor
     empty[2, 3] = T[2, 3]
