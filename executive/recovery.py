@@ -1,0 +1,378 @@
+"""Recovery actions of the task runner: what the arm, gripper and camera do after a fault, before the state
+machine re-scans or gives up (the rules themselves are TaskRunner._do_recover; docs/executive.md, "Recovery rules").
+
+- devices back to a commandable state (reconnect, unlock, gripper reboot);
+- after a protective stop: mark where the motion met something, back off along it;
+- back out of the sink after a failed grasp;
+- put down whatever is still held (its target, the fallback spot, else open over the cell);
+- look for an item that fell outside the sink (or a placement not seen at its target) and take it on again;
+- give up safely.
+
+A mixin of TaskRunner: the methods use the runner's devices, planner, task, journal and state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutError, LimitViolation, ProtectiveStopError
+from kitchenbot.executive.failures import Failure, Stopped, StepFailed
+from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
+from kitchenbot.tasks.base import DROP_HEIGHT
+from kitchenbot.transforms import make_T, rot_z
+
+
+class RecoveryActions:
+    def _restore_devices(self, f: Failure) -> None:
+        """Bring the devices back to a commandable state (bounded reconnects, unlock, gripper reboot)."""
+        if not self.arm.is_connected:
+            if self.reconnects >= self.opt.max_reconnects:
+                raise DeviceNotConnectedError(f"arm: still disconnected after {self.reconnects} reconnects")
+            self.reconnects += 1
+            self._cmd("arm.connect", attempt=self.reconnects)
+            self.arm.connect()
+        from kitchenbot.drivers.arm import SafetyState
+
+        if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
+            self._cmd("arm.unlock_protective_stop", reason=f.kind)
+            self.arm.unlock_protective_stop()
+        if self.gripper.error() is not None:
+            self._cmd("gripper.reboot", error=self.gripper.error())
+            self.gripper.reboot()
+            self._cmd("gripper.open")
+            self.gripper.open()
+        if self.arm.is_moving():
+            self.arm.stop()
+
+    def _back_off(self) -> None:
+        """After a protective stop (on the real arm: a contact) go back along the motion it cut short, to where
+        that motion started: the one way known to be free in the world as it is. Re-planning from the stop
+        point with the same world model would lead into the same contact."""
+        traj, self._stopped_traj = self._stopped_traj, None
+        if traj is None:
+            return
+        if self.planner is not None:
+            self._add_contact_marks(self._contact_sliver(traj))
+        try:
+            if self._retrace(traj, "back_off"):
+                self._log("note", "backed off along the stopped motion", motion=traj.name)
+        except ProtectiveStopError as e:  # should not happen (the way back was free): leave it to the next rule
+            self._log("note", "back off stopped", reason=str(e))
+            self.arm.unlock_protective_stop()
+
+    CONTACT_LOOKAHEAD = 0.015  # m of tool travel past a stop within which what it touched must lie
+
+    def _contact_sliver(self, traj: Trajectory) -> np.ndarray | None:
+        """A protective stop cut `traj` short (the arm stands on it): what the tool (or what it holds) touched
+        lies in the space it was about to sweep, the next CONTACT_LOOKAHEAD of its path. Points filling that
+        sliver (base frame), or None."""
+        robot, g = self.planner.robot, self.planner.world.gripper
+        q = self.arm.joint_positions()
+        d = np.max(np.abs(traj.q - q), axis=1)
+        k = int(np.argmin(d))
+        if d[k] >= 0.01:
+            return None
+        p0 = robot.fk_tcp(q)[:3, 3]
+        j = k
+        while j + 1 < len(traj) and np.linalg.norm(robot.fk_tcp(traj.q[j + 1])[:3, 3] - p0) < self.CONTACT_LOOKAHEAD:
+            j += 1
+        q_ahead = traj.q[min(j + 1, len(traj) - 1)]
+        opening = float(self.gripper.opening())
+        # the pads (and what they hold) lead the tool into whatever it meets; the palm and camera behind them are
+        # left out: their slivers would fill the space the arm itself needs to back away
+        boxes = g.pads(robot.T_flange_tcp, opening)
+
+        def flange(qq):
+            return robot.fk_tcp(qq) @ np.linalg.inv(robot.T_flange_tcp)
+
+        def inside(P, T_base_box, size, pad=0.003):
+            L = (P - T_base_box[:3, 3]) @ T_base_box[:3, :3]
+            return np.all(np.abs(L) <= np.asarray(size) / 2 + pad, axis=1)
+
+        F0, F1 = flange(q), flange(q_ahead)
+        out = []
+        for tb in boxes:  # grid points of each pad where it was about to be, and is not yet
+            size = np.asarray(tb.size, float)
+            axes = [np.linspace(-h / 2, h / 2, max(2, int(np.ceil(h / 0.01)) + 1)) for h in size]
+            G = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+            T1 = F1 @ tb.T_flange_box
+            P = G @ T1[:3, :3].T + T1[:3, 3]
+            keep = np.ones(len(P), bool)
+            for tb0 in boxes:
+                keep &= ~inside(P, F0 @ tb0.T_flange_box, tb0.size)
+            out.append(P[keep])
+        if self.pick is not None and self._holding():  # the held item's surface where it was about to be
+            from scipy.spatial import cKDTree
+
+            m = self.robot.inventory[self.pick.grasp.obj.obj_id]
+            T_tcp_obj = self.pick.grasp.T_tcp_obj
+            P0 = m.points @ (robot.fk_tcp(q) @ T_tcp_obj)[:3, :3].T + (robot.fk_tcp(q) @ T_tcp_obj)[:3, 3]
+            T1 = robot.fk_tcp(q_ahead) @ T_tcp_obj
+            P1 = m.points @ T1[:3, :3].T + T1[:3, 3]
+            out.append(P1[cKDTree(P0).query(P1)[0] > 0.005])
+        pts = np.concatenate(out) if out else np.zeros((0, 3))
+        return pts if len(pts) else None
+
+    def _mark_contact(self, traj: Trajectory) -> None:
+        """Mark where the motion `traj`, cut short by a protective stop, met something (see _add_contact_marks)."""
+        self._add_contact_marks(self._contact_sliver(traj))
+
+    def _add_contact_marks(self, pts: np.ndarray | None) -> None:
+        """Keep `pts` (a contact sliver) as map points no object explains, so plans keep clear of it as of any
+        unknown obstacle: the same world model would otherwise plan into the same contact (a cup recorded where it
+        did not settle; a neighbour in a pile perceived a few mm off, which the next scan perceives the same way).
+        Marks in the sink last until an item has been placed (the scene changed; see _with_contacts)."""
+        if pts is None or not len(pts):
+            return
+        self.contact_points = np.vstack([self.contact_points, pts])
+        self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), self.scene_epoch)])
+        self.map_points = pts if self.map_points is None else np.vstack([self.map_points, pts])
+        self._log("note", "marked where the stopped motion met something", points=len(pts),
+                  centre=pts.mean(axis=0))
+
+    def _with_contacts(self, map_points: np.ndarray | None) -> np.ndarray | None:
+        """Fresh map points plus the contact marks, less those in the sink made before the last placement (the
+        sink changed since, and the scan saw it anew)."""
+        lo, hi = self.robot.cell.sink_interior
+        c, e = self.contact_points, self.contact_epochs
+        old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
+        self.contact_points, self.contact_epochs = c[~old], e[~old]
+        c = self.contact_points
+        if not len(c):
+            return map_points
+        return c if map_points is None else np.vstack([map_points, c])
+
+    def _back_out(self) -> None:
+        """After a failed grasp the gripper may be around an object in the sink: open, then straight back out."""
+        if self.failure is None or self.failure.state != "execute":
+            return
+        if self.pick is not None:
+            if not self._holding():
+                self._cmd("gripper.open", opening=self.pick.grasp.spec.opening)
+                self.gripper.open(self.pick.grasp.spec.opening)
+            if self._retrace(self.pick.grasp_in, "back_out"):  # it was on the grasp-in line
+                return
+        # (no pick: a slide was cut short, the fingers may still press on the item: straight up)
+        if self.arm.tcp_pose()[2, 3] < 0.05:  # deep in the sink elsewhere: straight up a little
+            T = self.arm.tcp_pose()
+            T[2, 3] += 0.08
+            self._cmd("arm.move_linear", up=0.08)
+            try:
+                with self._arm_lock:
+                    self.arm.move_linear(T, speed=0.05, accel=0.3, asynchronous=True)
+                self._wait_motion("back out up", 2.5)
+            except (LimitViolation, ProtectiveStopError) as e:
+                self._log("note", "back out refused", reason=str(e))
+                from kitchenbot.drivers.arm import SafetyState
+
+                if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
+                    self.arm.unlock_protective_stop()
+
+    # Where the camera looks down from at a drop site or a target (m above the counter top), highest first: far
+    # enough for the OAK-D's 20 cm minimum depth and for the view to cover where a falling item may roll; lower
+    # ones where the arm does not reach that high over the far end of a rack.
+    LOOK_DOWN_HEIGHTS = (0.50, 0.40, 0.30)
+    SEARCH_RADIUS = 0.25  # m around the drop site an item found there may have come to rest
+
+    def _search_drop_site(self) -> None:
+        """An item slipped out outside the sink (over the counter): the sink scans never look there. Look straight
+        down at where it fell; an item of its class found there (and not one placed earlier) is picked up again
+        from there, as an item staged on the counter is."""
+        site, self.drop_site = self.drop_site, None
+        unseen_rec, self._unseen_placement = self._unseen_placement, None  # (it stands where it was not seen)
+        if site is None or self.current is None or self.planner is None:
+            return
+        lo, hi = self.robot.cell.sink_interior
+        if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
+            return  # it fell back into the sink: the re-scan finds it
+        cls = self.current.cls
+        keep_out = self._keep_out(site, cls)
+        map_points = self.map_points
+        if keep_out is not None:
+            self.map_points = keep_out if map_points is None else np.vstack([map_points, keep_out])
+        self._searching = True
+        unseen = True
+        try:
+            why = self._look_down_at(site)
+            if why:
+                self._log("note", "no way to look at the drop site", at=site, reason=why)
+                return
+            view = self._capture_view(f"drop{self.dropped}", "drop", spot=True)
+            unseen = False
+        except (StepFailed, DriverTimeoutError, ProtectiveStopError) as e:
+            self._log("note", "drop site not seen", reason=str(e))
+            self._restore_devices(self.failure)
+            return
+        finally:
+            self.map_points, self._searching = map_points, False
+            if unseen and keep_out is not None:
+                # the item lies somewhere under there, unseen: plans keep clear of it for the rest of the run
+                # (what is in the sink is dropped once an item has been placed: the scans see the sink)
+                self._add_contact_marks(keep_out)
+        res = self._drop_perceiver().perceive([view])
+        placed = [o for o in self.task.obstacles() if unseen_rec is None or o.instance_id != unseen_rec.instance_id]
+        found = [p for p in res.poses if p.cls == cls
+                 and np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]) < self.SEARCH_RADIUS
+                 and not self.task.in_sink(p)
+                 and not any(np.linalg.norm(p.T_base_obj[:2, 3] - o.T_base_obj[:2, 3]) < 0.04 for o in placed)]
+        self._log("result", "drop site", at=site, found=[p.T_base_obj[:3, 3] for p in found])
+        if not found:
+            return
+        obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
+        if unseen_rec is not None and unseen_rec.cls == cls:  # nothing stands at its target; handled again from here
+            self.task.unplace(unseen_rec.instance_id)
+            if cls in self.unverified:
+                self.unverified.remove(cls)
+            self._log("note", "the item not seen at its target lies near it", cls=cls, xyz=obj.T_base_obj[:3, 3],
+                      target=unseen_rec.T_base_obj[:3, 3])
+        T_release = np.array(obj.T_base_obj, float)
+        T_release[2, 3] += DROP_HEIGHT  # as if released there (place targets are release poses)
+        where = PlaceTarget(T_release, "drop", support="counter (it fell there)")
+        placed = self.task.record_placed(obj, where, obj.T_base_obj)
+        self.report.recovered_drops += 1
+        if self.task.accepts_as_it_lies(obj):  # it fell where the task wants it (the drop zone takes it as it is)
+            self.report.objects_done += int(self.task.wants(obj))
+            self.scene_epoch += 1
+            self._log("note", "the dropped item lies at its target", cls=cls, xyz=obj.T_base_obj[:3, 3])
+            return
+        self.staged.append(placed)
+        self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
+
+    def _look_down_at(self, site: np.ndarray) -> str:
+        """Put the camera straight above `site`, looking down, by a planned collision-free motion. Returns "" when
+        there, else why not."""
+        planner = self.planner
+        home = np.asarray(self.robot.config.robot.home, float)
+        R_down = planner.robot.fk_tcp(home)[:3, :3]  # home points the tool down
+        d_cam = (np.linalg.inv(planner.robot.T_flange_tcp) @ self.robot.T_flange_cam)[:3, 3]  # camera in tcp frame
+        scene = planner.scene(self._scene_objects(), self.map_points)
+        why = "no collision-free camera pose above it"
+        tries = 0
+        for height in self.LOOK_DOWN_HEIGHTS:
+            p_cam = np.array([site[0], site[1], height])
+            for yaw in np.radians([0.0, 90.0, -90.0, 180.0]):
+                R = rot_z(yaw)[:3, :3] @ R_down
+                for q in planner.robot.ik_all(make_T(R, p_cam - R @ d_cam), self.arm.joint_positions()):
+                    if not scene.valid(q):
+                        continue
+                    try:
+                        self._move_joints(q, "look down")
+                        return ""
+                    except StepFailed as e:
+                        why = str(e)
+                        tries += 1
+                        if tries >= 3:  # each is up to three RRT-Connect queries
+                            return why
+        return why
+
+    KEEP_OUT_DEPTH = 0.45  # m below the drop site a fallen item may have come to rest (a rack under the counter)
+
+    def _keep_out(self, site: np.ndarray, cls: str) -> np.ndarray | None:
+        """Points filling an upright cylinder under the drop site, as wide as the fallen item and reaching from
+        KEEP_OUT_DEPTH below the site up to where the item may stand (no scene knows it yet): as map points no
+        object explains, the planner keeps clear of them like of any unknown obstacle. The item fell from the
+        tool, so the cylinder ends below the tool as it is now (lowered in 2 cm steps until the tool clears it;
+        what is left within the margin is escaped straight up). None if no such cylinder clears the tool."""
+        models = [m for m in self.robot.inventory.models.values() if m.cls == cls]
+        radius = max((m.diameter for m in models), default=0.3) / 2 + 0.03
+        z_lo = float(site[2]) - self.KEEP_OUT_DEPTH
+        z_hi = max(0.0, z_lo) + max((float(np.max(m.extents)) for m in models), default=0.3) + 0.01
+        g = np.arange(-radius, radius + 1e-9, 0.01)
+        X, Y = np.meshgrid(g, g)
+        disc = np.c_[X.ravel(), Y.ravel()][np.hypot(X.ravel(), Y.ravel()) <= radius] + site[:2]
+        q = self.arm.joint_positions()
+        while z_hi > z_lo + 0.02:
+            pts = np.concatenate([np.c_[disc, np.full(len(disc), z)] for z in np.arange(z_lo, z_hi, 0.01)])
+            scene = self.planner.scene([], pts)
+            if scene.touching_only(scene.colliding_pairs(q)).valid(q):
+                return pts
+            z_hi -= 0.02
+        return None
+
+    def _drop_perceiver(self):
+        """The configured pipeline without the cell's geometry: the counter is the support plane (the pipeline's
+        sink-only segmentation would see nothing there). The oracle sees everything anyway."""
+        from kitchenbot.perception.pipeline import Perceiver
+
+        p = self.perceiver
+        if not isinstance(p, Perceiver):
+            return p
+        if self._table_perceiver is None:
+            self._table_perceiver = Perceiver(p.settings, p.inventory, database=p.database, use_cell=False)
+        return self._table_perceiver
+
+    PUT_DOWN_AVOID_RADIUS = 0.10  # m: no second put-down try this close to a target where the held item hit something
+
+    def _put_down_held(self, avoid_place_target: bool = False) -> bool:
+        """Something is in the gripper after a fault: place it at its target, else the fallback spot; if every
+        plan fails or is stopped by the arm, open where it is when that is over the cell (sink, counter, racks:
+        it drops a few centimetres onto them and the scan will find it). True if it was placed.
+        `avoid_place_target`: the way to the planned target was just stopped; no target near it is tried."""
+        grasp = self.pick.grasp if self.pick is not None else None
+        targets = []
+        if self.place is not None:
+            targets.append(self.place.target)
+        if self.current is not None:
+            fb = self.task.fallback_target(self.current)
+            if not isinstance(fb, NoFreeSlot):
+                targets.append(fb)
+        hit: list[np.ndarray] = []  # where a put-down was stopped: the world there is not as modelled
+        if avoid_place_target and self.place is not None:
+            hit.append(self.place.target.T_base_obj[:3, 3])
+        if grasp is not None:
+            for tgt in targets:
+                if any(np.linalg.norm(tgt.T_base_obj[:2, 3] - h[:2]) < self.PUT_DOWN_AVOID_RADIUS for h in hit):
+                    continue
+                q = self.arm.joint_positions()
+                plan = self.planner.plan_place(q, grasp, tgt, objects=self._scene_objects())
+                if not plan.ok:
+                    continue
+                self._log("note", "putting down the held object", target=tgt.T_base_obj[:3, 3])
+                try:
+                    self._run_trajectory(plan.transfer)
+                    self._run_trajectory(plan.lower, guarded=True)
+                    self._cmd("gripper.open", release=True)
+                    self.gripper.open(grasp.spec.opening)
+                    if self.arm.stopped_on_contact:
+                        self._retrace(plan.lower, "retreat")
+                    else:
+                        self._run_trajectory(plan.retreat)
+                    return True
+                except ProtectiveStopError as e:
+                    self._log("fault", "put_down_stopped", message=str(e))
+                    self._cmd("arm.unlock_protective_stop", reason="put down")
+                    self.arm.unlock_protective_stop()
+                    hit.append(tgt.T_base_obj[:3, 3])
+                    self._back_off()
+                    if not self._holding():
+                        return False
+        tcp = self.arm.tcp_pose()[:3, 3]
+        (x0, y0), (x1, y1) = self.robot.cell.spec.counter_extent_xy
+        if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
+            self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
+            self.dropped += 1
+            self.drop_site = tcp.copy()
+            self._cmd("gripper.open", release=True)
+            self.gripper.open()
+            return False
+        self._log("fault", "holding_unsafe", message="the gripper holds an object away from the cell; not opening",
+                  tcp=tcp)
+        return False
+
+    def _make_safe(self) -> bool:
+        """Give up safely: anything held put down, the arm at home, the gripper open. True if achieved."""
+        try:
+            self._restore_devices(self.failure or Failure("give_up", "", self.state))
+            if self._holding():
+                self._put_down_held()
+            self._back_out()
+            self._move_joints(np.asarray(self.robot.config.robot.home, float), "home (safe pose)")
+            self._cmd("gripper.open")
+            self.gripper.open()
+            self._log("result", "safe", q=self.arm.joint_positions())
+            return True
+        except Stopped:
+            return False
+        except Exception as e:  # noqa: BLE001 - record why the arm could not be made safe
+            self._log("fault", "make_safe_failed", error=f"{type(e).__name__}: {e}")
+            return False
