@@ -43,6 +43,9 @@ MAX_REST_TILT = np.radians(30)
 # (which lean is right, which of two twins stays, whether a stacked copy is a duplicate): finer than the
 # overlap score's one voxel, coarser than the depth noise at the scan distance (~1-2 mm).
 SURFACE_TOL = 0.3
+# Classes whose fits are checked upside down too (tall, thin-walled, nearly as wide at the top as at the base); a
+# refine per object, so not for plates and bowls, whose sides the fits have not confused.
+FLIP_CLASSES = ("cup", "mug", "glass")
 
 
 @dataclass
@@ -156,6 +159,7 @@ class Perceiver:
             splits = 0
             found: list[tuple[Hypothesis, int, np.ndarray]] = []
             parts: set[int] = set()  # ids made by cutting a blob (never cut again)
+            groups: dict[int, list[np.ndarray]] = {}  # id of a remainder in pieces -> the pieces (map indices)
             while queue:
                 iid = queue.pop(0)
                 sel = np.nonzero(ids_out == iid)[0]
@@ -166,6 +170,19 @@ class Perceiver:
                 hyp, _query = self.estimate(m.select(sel), views, [f[0] for f in found])
                 pose_ms.append(1000 * (time.perf_counter() - t0))
                 pose_cpu_ms.append(1000 * (time.process_time() - c0))
+                if iid in groups:
+                    # What a pose left over, in several pieces (a lower item's rim peeking out on two sides of
+                    # the item on it), was fitted as one. The pose must take each piece whole or leave it (the
+                    # pieces it leaves are fitted again, together); one that takes parts of pieces is a
+                    # compromise between items: fit the pieces apart.
+                    pieces = groups.pop(iid)
+                    shares = [] if hyp is None else [self._explained(hyp, m.points[pc]).mean() for pc in pieces]
+                    if hyp is None or any(0.3 < f < 0.7 for f in shares) or max(shares) < 0.7:
+                        for pc in pieces:
+                            ids_out[pc] = next_id
+                            queue.insert(0, next_id)
+                            next_id += 1
+                        continue
                 if hyp is None:
                     if len(sel) >= 3000 and iid not in parts:
                         # Several items segmented together and no single model explains enough of them: cut
@@ -204,11 +221,19 @@ class Perceiver:
                 found.append((hyp, iid, own))
                 rest = sel[~tight]
                 if splits < self.settings.max_splits and len(rest) >= 60:
-                    for part in _clusters(m.points[rest], 1.5 * vox, 60, vox / 2):
-                        ids_out[rest[part]] = next_id
+                    pieces = [rest[part] for part in _clusters(m.points[rest], 1.5 * vox, 60, vox / 2)]
+                    if len(pieces) > 1:  # fitted together first (see above)
+                        ids_out[np.concatenate(pieces)] = next_id
+                        groups[next_id] = pieces
                         queue.append(next_id)
                         next_id += 1
                         splits += 1
+                    else:
+                        for part in pieces:
+                            ids_out[part] = next_id
+                            queue.append(next_id)
+                            next_id += 1
+                            splits += 1
             # One object, one pose: a pose whose own points (those of its instance it explains) are mostly
             # explained by a better-scoring pose is a duplicate (one object reached from two instances).
             # Two poses of one model at one place (not stacked along the axis) are one object fitted twice,
@@ -376,6 +401,55 @@ class Perceiver:
             return free
         return held
 
+    def _flip_check(self, query: FusedCloud, best: Hypothesis, scorer: Scorer) -> Hypothesis:
+        """The pose turned upside down about its own centre (object x axis), refined: cups, mugs and glasses
+        are thin-walled and nearly as wide at the top as at the bottom, and where the rim or the base is hidden
+        (nested, touching, in a pile) the search settled on the wrong way up although the right one scored
+        higher. Taken when it scores about as well or better and puts more points on its surface within 3 mm."""
+        entry = self.database[best.obj_id]
+        Tf = best.T_base_obj @ np.diag([1.0, -1.0, -1.0, 1.0])
+        h = refine(query, entry, scorer, Tf, self.reg_cfg, best.source + "-flip",
+                   symmetric=self.inventory[best.obj_id].is_rotationally_symmetric)
+        h.score *= best.score / max(scorer(best.T_base_obj)[0], 1e-9)  # the same colour weight
+        # It must stay where it was, upside down (an ICP that slid onto another item of a blob is no flip), and
+        # put more of the points on its surface: in a blob the overlap score also counts the neighbour's points.
+        if h.T_base_obj[:3, 2] @ Tf[:3, 2] < np.cos(np.radians(45)) or \
+                np.linalg.norm(h.T_base_obj[:3, 3] - Tf[:3, 3]) > 0.2 * self.inventory[best.obj_id].diameter:
+            return best
+        tol = SURFACE_TOL * self.settings.voxel_size
+        if h.score > best.score - 0.01 and surface_fit(query.points, query.normals, entry, h.T_base_obj, tol) > \
+                surface_fit(query.points, query.normals, entry, best.T_base_obj, tol) + 0.02:
+            return h
+        return best
+
+    def _yaw_sweep(self, query: FusedCloud, best: Hypothesis, scorer: Scorer, n: int = 12) -> Hypothesis:
+        """For a model that is symmetric but for a part (a mug's handle): turn the pose about its body's axis in
+        n steps, score each (the handle seen, or seen to be absent), and refine the best. The screening's
+        yaw hypotheses are 45 deg apart and each is pulled by a coarse ICP in which the handle hardly counts:
+        fits ended with the handle 80 deg off, the true pose scoring higher."""
+        model = self.inventory[best.obj_id]
+        entry = self.database[best.obj_id]
+        c = np.median(model.points, axis=0)  # on the body's axis (the handle is a small part of the surface)
+        c[2] = 0.0
+        T = best.T_base_obj
+        cands = []
+        for a in np.linspace(0, 2 * np.pi, n, endpoint=False)[1:]:
+            Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+            Tz = np.eye(4)
+            Tz[:3, :3] = Rz
+            Tz[:3, 3] = c - Rz @ c  # about the vertical line through c (object frame)
+            Ta = T @ Tz
+            cands.append((scorer(Ta, coarse=True)[0], Ta))
+        cands.sort(key=lambda t: -t[0])
+        for _, Ta in cands[:1]:
+            h = refine(query, entry, scorer, Ta, self.reg_cfg, best.source + "-yaw", symmetric=False)
+            h.score *= best.score / max(scorer(best.T_base_obj)[0], 1e-9)  # the same colour weight
+            tol = SURFACE_TOL * self.settings.voxel_size
+            if h.score > best.score + 0.005 and surface_fit(query.points, query.normals, entry, h.T_base_obj, tol) >= \
+                    surface_fit(query.points, query.normals, entry, best.T_base_obj, tol) - 0.02:
+                best = h
+        return best
+
     def estimate(self, inst: InstanceMap, views: list[View], found: list[Hypothesis] = ()) -> tuple[Hypothesis | None, FusedCloud]:
         """Class and pose of one instance (its map points), or None when no model explains it. `found`: poses
         already estimated nearby, whose stacking positions (same model shifted along its axis) are tried too."""
@@ -433,6 +507,7 @@ class Perceiver:
         # starts exactly upright (axis kept) and is then freed: settled stacks and nested items really lean
         # 5-25 deg, and an axis held exactly vertical put a 10 deg cup's rim 1 cm off and a nested bowl's 2 cm.
         up_vec = np.array([0.0, 0.0, 1.0]) if up is None else up
+        vox = st.voxel_size
         if best is not None and abs(best.T_base_obj[:3, 2] @ up_vec) < 0.995:
             oid = best.obj_id
             w = best.score / max(scorers[oid](best.T_base_obj)[0], 1e-9)
@@ -442,9 +517,18 @@ class Perceiver:
                     continue
                 h = self._near_upright(query, oid, scorers[oid], snap_upright(T, up_vec), best.source, up_vec)
                 h.score *= w
-                if h.score >= best.score - 0.03:
+                # ... and puts about as many points on its surface within 3 mm: in a blob of two items (a cup lying
+                # across one leaning in another) an upright fit between them took points of both and replaced the
+                # lying cup's exact fit.
+                if h.score >= best.score - 0.03 and \
+                        surface_fit(query.points, query.normals, self.database[oid], h.T_base_obj, SURFACE_TOL * vox) >= \
+                        surface_fit(query.points, query.normals, self.database[oid], best.T_base_obj, SURFACE_TOL * vox) - 0.02:
                     best = h
                     break
+        if best is not None and not self.inventory[best.obj_id].is_rotationally_symmetric:
+            best = self._yaw_sweep(query, best, scorers[best.obj_id])
+        if best is not None and self.inventory[best.obj_id].cls in FLIP_CLASSES:
+            best = self._flip_check(query, best, scorers[best.obj_id])
         # Both overlap ratios must be substantial: a tiny fragment "fully explained" by a model whose visible
         # surface the views do not confirm is no detection (paper: insufficient correspondences / low overlap).
         if best is None or best.score < st.min_overlap or best.or_model < 0.15 or best.or_query < 0.2:

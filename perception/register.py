@@ -417,6 +417,9 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
         grav = [(0.0, "", _pose(up, 0.0, c0)), (0.0, "", _pose(-up, 0.0, c0))]
         grav += sorted([t for t in scored if t[1] == "gravity" and abs(t[2][:3, 2] @ up) < 0.9],
                        key=lambda t: -t[0])[:1]
+        # ... and around the best two hypotheses so far, where they are: in a blob of touching items the
+        # centroid lies between them, and a mug fitted there first had its handle on the neighbour's side.
+        grav += sorted(scored, key=lambda t: -t[0])[:2]
         for _, _, Tb in grav:
             for y in np.linspace(0, 2 * np.pi, cfg.n_yaw, endpoint=False)[1:]:
                 starts.append(("gravity-yaw", make_T(Tb[:3, :3] @ _pose(np.array([0, 0, 1.0]), y, np.zeros(3))[:3, :3],
