@@ -31,6 +31,7 @@ from kitchenbot.executive.recovery import RecoveryActions
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import NoFreeSlot, Trajectory
+from kitchenbot.tasks.base import DROP_HEIGHT
 
 SLIDABLE = ("plate",)  # classes that nest flat in stacks and are slid sideways to free them
 
@@ -937,6 +938,11 @@ class TaskRunner(RecoveryActions):
         T_settled = p.T_base_obj.copy()
         if presence is not None and presence.decided:
             T_settled[2, 3] += presence.dz  # where it came to rest (it was released a little above)
+        if p.staging:
+            # Set down on the flat counter, it rests DROP_HEIGHT below its target pose (which stands it on the
+            # counter); the depth fit's dz put an upside-down cup 1.5 cm below where it rested (oracle seed 46),
+            # and its next grasps, planned on that pose, hit the counter.
+            T_settled[2, 3] = float(p.target.T_base_obj[2, 3]) - DROP_HEIGHT
         if p.staged is not None:  # it left its staging spot
             self.task.unplace(p.staged.instance_id)
             self.staged = [s for s in self.staged if s is not p.staged]

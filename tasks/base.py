@@ -63,7 +63,8 @@ def as_is(R: np.ndarray):
     support: its lowest model point at support_z."""
 
     def pose(model: ObjectModel, xy, support_z: float) -> np.ndarray:
-        bottom = float(np.min(model.points @ R[:, 2])) if len(model.points) else -model.extents[2] / 2
+        # the height of a model point p in the base frame is (R p)_z = R[2, :] . p
+        bottom = float(np.min(model.points @ R[2, :])) if len(model.points) else -model.extents[2] / 2
         return make_T(R, (xy[0], xy[1], support_z - bottom + DROP_HEIGHT))
 
     return pose

@@ -137,6 +137,13 @@ def test_regrasp_stages_on_the_counter_then_picks_again(make_runner, safe_end):
     staged_selected = [e for e in runner.journal.events(runner.run_id, kind="note")
                        if e["name"] == "selected" and e["payload"].get("staged")]
     assert staged_selected, "the staged cup is picked again from the counter"
+    # recorded resting on the counter (upright or on its side), as the staging target stood it there
+    z = [e["payload"]["xyz"][2] for e in runner.journal.events(runner.run_id, kind="note")
+         if e["name"] == "staged for a regrasp"][0]
+    cup = runner.robot.inventory.by_name("cup")
+    rest = (cup.extents[2] / 2, -float(cup.points[:, 0].min()))  # upright; lying (its axis along base x)
+    zone = runner.robot.cell.spec.drop_zone
+    assert min(abs(z - zone.z - h) for h in rest) < 0.002, (z, rest)
     assert report.truth["end"]["in_sink"] == 0
     if report.status == "succeeded":
         assert report.truth["end"]["delivered"] == 1

@@ -82,3 +82,34 @@ def test_an_upright_cup_for_the_rack_is_laid_on_its_side_first(inv, sink_item):
     assert all(t.T_base_obj[2, 2] > 0.99 for t in task.staging_targets(up))
     mug = sink_item("mug")
     assert all(t.T_base_obj[2, 2] > 0.99 for t in task.staging_targets(mug, task.targets(mug)))
+
+
+def test_a_new_stack_is_offered_after_the_top_of_the_existing_one(inv, sink_item):
+    """The top of a stack first; then free spots for another stack of the same type, clear of the first (the
+    planner takes the first target a grasp reaches: a flipped cup, held level by its side, may not reach a high
+    stack's top)."""
+    task = make_task("cup-stacking", inv, Cell())
+    cup = sink_item("cup")
+    first = task.targets(cup)
+    assert [t.kind for t in first] == ["stack_base"] * len(first)
+    task.record_placed(cup, first[0], first[0].T_base_obj)
+    ts = task.targets(cup)
+    assert ts[0].kind == "stack" and np.allclose(ts[0].T_base_obj[:2, 3], first[0].T_base_obj[:2, 3])
+    assert len(ts) > 1 and all(t.kind == "stack_base" for t in ts[1:])
+    base = task.placed[0]
+    for t in ts[1:]:
+        lo, hi, _ = footprint(inv[cup.obj_id], t.T_base_obj)
+        assert not (np.all(lo < base.hi) and np.all(hi > base.lo))
+
+
+def test_as_is_rests_the_lowest_point_on_the_support(inv):
+    """A tilted mug (not symmetric) set down as it lay: its lowest point (in the base frame) just above the
+    support."""
+    from kitchenbot.tasks.base import DROP_HEIGHT, as_is
+    from kitchenbot.transforms import rot_x, rot_z
+
+    m = inv.by_name("mug")
+    R = (rot_z(0.7) @ rot_x(1.1))[:3, :3]
+    T = as_is(R)(m, (0.1, 0.5), 0.02)
+    P = m.points @ T[:3, :3].T + T[:3, 3]
+    assert abs(P[:, 2].min() - (0.02 + DROP_HEIGHT)) < 1e-9
