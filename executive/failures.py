@@ -36,7 +36,8 @@ class StepFailed(Exception):
 @dataclass
 class Failure:
     kind: str  # camera_timeout | bad_depth | arm_disconnected | protective_stop | estop | gripper_hardware |
-    #            grasp_missed | slip | planning | no_path | verify_failed | limit_violation | timeout | no_target | error
+    #            grasp_missed | slip | planning | no_path | verify_failed | limit_violation | timeout | no_target |
+    #            contact (a guarded lowering met something well above the item's support) | error
     message: str
     state: str
     details: dict = field(default_factory=dict)

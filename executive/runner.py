@@ -775,6 +775,12 @@ class TaskRunner(RecoveryActions):
         try:
             self._run_trajectory(place.lower, carrying=True, guarded=True)
             stopped_short = self.arm.stopped_on_contact  # it met its support above the release pose
+            if stopped_short and self._descent_left(place.lower) > self.RELEASE_IF_STOPPED_WITHIN:
+                # met something well above its support (a neighbour, a rack wire): not a set-down; recovered
+                # like a protective stop (the contact marked, back up, put down away from this target)
+                self._stopped_traj = place.lower
+                raise StepFailed("contact", f"the {obj.cls} met something "
+                                 f"{self._descent_left(place.lower):.3f} m above its release pose")
         except ProtectiveStopError as e:
             if not self._stopped_just_above(place.lower, e):
                 raise
@@ -802,10 +808,14 @@ class TaskRunner(RecoveryActions):
     # held item sat lower in the fingers than its perceived pose said): it is let go there, as from a guarded move.
     RELEASE_IF_STOPPED_WITHIN = 0.03  # m of TCP descent left
 
+    def _descent_left(self, lower: Trajectory) -> float:
+        """How far (m) the TCP is above where the lowering `lower` ends."""
+        return float(self.arm.tcp_pose()[2, 3] - self.planner.robot.fk_tcp(lower.q[-1])[2, 3])
+
     def _stopped_just_above(self, lower: Trajectory, e: ProtectiveStopError) -> bool:
         """The lowering was cut short (protective stop) within RELEASE_IF_STOPPED_WITHIN of its end: unlock and
         say so; the caller releases there. False (nothing done) otherwise."""
-        left = float(self.arm.tcp_pose()[2, 3] - self.planner.robot.fk_tcp(lower.q[-1])[2, 3])
+        left = self._descent_left(lower)
         if not 0.0 <= left <= self.RELEASE_IF_STOPPED_WITHIN or not self._holding():
             return False
         self._log("fault", "stopped_above_target", message=str(e), left_m=round(left, 4))
@@ -993,7 +1003,8 @@ class TaskRunner(RecoveryActions):
             # the planner names the item lying on this one (or in the way of its lift): that one next
             self.prefer_instance = f.details.get("blocking")
             return "retry"  # the next object with the same perception; this one again after the next scan
-        stopped = self._stopped_traj.name if f.kind == "protective_stop" and self._stopped_traj else None
+        stopped = (self._stopped_traj.name if f.kind in ("protective_stop", "contact") and self._stopped_traj
+                   else None)
         lift_marks = None
         if stopped == "lift":  # put down from where it stopped, not back in the pile; marked after the put-down
             lift_marks = self._contact_sliver(self._stopped_traj) if self.planner is not None else None
