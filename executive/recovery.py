@@ -17,6 +17,7 @@ import numpy as np
 
 from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutError, LimitViolation, ProtectiveStopError
 from kitchenbot.executive.failures import Failure, Stopped, StepFailed
+from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
 from kitchenbot.tasks.base import DROP_HEIGHT
 from kitchenbot.transforms import make_T, rot_z
@@ -337,6 +338,15 @@ class RecoveryActions:
                         self._retrace(plan.lower, "retreat")
                     else:
                         self._run_trajectory(plan.retreat)
+                    # It stands there now: verified by the next scan like any placement (its own target), or,
+                    # at the fallback spot, staged to be picked up again (unless the task takes it there).
+                    T_rest = np.array(plan.T_base_obj, float)
+                    T_rest[2, 3] = min(T_rest[2, 3], float(tgt.T_base_obj[2, 3]))
+                    own = self.place is not None and tgt is self.place.target
+                    if self.current is not None:
+                        there = ObjectPose(self.current.obj_id, self.current.cls, T_rest, 1.0)
+                        self._expect_placed(tgt, T_rest, staging=self.staging if own
+                                            else not self.task.accepts_as_it_lies(there))
                     return True
                 except ProtectiveStopError as e:
                     self._log("fault", "put_down_stopped", message=str(e))

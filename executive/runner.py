@@ -804,6 +804,13 @@ class TaskRunner(RecoveryActions):
             self.pending.target_view = self._target_view(T_expected[:3, 3])
         return "executed"
 
+    def _expect_placed(self, target, T_rest: np.ndarray, staging: bool) -> None:
+        """The current object was set down at `target`, resting at T_rest: the next perception verifies it (gone
+        from the sink, present there) and records it (staged for a regrasp when `staging`)."""
+        obj = self.current
+        self.pending = _Pending(obj, target, T_rest, None, staging, self.current_staged,
+                                near_before=max(1, len(self._same_class_near(obj))))
+
     # A lowering stopped by contact this close above its release pose has set the item down on its support (the
     # held item sat lower in the fingers than its perceived pose said): it is let go there, as from a guarded move.
     RELEASE_IF_STOPPED_WITHIN = 0.03  # m of TCP descent left

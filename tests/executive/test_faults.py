@@ -80,15 +80,19 @@ def test_fault_is_journaled_and_ends_safe(make_runner, safe_end, fault, value, s
 
 def test_stop_while_holding_puts_the_object_down_at_the_fallback_spot(make_runner, safe_end):
     """A protective stop during the lift (object in the gripper), and its own target unplannable from there:
-    recovery puts it down in the counter drop zone (the fallback), then the task goes on."""
+    recovery puts it down in the counter drop zone (the fallback), where it is staged: picked up again and
+    stacked."""
     from kitchenbot.planning.types import NoFeasiblePlacement
 
     runner, world = make_runner()
     grasp = runner.gripper.grasp
 
+    stops = [1]
+
     def grasp_then_stop(limit, timeout=3.0):
         res = grasp(limit, timeout)
-        world.faults.protective_stop = 1  # the next motion (the lift) stops halfway, holding the cup
+        if stops:  # the first grasp only: its next motion (the lift) stops halfway, holding the cup
+            world.faults.protective_stop = stops.pop()
         return res
 
     runner.gripper.grasp = grasp_then_stop
@@ -115,6 +119,9 @@ def test_stop_while_holding_puts_the_object_down_at_the_fallback_spot(make_runne
     assert zone.origin_xy[1] - 0.05 <= y <= zone.origin_xy[1] + zone.size_xy[1] + 0.05
     assert report.protective_stops == 1 and report.recoveries >= 1
     assert report.truth["end"]["in_sink"] == 0 and report.truth["end"]["held"] is False
+    # put down there, it is staged: picked up again from the counter and stacked (not left as an unknown item)
+    assert report.status == "succeeded" and report.objects_done == 1
+    assert report.truth["end"]["delivered"] == 1
 
 
 def test_no_collision_free_path_means_no_motion(make_runner, safe_end):
@@ -218,7 +225,9 @@ def test_item_slipping_out_over_the_counter_is_found_and_delivered(make_runner, 
     def advance_and_slip_over_the_counter(dt):
         advance(dt)
         p = runner.arm.tcp_pose()[:3, 3]
-        if world.held_uid is not None and not slipped and sink_hi[1] + 0.04 < p[1] < stack_y0 - 0.03:
+        # 7 cm or more past the sink's edge: a cup falling from the tool may roll 4 cm, and one that comes to rest
+        # within the sink's 2 cm margin is the sink scans' to find (RRT-Connect's path decides where it crosses)
+        if world.held_uid is not None and not slipped and sink_hi[1] + 0.07 < p[1] < stack_y0 - 0.02:
             slipped.append(p)
             runner.arm._slip()  # the simulator's slip: the object drops straight down from the gripper
 
