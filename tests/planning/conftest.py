@@ -1,4 +1,5 @@
-"""Shared fixtures for the planning tests: one Planner (robot + collision world) per session."""
+"""Shared fixtures for the planning tests: one Planner (robot + collision world) per session; a check that the
+simulated gripper holds a model with its predefined grasps."""
 
 from __future__ import annotations
 
@@ -48,3 +49,37 @@ def _resting(planner: Planner, name: str, xy, instance_id: int, upside_down: boo
 def resting(planner):
     """resting(name, xy, instance_id, upside_down=False, z_floor=None) -> ObjectPose on the sink floor."""
     return lambda *a, **k: _resting(planner, *a, **k)
+
+
+@pytest.fixture
+def grasps_hold():
+    """grasps_hold(model_name, prefix, every): the simulator's Fin-Ray model (its own contact test) holds the
+    model with every `every`-th grasp whose name starts with `prefix`, at about the grasp's expected width."""
+    from kitchenbot.executive.config import CellConfig
+    from kitchenbot.fakes.gripper import FakeGripper
+    from kitchenbot.fakes.world import SimWorld
+    from kitchenbot.perception.cell import Cell
+    from kitchenbot.perception.inventory import Inventory
+    from kitchenbot.transforms import inv
+
+    def check(name: str, prefix: str, every: int) -> None:
+        cfg = CellConfig()
+        inventory = Inventory.builtin()
+        world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
+        m = inventory.by_name(name)
+        specs = [g for g in m.grasps if g.name.startswith(prefix)][::every]
+        assert specs, f"{name} has no {prefix} grasps"
+        for spec in specs:
+            uid = world.add_object(m, world.T_base_tcp() @ inv(spec.T_obj_tcp))
+            g = FakeGripper(world)
+            g.connect()
+            g.open(spec.opening)
+            r = g.grasp(0.8)
+            assert r.holding and world.held_uid == uid, spec.name
+            assert abs(r.opening - spec.width) < 0.006, spec.name
+            g.open(spec.opening)
+            world.remove_object(uid)
+            g.disconnect()
+
+    return check
+

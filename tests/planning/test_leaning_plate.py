@@ -43,29 +43,8 @@ def test_plates_get_narrow_rim_pinches(inventory):
 
 
 @pytest.mark.parametrize("name", ["dinner_plate", "side_plate"])
-def test_simulated_gripper_holds_the_plate_with_a_narrow_pinch(name):
-    from kitchenbot.executive.config import CellConfig
-    from kitchenbot.fakes.gripper import FakeGripper
-    from kitchenbot.fakes.world import SimWorld
-    from kitchenbot.perception.cell import Cell
-    from kitchenbot.perception.inventory import Inventory
-    from kitchenbot.transforms import inv
-
-    cfg = CellConfig()
-    inventory = Inventory.builtin()
-    world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
-    m = inventory.by_name(name)
-    for spec in [g for g in m.grasps if g.name.startswith("rimnarrow")][::5]:
-        uid = world.add_object(m, world.T_base_tcp() @ inv(spec.T_obj_tcp))
-        g = FakeGripper(world)
-        g.connect()
-        g.open(spec.opening)
-        r = g.grasp(0.8)
-        assert r.holding and world.held_uid == uid, spec.name
-        assert abs(r.opening - spec.width) < 0.006, spec.name
-        g.open(spec.opening)
-        world.remove_object(uid)
-        g.disconnect()
+def test_simulated_gripper_holds_the_plate_with_a_narrow_pinch(name, grasps_hold):
+    grasps_hold(name, "rimnarrow", 5)
 
 
 def test_a_plate_leaning_on_a_basin_wall_is_picked_with_a_narrow_pinch(planner, home):

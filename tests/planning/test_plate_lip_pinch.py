@@ -71,27 +71,6 @@ def test_lip_pinch_clears_a_plate_nested_below(planner, inventory, name, overhan
 
 @pytest.mark.parametrize("name", ["dinner_plate", "side_plate"])
 @pytest.mark.parametrize("lean", ["rimlean25_", "rimlean40_"])
-def test_simulated_gripper_holds_the_plate_by_its_lip(name, lean):
+def test_simulated_gripper_holds_the_plate_by_its_lip(name, lean, grasps_hold):
     """The simulator's Fin-Ray model (its own contact test) holds the plate at about the expected width."""
-    from kitchenbot.executive.config import CellConfig
-    from kitchenbot.fakes.gripper import FakeGripper
-    from kitchenbot.fakes.world import SimWorld
-    from kitchenbot.perception.cell import Cell
-    from kitchenbot.perception.inventory import Inventory
-    from kitchenbot.transforms import inv
-
-    cfg = CellConfig()
-    inventory = Inventory.builtin()
-    world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
-    m = inventory.by_name(name)
-    for spec in [g for g in m.grasps if g.name.startswith(lean)][::4]:
-        uid = world.add_object(m, world.T_base_tcp() @ inv(spec.T_obj_tcp))
-        g = FakeGripper(world)
-        g.connect()
-        g.open(spec.opening)
-        r = g.grasp(0.8)
-        assert r.holding and world.held_uid == uid, spec.name
-        assert abs(r.opening - spec.width) < 0.006, spec.name
-        g.open(spec.opening)
-        world.remove_object(uid)
-        g.disconnect()
+    grasps_hold(name, lean, 4)
