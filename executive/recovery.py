@@ -53,7 +53,7 @@ class RecoveryActions:
         if traj is None:
             return
         if self.planner is not None:
-            self._add_contact_marks(self._contact_sliver(traj))
+            self._mark_contact(traj)
         try:
             if self._retrace(traj, "back_off"):
                 self._log("note", "backed off along the stopped motion", motion=traj.name)
