@@ -68,11 +68,10 @@ class RecoveryActions:
         lies in the space it was about to sweep, the next CONTACT_LOOKAHEAD of its path. Points filling that
         sliver (base frame), or None."""
         robot, g = self.planner.robot, self.planner.world.gripper
-        q = self.arm.joint_positions()
-        d = np.max(np.abs(traj.q - q), axis=1)
-        k = int(np.argmin(d))
-        if d[k] >= 0.01:
+        k = self._index_on(traj)
+        if k is None:
             return None
+        q = self.arm.joint_positions()
         p0 = robot.fk_tcp(q)[:3, 3]
         j = k
         while j + 1 < len(traj) and np.linalg.norm(robot.fk_tcp(traj.q[j + 1])[:3, 3] - p0) < self.CONTACT_LOOKAHEAD:
@@ -83,14 +82,11 @@ class RecoveryActions:
         # left out: their slivers would fill the space the arm itself needs to back away
         boxes = g.pads(robot.T_flange_tcp, opening)
 
-        def flange(qq):
-            return robot.fk_tcp(qq) @ np.linalg.inv(robot.T_flange_tcp)
-
         def inside(P, T_base_box, size, pad=0.003):
             L = (P - T_base_box[:3, 3]) @ T_base_box[:3, :3]
             return np.all(np.abs(L) <= np.asarray(size) / 2 + pad, axis=1)
 
-        F0, F1 = flange(q), flange(q_ahead)
+        F0, F1 = robot.fk(q, "flange"), robot.fk(q_ahead, "flange")
         out = []
         for tb in boxes:  # grid points of each pad where it was about to be, and is not yet
             size = np.asarray(tb.size, float)
@@ -107,8 +103,8 @@ class RecoveryActions:
 
             m = self.robot.inventory[self.pick.grasp.obj.obj_id]
             T_tcp_obj = self.pick.grasp.T_tcp_obj
-            P0 = m.points @ (robot.fk_tcp(q) @ T_tcp_obj)[:3, :3].T + (robot.fk_tcp(q) @ T_tcp_obj)[:3, 3]
-            T1 = robot.fk_tcp(q_ahead) @ T_tcp_obj
+            T0, T1 = robot.fk_tcp(q) @ T_tcp_obj, robot.fk_tcp(q_ahead) @ T_tcp_obj
+            P0 = m.points @ T0[:3, :3].T + T0[:3, 3]
             P1 = m.points @ T1[:3, :3].T + T1[:3, 3]
             out.append(P1[cKDTree(P0).query(P1)[0] > 0.005])
         pts = np.concatenate(out) if out else np.zeros((0, 3))

@@ -494,14 +494,19 @@ class TaskRunner(RecoveryActions):
         dist = float(np.max(np.abs(q - q_now)))
         self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
 
+    def _index_on(self, traj: Trajectory | None) -> int | None:
+        """The sample of `traj` the arm stands at (within 0.01 rad per joint), or None if it is not on it."""
+        if traj is None:
+            return None
+        d = np.max(np.abs(traj.q - self.arm.joint_positions()), axis=1)
+        k = int(np.argmin(d))
+        return k if d[k] < 0.01 else None
+
     def _retrace(self, traj: Trajectory | None, name: str) -> bool:
         """If the arm stands on `traj` (it was stopped along it), go back along it to its start: the way it came
         is free in the world as it is, whatever the perceived poses say. False if the arm is not on it."""
-        if traj is None:
-            return False
-        d = np.max(np.abs(traj.q - self.arm.joint_positions()), axis=1)
-        k = int(np.argmin(d))
-        if d[k] >= 0.01 or k == 0:
+        k = self._index_on(traj)
+        if k is None or k == 0:
             return False
         self._run_trajectory(Trajectory(traj.times[k] - traj.times[k::-1], traj.q[k::-1].copy(), name))
         return True
