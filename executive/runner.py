@@ -803,8 +803,7 @@ class TaskRunner(RecoveryActions):
         # planner may release higher up when the gripper cannot reach lower; the object then drops).
         T_expected = np.array(place.T_base_obj, float)
         T_expected[2, 3] = min(T_expected[2, 3], float(place.target.T_base_obj[2, 3]))
-        self.pending = _Pending(obj, place.target, T_expected, None, self.staging, self.current_staged,
-                                near_before=max(1, len(self._same_class_near(obj))))
+        self._expect_placed(place.target, T_expected, self.staging)
         if self.opt.verify_target_view:
             self.pending.target_view = self._target_view(T_expected[:3, 3])
         return "executed"
@@ -815,6 +814,11 @@ class TaskRunner(RecoveryActions):
         obj = self.current
         self.pending = _Pending(obj, target, T_rest, None, staging, self.current_staged,
                                 near_before=max(1, len(self._same_class_near(obj))))
+        if self.planner is not None and self._map_base is not None:
+            # the map still holds the points where it stood: nothing explains them now that it is gone
+            self._map_base = self.planner.without_points_of(self._map_base, obj)
+            c = self.contact_points
+            self.map_points = np.vstack([self._map_base, c]) if len(c) else self._map_base
 
     # A lowering stopped by contact this close above its release pose has set the item down on its support (the
     # held item sat lower in the fingers than its perceived pose said): it is let go there, as from a guarded move.

@@ -234,10 +234,7 @@ class CollisionWorld:
         instance_reach: float = 0.03,
     ) -> np.ndarray:
         """Centres of voxels holding >= `min_points` map points that nothing explains: not a cell box, not a
-        perceived object's mesh bounding box (both grown by `explain_radius`), not within `explain_radius` of a
-        recognised instance's own points (so a pose a little off leaves no phantom obstacle beside the object).
-        `instance_points[i]` belongs to `objects[i]`; only its points within `instance_reach` of that object's
-        box count (an instance that took in a neighbour must not hide the neighbour)."""
+        perceived object (see :meth:`explained`)."""
         if points is None or len(points) == 0:
             return np.zeros((0, 3))
         P = np.asarray(points, float).reshape(-1, 3)
@@ -245,29 +242,47 @@ class CollisionWorld:
         keep = np.ones(len(P), bool)
         for b in self.cell.boxes:
             keep &= ~np.all((P >= b.lower - explain_radius) & (P <= b.upper + explain_radius), axis=1)
-        inst = []
-        for k, o in enumerate(objects):
-            Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
-            bb = o.model.mesh.get_axis_aligned_bounding_box()
-            lo, hi = np.asarray(bb.get_min_bound()), np.asarray(bb.get_max_bound())
-            keep &= ~np.all((Pl >= lo - explain_radius) & (Pl <= hi + explain_radius), axis=1)
-            ip = instance_points[k] if k < len(instance_points) else None
-            if ip is not None and len(ip):
-                ip = np.asarray(ip, float).reshape(-1, 3)
-                il = (ip - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
-                inst.append(ip[np.all((il >= lo - instance_reach) & (il <= hi + instance_reach), axis=1)])
-        if inst and keep.any():
-            from scipy.spatial import cKDTree
-
-            d, _ = cKDTree(np.vstack(inst)).query(P[keep], distance_upper_bound=explain_radius)
-            idx = np.flatnonzero(keep)
-            keep[idx[np.isfinite(d)]] = False
+        keep[keep] = ~self.explained(P[keep], objects, explain_radius, instance_points, instance_reach)
         P = P[keep]
         if len(P) == 0:
             return np.zeros((0, 3))
         idx = np.floor(P / self.voxel_size).astype(np.int64)
         uniq, counts = np.unique(idx, axis=0, return_counts=True)
         return (uniq[counts >= min_points] + 0.5) * self.voxel_size
+
+    @staticmethod
+    def explained(
+        points: np.ndarray,
+        objects: Sequence[SceneObject],
+        explain_radius: float = 0.015,
+        instance_points: Sequence[np.ndarray | None] = (),
+        instance_reach: float = 0.03,
+    ) -> np.ndarray:
+        """Mask of the (N, 3) `points` that perceived objects explain: inside an object's mesh bounding box grown by
+        `explain_radius`, or within `explain_radius` of a recognised instance's own points (so a pose a little off
+        leaves no phantom obstacle beside the object). `instance_points[i]` belongs to `objects[i]`; only its
+        points within `instance_reach` of that object's box count (an instance that took in a neighbour must not
+        hide the neighbour)."""
+        P = np.asarray(points, float).reshape(-1, 3)
+        hit = np.zeros(len(P), bool)
+        inst = []
+        for k, o in enumerate(objects):
+            Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
+            bb = o.model.mesh.get_axis_aligned_bounding_box()
+            lo, hi = np.asarray(bb.get_min_bound()), np.asarray(bb.get_max_bound())
+            hit |= np.all((Pl >= lo - explain_radius) & (Pl <= hi + explain_radius), axis=1)
+            ip = instance_points[k] if k < len(instance_points) else None
+            if ip is not None and len(ip):
+                ip = np.asarray(ip, float).reshape(-1, 3)
+                il = (ip - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
+                inst.append(ip[np.all((il >= lo - instance_reach) & (il <= hi + instance_reach), axis=1)])
+        if inst and not hit.all():
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(np.vstack(inst)).query(P[~hit], distance_upper_bound=explain_radius)
+            idx = np.flatnonzero(~hit)
+            hit[idx[np.isfinite(d)]] = True
+        return hit
 
     # ---- per-query scene -------------------------------------------------------------------------------------
     def scene(

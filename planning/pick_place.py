@@ -127,6 +127,16 @@ class Planner:
         kw = {} if opening is None else {"opening": opening}
         return self.world.scene(objs, voxels, h, **kw)
 
+    def without_points_of(self, map_points: np.ndarray | None, obj: ObjectPose) -> np.ndarray | None:
+        """`map_points` less those that `obj` explains where it was perceived: after it has been taken away they
+        are a record of where it was, and with nothing there any more to explain them they would be planned
+        around as unknown obstacles (a phantom pile where the picked item stood)."""
+        if map_points is None or len(map_points) == 0 or obj.obj_id not in self.inventory.models:
+            return map_points
+        P = np.asarray(map_points, float).reshape(-1, 3)
+        gone = self.world.explained(P, self._scene_objects([obj]), instance_points=[obj.points])
+        return P[~gone]
+
     def _voxels(self, map_points: np.ndarray | None, known: list[ObjectPose]) -> np.ndarray:
         """Unexplained map points as voxel centres; cached, since one pick or place asks several times for the
         same map and objects (tens of ms for a fused map of ~50k points)."""

@@ -79,6 +79,21 @@ def test_unexplained_map_points_become_obstacles(planner, home, resting):
     assert len(vox2) > 0 and np.all(np.linalg.norm(vox2 - (0.5, 0.1, -0.1), axis=1) < 0.06)
 
 
+def test_points_of_a_picked_object_leave_the_map(planner, resting):
+    """Once an item is taken away, the map points where it stood are no obstacle (they explained it); points
+    of something else beside it stay."""
+    cup = resting("cup", (0.5, 0.0), 1)
+    model = planner.inventory.by_name("cup")
+    on_cup = model.points[:300] @ cup.T_base_obj[:3, :3].T + cup.T_base_obj[:3, 3]
+    blob = np.random.default_rng(4).normal((0.5, 0.1, -0.1), 0.01, (300, 3))
+    P = np.vstack([on_cup, blob])
+    left = planner.without_points_of(P, cup)
+    assert len(left) == len(blob) and np.allclose(np.sort(left, axis=0), np.sort(blob, axis=0))
+    # with the cup gone from the objects, its points would have been an obstacle where it stood
+    assert len(planner.world.unexplained_voxels(P, [])) > len(planner.world.unexplained_voxels(left, []))
+    assert planner.without_points_of(None, cup) is None
+
+
 def test_check_time_per_configuration(planner, home, resting):
     """Not a speed assertion (see `kitchenbot bench planning`): the check must answer for 1000 configurations."""
     scene = planner.scene([resting("cup", (0.5, 0.0), 1), resting("bowl", (0.4, 0.1), 2)])
