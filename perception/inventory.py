@@ -387,6 +387,10 @@ def _pads_clear(points: np.ndarray, T_obj_tcp: np.ndarray, opening: float, tol: 
 
 # Rolls (degrees, about the closing axis) of the narrow plate rim pinch (see generate_grasps).
 NARROW_ROLLS = (0, 45, -45)
+# Pitches (degrees, about the pad width axis, leaning in from outside the ring) of the bowl's foot-ring pinch, and
+# how far (m) such a pinch may back off along its approach to keep its open pads out of the body (generate_grasps).
+FOOT_PITCHES = (10, 20)
+FOOT_PITCH_BACK = (0.0, 0.001, 0.002, 0.003, 0.004)
 
 
 def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, float, float] | None = None) -> list[GraspSpec]:
@@ -458,7 +462,18 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
             # TCP 3 mm short of the ring's end: the pad tips (12 mm past the TCP) stop 1 mm short of the
             # recessed bottom of a 10 mm ring, and the pads hold the ring over its last 9 mm.
             p_foot = axis + radial * (ro - w / 2) + np.array([0, 0, z_bot - 0.003])
-            grasps.append(("foot", k, _tcp_frame(np.array([0, 0, 1.0]), radial, p_foot)))
+            T_foot = _tcp_frame(np.array([0, 0, 1.0]), radial, p_foot)
+            grasps.append(("foot", k, T_foot))
+            # A bowl lying on its side across a pile offers its foot ring tilted: the pinch along the bowl's
+            # axis then comes in nearly level and puts the palm into a basin wall (sink seed 31: a bowl at
+            # 129 degrees). So the pinch also leans in from outside the ring, pitched about the ring's tangent
+            # (the pad width axis) about the middle of the gripped length: the pads close across the ring
+            # wall at a slant. Pitched further the outer pad's tip cuts into the body's underside; candidates
+            # backed off along the approach (1 mm steps, see below) until the open pads clear the item.
+            pivot = T_foot @ make_T(t=(0.0, 0.0, 0.003 + (0.012 - 0.003) / 2))
+            for pitch in FOOT_PITCHES:
+                T_p = pivot @ rot_x(np.radians(pitch)) @ make_T(t=(0.0, 0.0, -(0.003 + (0.012 - 0.003) / 2)))
+                grasps.append((f"footpitch{pitch:+d}", k, [T_p @ make_T(t=(0.0, 0.0, -b)) for b in FOOT_PITCH_BACK]))
     if model.cls in ("cup", "mug", "glass"):
         # Across the body just above its base, approaching along +z: from above when the item stands upside
         # down (in the sink, or inverted in the rack), the pads down its sides to 27 mm below the base.
@@ -485,15 +500,20 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
         o3d.utility.random.seed(2)
         # ~2 mm apart: a wall crossing a 16 x 26 mm pad leaves dozens of points inside it
         surface = np.vstack([np.asarray(model.mesh.sample_points_uniformly(30000).points), V]).astype(np.float32)
-    for kind, k, T in grasps:
-        w = pad_span(model, T, scene=scene)
-        if w is None or w > GRIPPER_MAX_OPENING - 0.01 or w <= 0:
-            continue
-        slack = 0.016 if kind.startswith(("rimlean", "rimnarrow", "foot")) else 0.03
-        opening = min(GRIPPER_MAX_OPENING, w + slack)
-        if surface is not None and not _pads_clear(surface, T, opening):
-            continue
-        out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=opening, width=w))
+    for kind, k, Ts in grasps:
+        # (a pitched foot pinch comes as its backed-off alternatives, nearest first: the first that fits is kept)
+        for T in (Ts if isinstance(Ts, list) else [Ts]):
+            w = pad_span(model, T, scene=scene)
+            if w is None or w > GRIPPER_MAX_OPENING - 0.01 or w <= 0:
+                continue
+            if kind.startswith("footpitch") and abs(w - foot[1]) > 0.002:
+                continue  # the slanted line across the ring leaves its wall (through the chamfered edge)
+            slack = 0.016 if kind.startswith(("rimlean", "rimnarrow", "foot")) else 0.03
+            opening = min(GRIPPER_MAX_OPENING, w + slack)
+            if surface is not None and not _pads_clear(surface, T, opening):
+                continue
+            out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=opening, width=w))
+            break
     # A rim pinch that also takes in something else (the root of a mug's handle) is not a rim pinch.
     rim_w = [g.width for g in out if g.name.startswith("rim_")]
     if rim_w:

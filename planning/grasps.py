@@ -112,10 +112,12 @@ def observed_in_grip(P_tcp: np.ndarray, opening: float, gripper, pad_depth: floa
     return int(np.count_nonzero(m))
 
 
-# Grasps kept for where nothing else fits (perception.inventory.generate_grasps: the narrow plate rim pinch, for a
-# plate leaning against a basin wall): opened only 8 mm per pad past the lip, they tolerate less pose error than
-# the standard pinches, so they rank after every feasible standard grasp.
-FALLBACK_GRASPS = ("rimnarrow",)
+# Grasps kept for where nothing else fits (perception.inventory.generate_grasps): the narrow plate rim pinch, for a
+# plate leaning against a basin wall (opened only 8 mm per pad past the lip, it tolerates less pose error than
+# the standard pinches), and the foot-ring pinch pitched in from outside the ring, for a bowl lying tilted (it
+# closes across the ring at a slant, the outer pad's tip next to the body); they rank after every feasible
+# standard grasp.
+FALLBACK_GRASPS = ("rimnarrow", "footpitch")
 FALLBACK_PENALTY = 1.0
 
 # Observed points inside the tool at a grasp that count as a real surface there (a few are depth noise).
@@ -236,8 +238,9 @@ def select_grasps(
                 continue
             pending.append((k, o, spec, T))
     # Phase 2, most promising first (objects higher up are less buried; approaches closer to vertical leave
-    # the gripper more room): the expensive checks, until `limit` grasps are feasible.
-    pending.sort(key=lambda c: -(c[3][2, 3] + 0.05 * -c[3][2, 2]))
+    # the gripper more room), fallback grasps after every standard one (they rank after them anyway, so they must
+    # not take the places of standard ones under `limit`): the expensive checks, until `limit` grasps are feasible.
+    pending.sort(key=lambda c: (c[2].name.startswith(FALLBACK_GRASPS), -(c[3][2, 3] + 0.05 * -c[3][2, 2])))
     scenes: dict[int, Scene] = {}
     observed: dict[int, np.ndarray] = {}  # object index -> observed points (base frame) around it
     for k, o, spec, T in pending:

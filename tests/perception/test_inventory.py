@@ -150,3 +150,28 @@ def test_no_grasp_drives_its_open_pads_through_the_item(inventory):
     for g in cup.grasps:
         if g.name.startswith("base_"):  # from above an upside-down cup, across its body near the base
             assert g.T_obj_tcp[2, 2] == pytest.approx(1.0) and g.width < 0.07
+
+
+def test_bowl_foot_ring_pinches_pitched_in_from_outside(inventory):
+    """A bowl lying tilted offers its foot ring at a slant: the foot-ring pinch also comes pitched 10 and 20
+    degrees about the ring's tangent, leaning in from outside the ring, closing across the ring wall, its open
+    pads clear of the bowl (the outer pad's tip stops at the body's underside)."""
+    from kitchenbot.perception.dishware import BOWL_FOOT
+    from kitchenbot.perception.inventory import FOOT_PITCHES, _pads_clear
+
+    bowl = inventory.by_name("bowl")
+    ro, w, h = BOWL_FOOT
+    surface = np.asarray(bowl.mesh.sample_points_uniformly(30000).points)
+    for pitch in FOOT_PITCHES:
+        grasps = [g for g in bowl.grasps if g.name.startswith(f"footpitch{pitch:+d}_")]
+        assert len(grasps) == 12, pitch
+        for g in grasps:
+            T = g.T_obj_tcp
+            radial = T[:3, 1] - T[:3, 2] * (T[:3, 1] @ T[:3, 2])
+            tcp_r = np.linalg.norm(T[:2, 3])
+            assert np.degrees(np.arccos(T[2, 2])) == pytest.approx(pitch, abs=0.5)
+            # leaning in: the approach points towards the axis, the closing axis across the ring
+            assert T[:2, 2] @ T[:2, 3] < 0 and abs(radial[:2] @ T[:2, 3]) / np.linalg.norm(radial[:2]) / tcp_r > 0.9
+            assert g.width == pytest.approx(w, abs=0.002) and g.opening < 0.025
+            assert ro - w - 0.004 < tcp_r < ro + 0.004
+            assert _pads_clear(surface, T, g.opening)
