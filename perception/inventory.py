@@ -483,7 +483,13 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
             T = _tcp_frame(np.array([0, 0, 1.0]), tangent, axis + np.array([0, 0, z_bot + 0.015]))
             grasps.append(("base", k, T))
     if vessel:
-        for frac in (0.3, 0.55, 0.8):
+        # 10 % (cups, mugs, glasses): across the base end, the pads' edge at the base. A glass lying on its side
+        # with a neighbour along its body (sink-pick seed 47: a glass on a mug's handle, the mug 5 mm beside it)
+        # leaves no room for a pad beside the body; tilted towards the base, this grasp comes in past the base
+        # end, its pads above and below the body. It holds less of the body: ranked after the others
+        # (planning.grasps.FALLBACK_GRASPS).
+        fracs = (0.1, 0.3, 0.55, 0.8) if model.cls in ("cup", "mug", "glass") else (0.3, 0.55, 0.8)
+        for frac in fracs:
             z = z_bot + frac * (z_top - z_bot)
             tag = "side" if frac == 0.55 else f"side{int(round(frac * 100))}"
             for k in range(n_around):

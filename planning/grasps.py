@@ -114,10 +114,11 @@ def observed_in_grip(P_tcp: np.ndarray, opening: float, gripper, pad_depth: floa
 
 # Grasps kept for where nothing else fits (perception.inventory.generate_grasps): the narrow plate rim pinch, for a
 # plate leaning against a basin wall (opened only 8 mm per pad past the lip, it tolerates less pose error than
-# the standard pinches), and the foot-ring pinch pitched in from outside the ring, for a bowl lying tilted (it
-# closes across the ring at a slant, the outer pad's tip next to the body); they rank after every feasible
-# standard grasp.
-FALLBACK_GRASPS = ("rimnarrow", "footpitch")
+# the standard pinches); the foot-ring pinch pitched in from outside the ring, for a bowl lying tilted (it
+# closes across the ring at a slant, the outer pad's tip next to the body); and the side grasp across a cup's,
+# mug's or glass's base end (the pads' edge at the base: it holds less of the body), for one lying with a
+# neighbour along its body. They rank after every feasible standard grasp.
+FALLBACK_GRASPS = ("rimnarrow", "footpitch", "side10")
 FALLBACK_PENALTY = 1.0
 
 # Observed points inside the tool at a grasp that count as a real surface there (a few are depth noise).
