@@ -15,6 +15,7 @@ from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Placed, Task, area_spots, footprint, inverted, on_edge
 
 VESSELS = ("cup", "glass", "bowl", "mug")
+RACK_WIRE = 0.006  # m, the racks' side wires (perception.cell)
 
 
 def from_the_back(xy) -> tuple[float, float]:
@@ -85,21 +86,59 @@ class SinkToDishwasher(Task):
             for T in self._plate_spots(big, taken, len(plates)):
                 taken.append(Placed(big.obj_id, big.cls, T, *footprint(big, T), None))
         y = (lo[1] + hi[1]) / 2
-        # On the centre line: flush beside what is in the rack (or kept for plates), CLEARANCE + 1 mm from it,
-        # then every 5 mm from the far end: on the 15 mm grid alone a second bowl missed the room left between
-        # the first one and the plates by 2 mm (seed 9).
+        # Flush beside what is in the rack (or kept for plates), CLEARANCE + 1 mm from it, then every 5 mm from
+        # the far end: on the 15 mm grid alone a second bowl missed the room left between the first one and the
+        # plates by 2 mm (seed 9).
         r = max(model.extents[:2]) / 2 if pose is inverted else model.extents[2] / 2  # half its length along x
         in_rack = [p for p in taken if lo[0] <= (p.lo[0] + p.hi[0]) / 2 <= hi[0] and lo[1] <= (p.lo[1] + p.hi[1]) / 2 <= hi[1]]
         xs = [p.lo[0] - CLEARANCE - 0.001 - r for p in in_rack] + [p.hi[0] + CLEARANCE + 0.001 + r for p in in_rack]
         xs += list(np.arange(hi[0] - 0.01, lo[0], -0.005))
-        pref = [(float(x), float(y)) for x in xs]
+        if pose is inverted:
+            poses = self._mouth_down_in_lower_rack(model, lo, hi, spec.floor_z, taken, xs)
+        else:
+            # On its rim (its axis along x, as a plate): on the centre line, facing the spray arm.
+            pref = [(float(x), float(y)) for x in xs]
 
-        def far_end_first(xy):  # the largest x first, on the rack's centre line first
-            return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
+            def far_end_first(xy):  # the largest x first, on the rack's centre line first
+                return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
 
-        poses = area_spots(model, lo, hi, spec.floor_z, taken, pose, 3, pref, step=0.015, order=far_end_first)
+            poses = area_spots(model, lo, hi, spec.floor_z, taken, pose, 3, pref, step=0.015, order=far_end_first)
         return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=pose is inverted,
                             support=f"rack_lower ({how})") for T in poses]
+
+    def _mouth_down_in_lower_rack(self, model, lo, hi, floor_z: float, taken: list[Placed], xs,
+                                  limit: int = 3) -> list[np.ndarray]:
+        """A mouth-down bowl in the lower rack: a 16 cm disc, against one side of the 34 cm rack (the far one
+        first), then beside the next bowl against the other side, staggered in x by what their round rims need
+        (CLEARANCE between the discs, not between their boxes), from the rack's far end in x: two bowls to a
+        column, as people load bowls. On the rack's centre line each bowl took a whole column and a third bowl
+        found neither rack free (seed 15: three bowls, the upper rack full of glasses and mugs). area_spots
+        keeps boxes apart, which leaves no room for two 16 cm bowls across this rack, hence the disc test here."""
+        r = max(model.extents[:2]) / 2
+        edge = RACK_WIRE + 0.002 + r  # the rim 2 mm inside the rack's side wire
+        ys = [lo[1] + edge, hi[1] - edge]
+        xs = sorted({round(float(x), 4) for x in xs if lo[0] + edge - 1e-9 <= x <= hi[0] - edge + 1e-9}, reverse=True)
+        out: list[np.ndarray] = []
+        for x in xs:
+            for y in ys:
+                T = inverted(model, (x, y), floor_z)
+                if all(self._apart(model, T, p) for p in taken) and all(
+                        np.hypot(*(T[:2, 3] - o[:2, 3])) >= 2 * r + CLEARANCE - 1e-9 for o in out):
+                    out.append(T)
+                    if len(out) >= limit:
+                        return out
+        return out
+
+    def _apart(self, model, T: np.ndarray, p: Placed) -> bool:
+        """Is `model` at T (upright or mouth-down) CLEARANCE from the placed item `p`: between two round items
+        standing or lying mouth-down, the distance of their discs; otherwise their xy boxes."""
+        other = self.inventory.models.get(p.obj_id)
+        if (model.is_rotationally_symmetric and other is not None and other.is_rotationally_symmetric
+                and abs(p.T_base_obj[2, 2]) > 0.95 and abs(T[2, 2]) > 0.95):
+            d = np.hypot(*(T[:2, 3] - p.T_base_obj[:2, 3]))
+            return d >= max(model.extents[:2]) / 2 + max(other.extents[:2]) / 2 + CLEARANCE - 1e-9
+        lo, hi, _ = footprint(model, T)
+        return not (np.all(lo < p.hi + CLEARANCE) and np.all(hi > p.lo - CLEARANCE))
 
     def _plate_spots(self, model, placed: list[Placed], limit: int) -> list[np.ndarray]:
         """Plates on edge in the lower rack (they span it in y): each slot's x on the rack's centre line first,

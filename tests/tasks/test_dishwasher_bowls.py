@@ -69,3 +69,33 @@ def test_a_mouth_down_bowl_goes_mouth_down_into_the_lower_rack_then_the_upper(in
     task.remaining([bowl] + [in_sink(inv, "dinner_plate", k=k) for k in range(1, 12)])
     ts = task.targets(bowl)
     assert ts and all(in_rack(up, t.T_base_obj) for t in ts)
+
+
+def test_mouth_down_bowls_go_two_across_the_lower_rack(inv):
+    """Seed 15: three mouth-down bowls, glasses and mugs. On the lower rack's centre line each 16 cm bowl took a
+    whole column (two bowls in all) and the third found the upper rack full. Against its sides, staggered in x by
+    what the round rims need, the 34 cm rack takes two bowls across: four in all, CLEARANCE between their rims
+    and inside the side wires."""
+    from kitchenbot.tasks.base import CLEARANCE
+
+    cell = Cell()
+    task = make_task("sink-to-dishwasher", inv, cell)
+    low = cell.spec.dishwasher.lower
+    lo, hi = np.array(low.origin_xy), np.array(low.origin_xy) + np.array(low.size_xy)
+    r = max(inv.by_name("bowl").extents[:2]) / 2
+    bowls = [in_sink(inv, "bowl", MOUTH_DOWN, k=k) for k in range(5)]
+    task.remaining(bowls)
+    centres = []
+    for b in bowls[:4]:
+        ts = task.targets(b)
+        assert not isinstance(ts, NoFreeSlot), ts
+        T = ts[0].T_base_obj
+        assert ts[0].support.startswith("rack_lower") and T[2, 2] < -0.99
+        c = T[:2, 3]
+        assert np.all(c - r >= lo + 0.006) and np.all(c + r <= hi - 0.006)  # inside the 6 mm side wires
+        assert all(np.hypot(*(c - o)) >= 2 * r + CLEARANCE - 1e-9 for o in centres)
+        centres.append(c)
+        task.record_placed(b, ts[0], T)
+    assert len({round(float(c[1]), 3) for c in centres}) == 2  # both sides of the rack
+    ts = task.targets(bowls[4])  # the lower rack is full: the upper one
+    assert not isinstance(ts, NoFreeSlot) and all(t.support == "rack_upper" for t in ts)
