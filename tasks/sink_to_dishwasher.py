@@ -1,4 +1,5 @@
-"""sink-to-dishwasher: plates upright (on edge) in the lower rack, cups/glasses/bowls/mugs inverted in the upper.
+"""sink-to-dishwasher: plates upright (on edge) in the lower rack, cups/glasses/bowls/mugs inverted in the upper
+(bowls in the lower one first; the others there when the upper one is full).
 
 Targets: the cell's rack slots (perception.cell.Slot) of the matching rack kind, skipping slots whose footprint
 would overlap an item already placed or leave the rack. Plates stand on their rim with the face normal along
@@ -32,15 +33,17 @@ def from_the_front(xy) -> tuple[float, float]:
 
 class SinkToDishwasher(Task):
     name = "sink-to-dishwasher"
-    description = "plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack"
-    success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in an upper-rack slot"
+    description = ("plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack "
+                   "(bowls first in the lower one; others there when the upper one is full)")
+    success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in a rack slot"
+    stage_when_blocked = True  # rack poses admit few grasps: a blocked or unplaceable one is staged, see Task
 
     def wants(self, obj: ObjectPose) -> bool:
         return obj.cls == "plate" or obj.cls in VESSELS
 
     def target_areas(self, cls: str) -> list[tuple[np.ndarray, np.ndarray]]:
         dw = self.cell.spec.dishwasher
-        specs = [dw.lower] if cls == "plate" else [dw.upper, dw.lower] if cls == "bowl" else [dw.upper]
+        specs = [dw.lower] if cls == "plate" else [dw.upper, dw.lower]  # vessels: the lower rack when the upper is full
         return [(np.array(s.origin_xy), np.array(s.origin_xy) + np.array(s.size_xy)) for s in specs]
 
     def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
@@ -59,7 +62,19 @@ class SinkToDishwasher(Task):
             upper = self._targets(obj, "upper")
             out = lower + (upper if isinstance(upper, list) else [])
             return out or NoFreeSlot("no free slot for a bowl in the lower or upper rack")
-        return self._targets(obj, "lower" if obj.cls == "plate" else "upper")
+        if obj.cls == "plate":
+            return self._targets(obj, "lower")
+        upper = self._targets(obj, "upper")
+        if not isinstance(upper, NoFreeSlot) and obj.T_base_obj[2, 2] <= 0.5:
+            return upper
+        # The upper rack is full (it takes about seven cups, glasses and mugs with the room a level grasp needs;
+        # seed 4: six cups, two glasses and a mug), or the item stands upright and its free spots may all lie
+        # beyond the near part a level grasp reaches (seed 9: a staged mug): mouth-down in the lower rack, after
+        # the upper rack's spots, as people load a full dishwasher, from its far end, with room kept for the
+        # plates still in the sink.
+        lower = self._bowl_in_lower_rack(obj, inverted, "mouth-down, the upper rack full")
+        out = (upper if isinstance(upper, list) else []) + lower
+        return out or NoFreeSlot(f"no free slot for a {obj.cls} in the upper or lower rack")
 
     def staging_targets(self, obj: ObjectPose, targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
         """A round cup or glass is staged lying on its side first: from there a grasp from above turns it mouth-down
@@ -72,7 +87,8 @@ class SinkToDishwasher(Task):
         return sorted(out, key=lambda t: abs(t.T_base_obj[2, 2]) > 0.5)  # lying first, stable
 
     def _bowl_in_lower_rack(self, obj: ObjectPose, pose, how: str) -> list[PlaceTarget]:
-        """A bowl in the lower rack, `pose` on_edge (on its rim, its axis along x, as a plate) or inverted, from
+        """A bowl (or a vessel the full upper rack has no room for) in the lower rack, `pose` on_edge (on its rim,
+        its axis along x, as a plate) or inverted, from
         the rack's far end in x (plates are loaded from the end nearest the robot), with room kept for the plates
         still in the sink (one plate thickness each, from the end nearest the robot)."""
         model = self.inventory[obj.obj_id]
@@ -103,7 +119,8 @@ class SinkToDishwasher(Task):
                 return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
 
             poses = area_spots(model, lo, hi, spec.floor_z, taken, pose, 3, pref, step=0.015, order=far_end_first)
-        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=pose is inverted,
+        free_yaw = pose is inverted and model.is_rotationally_symmetric  # a mug keeps its handle along x
+        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=free_yaw,
                             support=f"rack_lower ({how})") for T in poses]
 
     def _mouth_down_in_lower_rack(self, model, lo, hi, floor_z: float, taken: list[Placed], xs,
