@@ -19,13 +19,6 @@ VESSELS = ("cup", "glass", "bowl", "mug")
 RACK_WIRE = 0.006  # m, the racks' side wires (perception.cell)
 
 
-def _sweep_radius(model) -> float:
-    """Radius (m) of the disc an upright or mouth-down item covers in xy at any yaw about its axis: its radius
-    when round, else the half diagonal of its xy box (a mug with its handle)."""
-    h = np.asarray(model.extents[:2], float) / 2
-    return float(max(h)) if model.is_rotationally_symmetric else float(np.hypot(*h))
-
-
 def from_the_back(xy) -> tuple[float, float]:
     """Sort key for upper-rack spots: largest x first (away from the side the arm reaches level), then the
     smallest y (the rack's far end from the robot)."""
@@ -126,7 +119,7 @@ class SinkToDishwasher(Task):
                 return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
 
             poses = area_spots(model, lo, hi, spec.floor_z, taken, pose, 3, pref, step=0.015, order=far_end_first)
-        free_yaw = pose is inverted  # mouth-down spots leave room for any yaw (_mouth_down_in_lower_rack)
+        free_yaw = pose is inverted and model.is_rotationally_symmetric  # a mug keeps its handle along x
         return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=free_yaw,
                             support=f"rack_lower ({how})") for T in poses]
 
@@ -137,10 +130,8 @@ class SinkToDishwasher(Task):
         (CLEARANCE between the discs, not between their boxes), from the rack's far end in x: two bowls to a
         column, as people load bowls. On the rack's centre line each bowl took a whole column and a third bowl
         found neither rack free (seed 15: three bowls, the upper rack full of glasses and mugs). area_spots
-        keeps boxes apart, which leaves no room for two 16 cm bowls across this rack, hence the disc test here.
-        An item that is not round (a mug, when the upper rack is full) is kept within the disc its footprint
-        sweeps when turned about its axis, so the planner may turn it to any yaw (free_yaw) to reach it."""
-        r = _sweep_radius(model)
+        keeps boxes apart, which leaves no room for two 16 cm bowls across this rack, hence the disc test here."""
+        r = max(model.extents[:2]) / 2
         edge = RACK_WIRE + 0.002 + r  # the rim 2 mm inside the rack's side wire
         ys = [lo[1] + edge, hi[1] - edge]
         xs = sorted({round(float(x), 4) for x in xs if lo[0] + edge - 1e-9 <= x <= hi[0] - edge + 1e-9}, reverse=True)
@@ -163,10 +154,7 @@ class SinkToDishwasher(Task):
                 and abs(p.T_base_obj[2, 2]) > 0.95 and abs(T[2, 2]) > 0.95):
             d = np.hypot(*(T[:2, 3] - p.T_base_obj[:2, 3]))
             return d >= max(model.extents[:2]) / 2 + max(other.extents[:2]) / 2 + CLEARANCE - 1e-9
-        if model.is_rotationally_symmetric:
-            lo, hi, _ = footprint(model, T)
-        else:  # any yaw about its axis (see _mouth_down_in_lower_rack)
-            lo, hi = T[:2, 3] - _sweep_radius(model), T[:2, 3] + _sweep_radius(model)
+        lo, hi, _ = footprint(model, T)
         return not (np.all(lo < p.hi + CLEARANCE) and np.all(hi > p.lo - CLEARANCE))
 
     def _plate_spots(self, model, placed: list[Placed], limit: int) -> list[np.ndarray]:
