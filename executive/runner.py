@@ -701,6 +701,31 @@ class TaskRunner(RecoveryActions):
                            for o in placed)]
         return seen + placed
 
+    def _staged_pick(self, q, scene_objs, obj):
+        """(pick, staging targets) to set `obj` down on the counter (in a pose the task chooses for its targets)
+        and grasp it again from there, where its next pick offers other grasps; None when it is already staged,
+        needs no regrasp, or no staging spot is reachable.
+
+        Tried when no grasp of it as it lies reaches the target orientation; for a task that says so
+        (Task.stage_when_blocked) also when the full place plan finds the release the grasp filter accepted
+        unreachable (a lying mug, sink-to-dishwasher seed 30), and when every grasp that reaches the target has its
+        lift blocked a second time (the first time the blocker is picked first): tilted plates whose on-edge
+        grasps' lifts hit a neighbour (sink-to-dishwasher seed 30, while sink-pick, which takes any grasp, cleared
+        the same sink)."""
+        if self.current_staged is not None or not self.task.needs_regrasp(self.targets, obj):
+            return None
+        stage = self.task.staging_targets(obj, self.targets)
+        if isinstance(stage, NoFreeSlot):
+            return None
+        self._cmd("plan_pick", cls=obj.cls, staging=[t.T_base_obj[:3, 3] for t in stage])
+        staged_pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points,
+                                             place_target=stage)
+        self._check_deadline()
+        if not staged_pick.ok:
+            return None
+        self.staging = True
+        return staged_pick, stage
+
     def _do_plan(self) -> str:
         """Pick (only grasps that can also reach one of the targets) then place (first feasible target)."""
         obj = self.current
@@ -715,18 +740,13 @@ class TaskRunner(RecoveryActions):
                                           place_target=self.targets)
         self._check_deadline()
         targets = self.targets
-        if (not pick.ok and pick.kind == "no_feasible_placement" and self.current_staged is None
-                and self.task.needs_regrasp(self.targets, obj)):
-            # No grasp of the object as it lies reaches the target orientation: set it down on the counter (in a
-            # pose the task chooses for these targets) and grasp it again from there (its next pick offers other
-            # grasps).
-            stage = self.task.staging_targets(obj, self.targets)
-            if not isinstance(stage, NoFreeSlot):
-                self._cmd("plan_pick", cls=obj.cls, staging=[t.T_base_obj[:3, 3] for t in stage])
-                staged_pick = self.planner.plan_pick(q, scene_objs, target=obj, map_points=self.map_points,
-                                                     place_target=stage)
-                if staged_pick.ok:
-                    pick, targets, self.staging = staged_pick, stage, True
+        tried = self._tried_for(obj)
+        if not pick.ok and (pick.kind == "no_feasible_placement" or (
+                self.task.stage_when_blocked and pick.kind == "cartesian_path_failed" and tried is not None
+                and pick.kind in tried.reasons)):
+            staged = self._staged_pick(q, scene_objs, obj)
+            if staged is not None:
+                pick, targets = staged
         if not pick.ok and pick.kind == "no_collision_free_grasp" and obj.cls in SLIDABLE \
                 and self.current_staged is None:
             # Nested in a stack (the top plate): no pinch fits under its lip. Slide it sideways with the closed
@@ -750,6 +770,15 @@ class TaskRunner(RecoveryActions):
         others = [p for p in scene_objs if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
         self._cmd("plan_place", grasp=pick.grasp.spec.name, staging=self.staging)
         place = self.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=self.map_points)
+        if not place.ok and place.kind == "no_feasible_placement" and not self.staging and self.task.stage_when_blocked:
+            # The grasp filter judged a release reachable that the full place plan is not (a lying mug, seed 30):
+            # as when no grasp passes that filter, stage it for a regrasp.
+            staged = self._staged_pick(q, scene_objs, obj)
+            if staged is not None:
+                pick, targets = staged
+                self._cmd("plan_place", grasp=pick.grasp.spec.name, staging=self.staging)
+                place = self.planner.plan_place(pick.end, pick.grasp, targets, objects=others,
+                                                map_points=self.map_points)
         if not place.ok:
             raise StepFailed("planning", f"no place plan for the {obj.cls}: {place}", planning_kind=place.kind)
         self.pick, self.place = pick, place
@@ -975,6 +1004,11 @@ class TaskRunner(RecoveryActions):
         placed = self.task.record_placed(p.obj, p.target, T_settled)
         self.scene_epoch += 1
         if p.staging:
+            # A new item on that spot: attempts are kept per class and place (_tried_for), and the grasp attempts
+            # of an earlier item staged there (now in the rack) would count against this one (dishwasher seed 4:
+            # the fourth cup staged on the spot three had used was never picked up again).
+            self.tried = [t for t in self.tried
+                          if not (t.cls == p.obj.cls and np.linalg.norm(t.pos - T_settled[:3, 3]) < 0.04)]
             self.staged.append(placed)
             self._log("note", "staged for a regrasp", cls=p.obj.cls, xyz=T_settled[:3, 3])
         self.consecutive_recoveries = 0

@@ -96,6 +96,10 @@ class Task:
     name = "task"
     description = ""
     success_criteria = ""
+    # Whether the executive also stages an item for a regrasp (staging_targets) when the grasps that reach its
+    # targets are blocked on their way out of the sink, or the full place plan finds no release for them: worth
+    # it where the targets admit few grasps (rack poses), not where the counter is the target anyway.
+    stage_when_blocked = False
 
     # ---- what to pick ------------------------------------------------------------------------------------------
     def wants(self, obj: ObjectPose) -> bool:

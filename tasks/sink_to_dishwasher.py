@@ -1,4 +1,5 @@
-"""sink-to-dishwasher: plates upright (on edge) in the lower rack, cups/glasses/bowls/mugs inverted in the upper.
+"""sink-to-dishwasher: plates upright (on edge) in the lower rack, cups/glasses/bowls/mugs inverted in the upper
+(bowls in the lower one first; the others there when the upper one is full).
 
 Targets: the cell's rack slots (perception.cell.Slot) of the matching rack kind, skipping slots whose footprint
 would overlap an item already placed or leave the rack. Plates stand on their rim with the face normal along
@@ -15,6 +16,7 @@ from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Placed, Task, area_spots, footprint, inverted, on_edge
 
 VESSELS = ("cup", "glass", "bowl", "mug")
+RACK_WIRE = 0.006  # m, the racks' side wires (perception.cell)
 
 
 def from_the_back(xy) -> tuple[float, float]:
@@ -31,15 +33,17 @@ def from_the_front(xy) -> tuple[float, float]:
 
 class SinkToDishwasher(Task):
     name = "sink-to-dishwasher"
-    description = "plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack"
-    success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in an upper-rack slot"
+    description = ("plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack "
+                   "(bowls first in the lower one; others there when the upper one is full)")
+    success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in a rack slot"
+    stage_when_blocked = True  # rack poses admit few grasps: a blocked or unplaceable one is staged, see Task
 
     def wants(self, obj: ObjectPose) -> bool:
         return obj.cls == "plate" or obj.cls in VESSELS
 
     def target_areas(self, cls: str) -> list[tuple[np.ndarray, np.ndarray]]:
         dw = self.cell.spec.dishwasher
-        specs = [dw.lower] if cls == "plate" else [dw.upper, dw.lower] if cls == "bowl" else [dw.upper]
+        specs = [dw.lower] if cls == "plate" else [dw.upper, dw.lower]  # vessels: the lower rack when the upper is full
         return [(np.array(s.origin_xy), np.array(s.origin_xy) + np.array(s.size_xy)) for s in specs]
 
     def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
@@ -58,7 +62,19 @@ class SinkToDishwasher(Task):
             upper = self._targets(obj, "upper")
             out = lower + (upper if isinstance(upper, list) else [])
             return out or NoFreeSlot("no free slot for a bowl in the lower or upper rack")
-        return self._targets(obj, "lower" if obj.cls == "plate" else "upper")
+        if obj.cls == "plate":
+            return self._targets(obj, "lower")
+        upper = self._targets(obj, "upper")
+        if not isinstance(upper, NoFreeSlot) and obj.T_base_obj[2, 2] <= 0.5:
+            return upper
+        # The upper rack is full (it takes about seven cups, glasses and mugs with the room a level grasp needs;
+        # seed 4: six cups, two glasses and a mug), or the item stands upright and its free spots may all lie
+        # beyond the near part a level grasp reaches (seed 9: a staged mug): mouth-down in the lower rack, after
+        # the upper rack's spots, as people load a full dishwasher, from its far end, with room kept for the
+        # plates still in the sink.
+        lower = self._bowl_in_lower_rack(obj, inverted, "mouth-down, the upper rack full")
+        out = (upper if isinstance(upper, list) else []) + lower
+        return out or NoFreeSlot(f"no free slot for a {obj.cls} in the upper or lower rack")
 
     def staging_targets(self, obj: ObjectPose, targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
         """A round cup or glass is staged lying on its side first: from there a grasp from above turns it mouth-down
@@ -71,7 +87,8 @@ class SinkToDishwasher(Task):
         return sorted(out, key=lambda t: abs(t.T_base_obj[2, 2]) > 0.5)  # lying first, stable
 
     def _bowl_in_lower_rack(self, obj: ObjectPose, pose, how: str) -> list[PlaceTarget]:
-        """A bowl in the lower rack, `pose` on_edge (on its rim, its axis along x, as a plate) or inverted, from
+        """A bowl (or a vessel the full upper rack has no room for) in the lower rack, `pose` on_edge (on its rim,
+        its axis along x, as a plate) or inverted, from
         the rack's far end in x (plates are loaded from the end nearest the robot), with room kept for the plates
         still in the sink (one plate thickness each, from the end nearest the robot)."""
         model = self.inventory[obj.obj_id]
@@ -85,21 +102,60 @@ class SinkToDishwasher(Task):
             for T in self._plate_spots(big, taken, len(plates)):
                 taken.append(Placed(big.obj_id, big.cls, T, *footprint(big, T), None))
         y = (lo[1] + hi[1]) / 2
-        # On the centre line: flush beside what is in the rack (or kept for plates), CLEARANCE + 1 mm from it,
-        # then every 5 mm from the far end: on the 15 mm grid alone a second bowl missed the room left between
-        # the first one and the plates by 2 mm (seed 9).
+        # Flush beside what is in the rack (or kept for plates), CLEARANCE + 1 mm from it, then every 5 mm from
+        # the far end: on the 15 mm grid alone a second bowl missed the room left between the first one and the
+        # plates by 2 mm (seed 9).
         r = max(model.extents[:2]) / 2 if pose is inverted else model.extents[2] / 2  # half its length along x
         in_rack = [p for p in taken if lo[0] <= (p.lo[0] + p.hi[0]) / 2 <= hi[0] and lo[1] <= (p.lo[1] + p.hi[1]) / 2 <= hi[1]]
         xs = [p.lo[0] - CLEARANCE - 0.001 - r for p in in_rack] + [p.hi[0] + CLEARANCE + 0.001 + r for p in in_rack]
         xs += list(np.arange(hi[0] - 0.01, lo[0], -0.005))
-        pref = [(float(x), float(y)) for x in xs]
+        if pose is inverted:
+            poses = self._mouth_down_in_lower_rack(model, lo, hi, spec.floor_z, taken, xs)
+        else:
+            # On its rim (its axis along x, as a plate): on the centre line, facing the spray arm.
+            pref = [(float(x), float(y)) for x in xs]
 
-        def far_end_first(xy):  # the largest x first, on the rack's centre line first
-            return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
+            def far_end_first(xy):  # the largest x first, on the rack's centre line first
+                return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
 
-        poses = area_spots(model, lo, hi, spec.floor_z, taken, pose, 3, pref, step=0.015, order=far_end_first)
-        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=pose is inverted,
+            poses = area_spots(model, lo, hi, spec.floor_z, taken, pose, 3, pref, step=0.015, order=far_end_first)
+        free_yaw = pose is inverted and model.is_rotationally_symmetric  # a mug keeps its handle along x
+        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=free_yaw,
                             support=f"rack_lower ({how})") for T in poses]
+
+    def _mouth_down_in_lower_rack(self, model, lo, hi, floor_z: float, taken: list[Placed], xs,
+                                  limit: int = 3) -> list[np.ndarray]:
+        """A mouth-down bowl in the lower rack: a 16 cm disc, against one side of the 34 cm rack (the far one
+        first), then beside the next bowl against the other side, staggered in x by what their round rims need
+        (CLEARANCE between the discs, not between their boxes), from the rack's far end in x: two bowls to a
+        column, as people load bowls. On the rack's centre line each bowl took a whole column and a third bowl
+        found neither rack free (seed 15: three bowls, the upper rack full of glasses and mugs). area_spots
+        keeps boxes apart, which leaves no room for two 16 cm bowls across this rack, hence the disc test here."""
+        r = max(model.extents[:2]) / 2
+        edge = RACK_WIRE + 0.002 + r  # the rim 2 mm inside the rack's side wire
+        ys = [lo[1] + edge, hi[1] - edge]
+        xs = sorted({round(float(x), 4) for x in xs if lo[0] + edge - 1e-9 <= x <= hi[0] - edge + 1e-9}, reverse=True)
+        out: list[np.ndarray] = []
+        for x in xs:
+            for y in ys:
+                T = inverted(model, (x, y), floor_z)
+                if all(self._apart(model, T, p) for p in taken) and all(
+                        np.hypot(*(T[:2, 3] - o[:2, 3])) >= 2 * r + CLEARANCE - 1e-9 for o in out):
+                    out.append(T)
+                    if len(out) >= limit:
+                        return out
+        return out
+
+    def _apart(self, model, T: np.ndarray, p: Placed) -> bool:
+        """Is `model` at T (upright or mouth-down) CLEARANCE from the placed item `p`: between two round items
+        standing or lying mouth-down, the distance of their discs; otherwise their xy boxes."""
+        other = self.inventory.models.get(p.obj_id)
+        if (model.is_rotationally_symmetric and other is not None and other.is_rotationally_symmetric
+                and abs(p.T_base_obj[2, 2]) > 0.95 and abs(T[2, 2]) > 0.95):
+            d = np.hypot(*(T[:2, 3] - p.T_base_obj[:2, 3]))
+            return d >= max(model.extents[:2]) / 2 + max(other.extents[:2]) / 2 + CLEARANCE - 1e-9
+        lo, hi, _ = footprint(model, T)
+        return not (np.all(lo < p.hi + CLEARANCE) and np.all(hi > p.lo - CLEARANCE))
 
     def _plate_spots(self, model, placed: list[Placed], limit: int) -> list[np.ndarray]:
         """Plates on edge in the lower rack (they span it in y): each slot's x on the rack's centre line first,

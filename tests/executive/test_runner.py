@@ -151,6 +151,51 @@ def test_regrasp_stages_on_the_counter_then_picks_again(make_runner, safe_end):
         assert "counter" in report.message and report.objects_done == 0
 
 
+@pytest.mark.parametrize("refusal", ["place", "lift"])
+def test_regrasp_staging_after_a_place_plan_or_lift_failure(make_runner, safe_end, refusal):
+    """Staging for a regrasp is also tried when a grasp of the item in the sink passes the place-reach filter but
+    the full place plan finds no release ("place": a lying mug, sink-to-dishwasher seed 30), and when every grasp
+    that reaches the rack has its lift blocked a second time ("lift": the first time the executive picks the
+    blocker first; tilted plates in seeds 17 and 30)."""
+    from kitchenbot.planning.types import CartesianPathFailed, NoFeasiblePlacement
+
+    runner, world = make_runner(task="sink-to-dishwasher")
+    real = runner.planner
+    refused = []
+
+    def in_sink(p):
+        return bool(runner.robot.cell.in_sink(p.T_base_obj[:3, 3])[0])
+
+    def inverts(targets):
+        targets = targets if isinstance(targets, list) else [targets]
+        return any(t.T_base_obj[2, 2] < -0.5 for t in targets)
+
+    class Refuses:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_pick(self, q, objects, *, target=None, place_target=None, **kw):
+            if refusal == "lift" and target is not None and in_sink(target) and inverts(place_target):
+                refused.append(target.cls)
+                return CartesianPathFailed("test: lift: straight line collides")
+            return real.plan_pick(q, objects, target=target, place_target=place_target, **kw)
+
+        def plan_place(self, q, grasp, targets, **kw):
+            if refusal == "place" and in_sink(grasp.obj) and inverts(targets):
+                refused.append(grasp.obj.cls)
+                return NoFeasiblePlacement("test: no reachable release pose")
+            return real.plan_place(q, grasp, targets, **kw)
+
+    runner.planner = Refuses()
+    report = runner.run()
+    safe_end(runner, world)
+    notes = [e["name"] for e in runner.journal.events(runner.run_id, kind="note")]
+    # "place": refused once, then staged at once; "lift": the first refusal fails as before, the second stages
+    assert refused == (["cup"] if refusal == "place" else ["cup", "cup"]), refused
+    assert "staged for a regrasp" in notes
+    assert report.truth["end"]["in_sink"] == 0
+
+
 def test_a_stop_within_the_collision_margin_is_escaped(make_runner, safe_end):
     """An arm left a few millimetres above the sink floor (closer than the 1 cm every plan keeps: RRT-Connect
     refuses that start) jogs straight out first, then runs the task."""
@@ -263,3 +308,26 @@ def test_a_blocker_the_task_does_not_want_is_moved_out_of_the_way(tmp_path):
     assert "glass" in selected and selected.index("glass") < selected.index("cup")
     assert report.status == "succeeded", report.message
     assert report.truth["end"]["delivered"] == 1 and report.collisions == 0
+
+
+def test_an_item_staged_where_another_was_starts_with_no_attempts(make_runner):
+    """Grasp attempts are kept per class and place: a cup staged on the counter spot an earlier cup (now in the
+    rack) was picked up from three times must not inherit those attempts (dishwasher seed 4: the fourth cup
+    staged on that spot was never picked up again)."""
+    from kitchenbot.executive.runner import _Pending, _Tried
+    from kitchenbot.perception.types import ObjectPose
+    from kitchenbot.planning.types import PlaceTarget
+    from kitchenbot.transforms import make_T
+
+    runner, _ = make_runner(task="sink-to-dishwasher")
+    cup = runner.robot.inventory.by_name("cup")
+    spot = make_T(np.eye(3), (0.0, 0.45, cup.extents[2] / 2 + 0.01))
+    runner.poses = []
+    runner.tried = [_Tried("cup", spot[:3, 3].copy(), count=3)]  # the earlier cup's attempts from that spot
+    in_sink = ObjectPose(cup.obj_id, "cup", make_T(np.eye(3), (0.5, 0.0, -0.15)), 1.0, instance_id=3)
+    runner.pending = _Pending(in_sink, PlaceTarget(spot, "stage", free_yaw=True, support="counter (regrasp)"),
+                              spot, None, staging=True)
+    runner._verify_pending()
+    assert len(runner.staged) == 1
+    t = runner._tried_for(runner.task.as_pose(runner.staged[0]))
+    assert t is None or not t.exhausted(runner.scene_epoch)

@@ -69,3 +69,60 @@ def test_a_mouth_down_bowl_goes_mouth_down_into_the_lower_rack_then_the_upper(in
     task.remaining([bowl] + [in_sink(inv, "dinner_plate", k=k) for k in range(1, 12)])
     ts = task.targets(bowl)
     assert ts and all(in_rack(up, t.T_base_obj) for t in ts)
+
+
+def test_mouth_down_bowls_go_two_across_the_lower_rack(inv):
+    """Seed 15: three mouth-down bowls, glasses and mugs. On the lower rack's centre line each 16 cm bowl took a
+    whole column (two bowls in all) and the third found the upper rack full. Against its sides, staggered in x by
+    what the round rims need, the 34 cm rack takes two bowls across: four in all, CLEARANCE between their rims
+    and inside the side wires."""
+    from kitchenbot.tasks.base import CLEARANCE
+
+    cell = Cell()
+    task = make_task("sink-to-dishwasher", inv, cell)
+    low = cell.spec.dishwasher.lower
+    lo, hi = np.array(low.origin_xy), np.array(low.origin_xy) + np.array(low.size_xy)
+    r = max(inv.by_name("bowl").extents[:2]) / 2
+    bowls = [in_sink(inv, "bowl", MOUTH_DOWN, k=k) for k in range(5)]
+    task.remaining(bowls)
+    centres = []
+    for b in bowls[:4]:
+        ts = task.targets(b)
+        assert not isinstance(ts, NoFreeSlot), ts
+        T = ts[0].T_base_obj
+        assert ts[0].support.startswith("rack_lower") and T[2, 2] < -0.99
+        c = T[:2, 3]
+        assert np.all(c - r >= lo + 0.006) and np.all(c + r <= hi - 0.006)  # inside the 6 mm side wires
+        assert all(np.hypot(*(c - o)) >= 2 * r + CLEARANCE - 1e-9 for o in centres)
+        centres.append(c)
+        task.record_placed(b, ts[0], T)
+    assert len({round(float(c[1]), 3) for c in centres}) == 2  # both sides of the rack
+    ts = task.targets(bowls[4])  # the lower rack is full: the upper one
+    assert not isinstance(ts, NoFreeSlot) and all(t.support == "rack_upper" for t in ts)
+
+
+def test_cups_go_mouth_down_into_the_lower_rack_when_the_upper_one_is_full(inv):
+    """Seed 4 (six cups, two glasses, a mug and a plate): the upper rack took seven and two cups found no slot.
+    As people load a full dishwasher, what the upper rack has no room for goes mouth-down into the lower one,
+    with room kept for the plate still in the sink, and counts as delivered there."""
+    cell = Cell()
+    task = make_task("sink-to-dishwasher", inv, cell)
+    up, low = cell.spec.dishwasher.upper, cell.spec.dishwasher.lower
+    cups = [in_sink(inv, "cup", k=k) for k in range(14)]
+    plate = in_sink(inv, "dinner_plate", k=20)
+    task.remaining(cups + [plate])
+    racks = []
+    for c in cups:
+        ts = task.targets(c)
+        assert not isinstance(ts, NoFreeSlot), (len(racks), ts)
+        racks.append(ts[0].support.split()[0])
+        if racks[-1] == "rack_lower":
+            T = ts[0].T_base_obj
+            assert T[2, 2] < -0.99 and all(t.support.startswith("rack_lower") for t in ts)
+            assert all(low.origin_xy[i] <= T[i, 3] <= low.origin_xy[i] + low.size_xy[i] for i in (0, 1))
+            assert task.at_target("cup", T)
+        task.record_placed(c, ts[0], ts[0].T_base_obj)
+    n_up = racks.index("rack_lower")
+    assert n_up >= 7 and set(racks[:n_up]) == {"rack_upper"} and set(racks[n_up:]) == {"rack_lower"}
+    ts = task.targets(plate)  # the plate still has its place in the lower rack
+    assert not isinstance(ts, NoFreeSlot) and abs(ts[0].T_base_obj[0, 2]) > 0.99

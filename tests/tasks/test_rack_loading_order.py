@@ -26,6 +26,10 @@ def test_items_carried_from_above_fill_the_back_and_upright_ones_the_front(inv, 
         assert min(t.T_base_obj[0, 3] for t in ts) < x_mid
         task.record_placed(sink_item(name, R), ts[0], ts[0].T_base_obj)
     ts = task.targets(sink_item("cup"))  # upright: the smallest x first, all in the near half
+    racks = [t.support.split()[0] for t in ts]
+    # then the lower rack mouth-down, should a level grasp reach none of them
+    assert racks == sorted(racks, key=lambda r: r != "rack_upper") and "rack_lower" in racks
+    ts = [t for t in ts if t.support == "rack_upper"]
     assert all(t.T_base_obj[0, 3] < x_mid for t in ts)
     xs = [round(float(t.T_base_obj[0, 3]), 4) for t in ts]
     assert xs == sorted(xs) and len(ts) > 3
