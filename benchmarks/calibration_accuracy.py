@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from kitchenbot.calibration.bench import accuracy_table
+from kitchenbot.bench.calibration import accuracy_table
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from kitchenbot.calibration.bench import sim_table
+from kitchenbot.bench.calibration import sim_table
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

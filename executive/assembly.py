@@ -15,8 +15,8 @@ from kitchenbot.drivers.camera import Camera
 from kitchenbot.drivers.gripper import Gripper
 from kitchenbot.drivers.ur_kinematics import ur_model
 from kitchenbot.executive.config import CellConfig
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
 
 
 @dataclass

@@ -18,10 +18,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from kitchenbot.drivers.safety import SafetyLimits, Workspace
 from kitchenbot.drivers.ur_kinematics import UR_MODELS, ur_model
-from kitchenbot.perception.cell import CellSpec
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.planning.settings import PlanningSettings
 from kitchenbot.transforms import from_xyz_rpy
+from kitchenbot.world.cell import CellSpec
 
 PACKAGE_DIR = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = PACKAGE_DIR / "config" / "sim.yaml"

@@ -19,8 +19,8 @@ from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutErro
 from kitchenbot.executive.failures import Failure, Stopped, StepFailed
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
-from kitchenbot.tasks.base import DROP_HEIGHT
 from kitchenbot.transforms import make_T, rot_z
+from kitchenbot.world.gripper import DROP_HEIGHT
 
 
 class RecoveryActions:

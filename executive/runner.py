@@ -31,7 +31,7 @@ from kitchenbot.executive.recovery import RecoveryActions
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import NoFreeSlot, Trajectory
-from kitchenbot.tasks.base import DROP_HEIGHT
+from kitchenbot.world.gripper import DROP_HEIGHT
 
 SLIDABLE = ("plate",)  # classes that nest flat in stacks and are slid sideways to free them
 

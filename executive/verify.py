@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.types import View
 from kitchenbot.transforms import inv
+from kitchenbot.world.inventory import ObjectModel
 
 
 @dataclass

@@ -4,7 +4,7 @@ Protocol 2.0 emulator exercises the real gripper driver byte for byte."""
 
 from kitchenbot.fakes.arm import ArmLog, FakeArm
 from kitchenbot.fakes.camera import FakeCamera
-from kitchenbot.fakes.collision import GripperGeometry, SimCollision
+from kitchenbot.fakes.collision import SimCollision
 from kitchenbot.fakes.gripper import FakeGripper
 from kitchenbot.fakes.scenes import generate_scene
 from kitchenbot.fakes.world import Faults, SimClock, SimWorld
@@ -15,7 +15,6 @@ __all__ = [
     "FakeCamera",
     "FakeGripper",
     "Faults",
-    "GripperGeometry",
     "SimClock",
     "SimCollision",
     "SimWorld",

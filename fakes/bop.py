@@ -23,8 +23,8 @@ import open3d as o3d
 from PIL import Image
 
 from kitchenbot.fakes.render import render, rgb_noise, stereo_noise
-from kitchenbot.perception.raycast import pinhole_rays
 from kitchenbot.transforms import inv
+from kitchenbot.world.raycast import pinhole_rays
 
 DEPTH_SCALE = 0.1  # BOP depth_scale: stored value x 0.1 = mm (sub-millimetre storage, as many BOP sets do)
 
@@ -145,8 +145,8 @@ def generate_dataset(
 
     from kitchenbot.fakes.render import oakd_intrinsics
     from kitchenbot.fakes.scenes import generate_scene
-    from kitchenbot.perception.inventory import Inventory
     from kitchenbot.transforms import make_T
+    from kitchenbot.world.inventory import Inventory
 
     out = Path(out)
     inventory = Inventory.builtin()

@@ -5,7 +5,7 @@ protective stop just before the contact, like a real UR detecting the impact. Ge
 
 - arm links: the capsules of :func:`drivers.ur_kinematics.link_segments` (the base column is fixed to the
   counter and is only used for self-collision);
-- the gripper (:class:`GripperGeometry`, TCP frame): a palm box from the flange and two finger boxes whose
+- the gripper (world.gripper.FINGERS, TCP frame): a palm box from the flange and two finger boxes whose
   inner faces (the pads) sit at +-opening/2 along y; the wrist camera's housing at ``world.T_flange_cam``;
 - the held object: its mesh (BVH) at ``T_base_tcp @ T_tcp_held``;
 - the world: the cell's boxes and every other object's mesh.
@@ -32,39 +32,9 @@ import fcl
 import numpy as np
 
 from kitchenbot.drivers.ur_kinematics import URModel, fk_frames, link_segments
-from kitchenbot.perception.inventory import PAD_DEPTH
+from kitchenbot.world.gripper import FINGERS, FingerGeometry
 
 LINK_NAMES = ("base", "shoulder", "upper_arm", "forearm", "wrist1", "wrist2", "wrist3")
-
-
-@dataclass(frozen=True)
-class GripperGeometry:
-    """Fin-Ray gripper boxes in the TCP frame (z = approach, y = closing axis). Metres.
-
-    The fingers end `tip_z` past the TCP; the pads are their inner faces over the last PAD_DEPTH.
-    """
-
-    palm_half_xy: tuple[float, float] = (0.035, 0.065)
-    palm_z: tuple[float, float] = (-0.20, -0.11)  # the flange sits at -0.20 with the default tool
-    finger_half_x: float = 0.0125
-    finger_thickness: float = 0.012
-    finger_z0: float = -0.11
-    tip_z: float = 0.010
-
-    @property
-    def pad_z(self) -> tuple[float, float]:
-        return (self.tip_z - PAD_DEPTH, self.tip_z)
-
-    def boxes(self, opening: float) -> list[tuple[str, np.ndarray, np.ndarray]]:
-        """(name, lower, upper) of the palm and the two fingers, TCP frame, at a pad distance `opening`."""
-        hx, hy = self.palm_half_xy
-        o = max(0.0, float(opening)) / 2
-        t, fx = self.finger_thickness, self.finger_half_x
-        return [
-            ("palm", np.array([-hx, -hy, self.palm_z[0]]), np.array([hx, hy, self.palm_z[1]])),
-            ("finger_pos", np.array([-fx, o, self.finger_z0]), np.array([fx, o + t, self.tip_z])),
-            ("finger_neg", np.array([-fx, -o - t, self.finger_z0]), np.array([fx, -o, self.tip_z])),
-        ]
 
 
 @dataclass
@@ -116,7 +86,7 @@ def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 class SimCollision:
     """Collision queries on a SimWorld for arm configurations and paths."""
 
-    def __init__(self, world, model: URModel | None = None, gripper: GripperGeometry | None = None,
+    def __init__(self, world, model: URModel | None = None, gripper: FingerGeometry | None = None,
                  grasp_contact_radius: float = 0.03, start_contact_travel: float = 0.10,
                  camera_size: tuple[float, float, float] | None = (0.091, 0.028, 0.025)):
         """`camera_size`: the wrist camera's housing (x along the stereo baseline, z along the view), placed
@@ -124,7 +94,7 @@ class SimCollision:
         self.world = world
         self.camera_size = None if camera_size is None else np.asarray(camera_size, float)
         self.model = model or world.robot
-        self.gripper = gripper or GripperGeometry()
+        self.gripper = gripper or FINGERS
         self.grasp_contact_radius = float(grasp_contact_radius)
         self.start_contact_travel = float(start_contact_travel)
         self._req = fcl.CollisionRequest()
@@ -354,4 +324,4 @@ def sample_path(q_of_u, duration: float, keypoints_of_q, step: float = 0.005, ma
     return np.asarray(us), np.asarray(qs)
 
 
-__all__ = ["Contact", "GripperGeometry", "SimCollision", "sample_path", "LINK_NAMES"]
+__all__ = ["Contact", "SimCollision", "sample_path", "LINK_NAMES"]

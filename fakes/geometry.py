@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from kitchenbot.perception.cell import Box
+from kitchenbot.world.cell import Box
 
 o3dt = o3d.t.geometry
 

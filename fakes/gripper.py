@@ -4,8 +4,8 @@
   (``world.release()``: it drops onto what is below).
 - ``grasp(current_limit)`` closes until the pads touch what is between them, or until fully closed. Contact:
   objects whose mesh lies in the pad region (TCP frame: |x| <= 1 cm, |y| <= opening/2, z over the pad
-  length ending at the finger tips, see fakes/collision.GripperGeometry) are probed with rays along the
-  closing axis from each pad inwards, as perception.inventory.pad_span does; each pad stops at the first
+  length ending at the finger tips, see world.gripper.FingerGeometry) are probed with rays along the
+  closing axis from each pad inwards, as planning.grasp_synthesis.pad_span does; each pad stops at the first
   surface it meets. Fin-Ray pads conform, so the span is taken on lines near the pad centre (+-5 mm), and over
   the whole pad face only if nothing crosses the centre. Stalled on an object: holding, opening = the
   object's span, current near the limit, the object is attached to the TCP (``world.attach``). Nothing in
@@ -24,8 +24,7 @@ import open3d as o3d
 
 from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutError, HardwareError
 from kitchenbot.drivers.gripper import GraspResult, Gripper, GripperStatus
-from kitchenbot.fakes.collision import GripperGeometry
-from kitchenbot.perception.inventory import GRIPPER_MAX_OPENING
+from kitchenbot.world.gripper import FINGERS, MAX_OPENING, FingerGeometry
 
 IDLE_CURRENT = 0.04  # A, holding a position with nothing to push against
 MOVING_CURRENT = 0.12  # A, moving the fingers freely
@@ -33,8 +32,8 @@ MIN_HOLDING_OPENING = 0.002  # m, a stall below this counts as closed on nothing
 
 
 class FakeGripper(Gripper):
-    def __init__(self, world, max_opening: float = GRIPPER_MAX_OPENING, max_current: float = 1.2,
-                 speed: float = 0.1, geometry: GripperGeometry | None = None, pad_half_x: float = 0.01):
+    def __init__(self, world, max_opening: float = MAX_OPENING, max_current: float = 1.2,
+                 speed: float = 0.1, geometry: FingerGeometry | None = None, pad_half_x: float = 0.01):
         if not (max_opening > 0 and max_current > 0 and speed > 0):
             raise ValueError(
                 f"FakeGripper: max_opening {max_opening} m, max_current {max_current} A and speed {speed} m/s "
@@ -44,7 +43,7 @@ class FakeGripper(Gripper):
         self.max_opening = float(max_opening)
         self.max_current = float(max_current)
         self.speed = float(speed)
-        self.geometry = geometry or GripperGeometry()
+        self.geometry = geometry or FINGERS
         self.pad_half_x = float(pad_half_x)
         self._connected = False
         self._error: str | None = None
@@ -186,7 +185,7 @@ class FakeGripper(Gripper):
         if not ids:
             return None
         # Rays from each pad inwards along lines across the gap. The Fin-Ray pads conform to the object, so the
-        # closed opening is the object's span near the pad centre (what perception.inventory.pad_span measures);
+        # closed opening is the object's span near the pad centre (what planning.grasp_synthesis.pad_span measures);
         # the rest of the pad face only counts when nothing lies across the centre lines.
         core = self._lines(np.array([-0.005, 0.0, 0.005]), np.array([-0.005, 0.0, 0.005]))
         face = self._lines(np.linspace(-self.pad_half_x, self.pad_half_x, 5), np.linspace(z0, z1, 8))

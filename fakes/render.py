@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from kitchenbot.fakes.geometry import build_scene
-from kitchenbot.perception.cell import STYLE_COLOURS
-from kitchenbot.perception.raycast import pinhole_rays
 from kitchenbot.transforms import inv
+from kitchenbot.world.cell import STYLE_COLOURS
+from kitchenbot.world.raycast import pinhole_rays
 
 # OAK-D-like colour camera at 640x480: ~66 deg horizontal field of view.
 OAKD_FX = 497.0

@@ -13,8 +13,8 @@ import numpy as np
 
 from kitchenbot.fakes.placement import drop_onto, settle
 from kitchenbot.fakes.world import SimWorld
-from kitchenbot.perception.cell import Cell, CellSpec
-from kitchenbot.perception.inventory import Inventory, ObjectModel
+from kitchenbot.world.cell import Cell, CellSpec
+from kitchenbot.world.inventory import Inventory, ObjectModel
 from kitchenbot.transforms import make_T, rot_x, rot_y, rot_z, trans
 from scipy.spatial.transform import Rotation
 

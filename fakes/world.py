@@ -16,9 +16,9 @@ import numpy as np
 import open3d as o3d
 
 from kitchenbot.drivers.ur_kinematics import URModel, fk_flange, ur_model
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory, ObjectModel
 from kitchenbot.transforms import inv
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory, ObjectModel
 
 
 class SimClock:

@@ -19,10 +19,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from kitchenbot.perception.cell import Cell
     from kitchenbot.perception.detect import Detector, Segmenter
     from kitchenbot.perception.features import ImageEncoder, PointEncoder
     from kitchenbot.perception.settings import PerceptionSettings
+    from kitchenbot.world.cell import Cell
 
 DETECTORS = ("geometric", "llmdet", "grounding-dino")
 SEGMENTERS = ("geometric", "sam2")

@@ -22,9 +22,9 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from kitchenbot.perception.features import FusedCloud, ImageEncoder, PointEncoder, l2n, oriented_normals, voxel_pool
-from kitchenbot.perception.inventory import Inventory, ObjectModel
 from kitchenbot.transforms import inv
-from kitchenbot.perception.raycast import pinhole_rays
+from kitchenbot.world.inventory import Inventory, ObjectModel
+from kitchenbot.world.raycast import pinhole_rays
 
 DB_VERSION = 3
 # Metres per unit of normal difference in `ModelEntry.oriented_tree`: the far side of a 4-5 mm plate or cup

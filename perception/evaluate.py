@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from kitchenbot.perception import bop
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.metrics import adi, auc_adds, grasp_error_summary, match_image, match_scan
 from kitchenbot.perception.pipeline import Perceiver
 from kitchenbot.perception.rgbd import project_pixels
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.transforms import inv
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
 
 
 @dataclass

@@ -10,8 +10,8 @@ import numpy as np
 import open3d as o3d
 
 from kitchenbot.perception import bop
-from kitchenbot.perception.inventory import Inventory
-from kitchenbot.perception.raycast import pinhole_rays
+from kitchenbot.world.inventory import Inventory
+from kitchenbot.world.raycast import pinhole_rays
 
 
 def silhouette(mesh: o3d.geometry.TriangleMesh, T_cam_obj: np.ndarray, K: np.ndarray, w: int, h: int) -> np.ndarray:

@@ -17,12 +17,12 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from kitchenbot.perception.associate import associate
-from kitchenbot.perception.cell import Cell
+from kitchenbot.world.cell import Cell
 from kitchenbot.perception.database import CadDatabase
 from kitchenbot.perception.detect import Detection, Detector, PassThroughSegmenter, Segmenter
 from kitchenbot.perception import backends
 from kitchenbot.perception.features import FusedCloud, fuse_instance, voxel_keys
-from kitchenbot.perception.inventory import Inventory
+from kitchenbot.world.inventory import Inventory
 from kitchenbot.perception.map import InstanceMap, align_to_cell, align_views, build_map, consolidate
 from kitchenbot.perception.register import (Hypothesis, RegistrationConfig, Scorer, clean_depths, propose, refine,
                                            on_surface, screen_candidate, snap_upright, surface_fit)

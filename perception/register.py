@@ -28,10 +28,10 @@ from scipy.spatial import cKDTree
 
 from kitchenbot.perception.database import NORMAL_WEIGHT, CadDatabase, ModelEntry
 from kitchenbot.perception.features import FusedCloud
-from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.rgbd import project_pixels
 from kitchenbot.perception.types import View
 from kitchenbot.transforms import inv, make_T
+from kitchenbot.world.inventory import ObjectModel
 
 reg = o3d.pipelines.registration
 

@@ -18,10 +18,10 @@ import open3d as o3d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from kitchenbot.perception.cell import Cell
 from kitchenbot.perception.detect import Detection, box_of
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import View
+from kitchenbot.world.cell import Cell
 
 
 @dataclass

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from kitchenbot.perception.cell import Cell
 from kitchenbot.perception.database import look_at
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import View
 from kitchenbot.transforms import inv, make_T
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
 
 K_VGA = np.array([[460.0, 0, 320.0], [0, 460.0, 240.0], [0, 0, 1.0]])
 

@@ -26,10 +26,11 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from kitchenbot.perception.cell import Box, Cell
-from kitchenbot.perception.inventory import GRIPPER_MAX_OPENING, ObjectModel
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.transforms import inv, make_T
+from kitchenbot.world.cell import Box, Cell
+from kitchenbot.world.gripper import MAX_OPENING, PAD_ENVELOPE
+from kitchenbot.world.inventory import ObjectModel
 
 # ---- shapes ------------------------------------------------------------------------------------------------
 
@@ -87,15 +88,14 @@ class GripperGeometry:
     """The Fin-Ray gripper in the TCP frame (z = approach, y = closing axis), metres.
 
     Palm/body from the flange to the pad roots; two fingers whose inner faces (pads) are at +-opening/2 and
-    whose tips end ``pad_tip`` past the TCP. The pads are the fingers' last PAD_DEPTH (perception.inventory);
-    the tips end 1 cm past the TCP in the simulator's gripper (fakes/collision.py), 2 mm more here.
+    whose tips end ``pad_tip`` past the TCP: the pad envelope of world.gripper (2 mm past the physical tips).
     """
 
     palm_size_xy: tuple[float, float] = (0.075, 0.14)
-    pad_root: float = -0.07  # z of the pad roots (= palm bottom) in the TCP frame
-    pad_tip: float = 0.012
-    pad_width: float = 0.026  # along x
-    pad_thickness: float = 0.016  # along y
+    pad_root: float = PAD_ENVELOPE.root  # z of the pad roots (= palm bottom) in the TCP frame
+    pad_tip: float = PAD_ENVELOPE.tip
+    pad_width: float = PAD_ENVELOPE.width  # along x
+    pad_thickness: float = PAD_ENVELOPE.thickness  # along y
     camera_size: tuple[float, float, float] = (0.11, 0.035, 0.04)  # OAK-D-like housing, cam frame x, y, z
 
     def palm(self, T_flange_tcp: np.ndarray) -> ToolBox:
@@ -105,7 +105,7 @@ class GripperGeometry:
         return ToolBox("palm", T, (self.palm_size_xy[0], self.palm_size_xy[1], max(hi - lo, 1e-3)))
 
     def pads(self, T_flange_tcp: np.ndarray, opening: float) -> list[ToolBox]:
-        o = float(np.clip(opening, 0.0, GRIPPER_MAX_OPENING))
+        o = float(np.clip(opening, 0.0, MAX_OPENING))
         zc = (self.pad_root + self.pad_tip) / 2
         size = (self.pad_width, self.pad_thickness, self.pad_tip - self.pad_root)
         out = []
@@ -290,7 +290,7 @@ class CollisionWorld:
         objects: Sequence[SceneObject] = (),
         voxels: np.ndarray | None = None,
         held: Held | None = None,
-        opening: float = GRIPPER_MAX_OPENING,
+        opening: float = MAX_OPENING,
         boxes: Sequence[Box] = (),
     ) -> "Scene":
         """`boxes`: extra fixed obstacles (axis-aligned, base frame) beyond the cell's."""

@@ -21,10 +21,10 @@ import fcl
 import numpy as np
 
 from kitchenbot.drivers.ur_kinematics import URModel, fk_frames
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.planning.collision import GripperGeometry, link_capsules
 from kitchenbot.transforms import make_T, rot_z
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import ObjectModel
 
 TOOL = ("palm", "pad_a", "pad_b", "camera")
 

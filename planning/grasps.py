@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import coal
 import numpy as np
 
-from kitchenbot.perception.inventory import PAD_DEPTH, Inventory
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import Scene
 from kitchenbot.planning.robot import RobotModel
@@ -32,6 +31,8 @@ from kitchenbot.planning.types import (
     PlanningFailure,
 )
 from kitchenbot.transforms import make_T, trans
+from kitchenbot.world.gripper import PAD_DEPTH
+from kitchenbot.world.inventory import Inventory
 
 
 def object_name(o: ObjectPose, index: int) -> str:
@@ -112,7 +113,7 @@ def observed_in_grip(P_tcp: np.ndarray, opening: float, gripper, pad_depth: floa
     return int(np.count_nonzero(m))
 
 
-# Grasps kept for where nothing else fits (perception.inventory.generate_grasps): the narrow plate rim pinch, for a
+# Grasps kept for where nothing else fits (planning.grasp_synthesis.generate_grasps): the narrow plate rim pinch, for a
 # plate leaning against a basin wall (opened only 8 mm per pad past the lip, it tolerates less pose error than
 # the standard pinches); the foot-ring pinch pitched in from outside the ring, for a bowl lying tilted (it
 # closes across the ring at a slant, the outer pad's tip next to the body); and the side grasp across a cup's,
@@ -141,8 +142,8 @@ def expand_grasps(model) -> list:
     The closing axis and the TCP point stay, so the pads pinch the same diameter; only the direction the
     gripper comes from changes (from above at an angle, not level: a 20 cm tool cannot come in level below
     the counter top). Contacts of the tilted pads with the target are allowed at the grasp anyway."""
-    from kitchenbot.perception.inventory import GraspSpec
     from kitchenbot.transforms import rot_y
+    from kitchenbot.world.inventory import GraspSpec
 
     key = id(model)
     hit = _expanded.get(key)

@@ -21,10 +21,9 @@ import numpy as np
 from kitchenbot.drivers.errors import LimitViolation
 from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import ur_model
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject
+from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.motion import cartesian_line, plan_joint_path
 from kitchenbot.planning.robot import RobotModel
@@ -44,6 +43,9 @@ from kitchenbot.planning.types import (
     Trajectory,
 )
 from kitchenbot.transforms import check_rigid, inv, rot_z, trans
+from kitchenbot.world.attitude import is_lying
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
 
 
 LIFT_CONTACT_TRAVEL = 0.03  # m of lift during which the held object may still touch what it rested on
@@ -68,7 +70,7 @@ class Planner:
     ):
         self.robot = robot
         self.cell = cell
-        self.inventory = inventory
+        self.inventory = ensure_grasps(inventory)  # models that come without grasps get synthesised ones
         self.settings = settings or PlanningSettings()
         s = self.settings
         self.world = CollisionWorld(
@@ -570,7 +572,7 @@ class Planner:
         turns = [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if (target.free_yaw or sym) else [np.eye(4)]
         flip = target.flip_ok
         if flip is None:
-            flip = target.kind == "slot" and sym and abs(T_obj[2, 2]) < 0.3
+            flip = target.kind == "slot" and sym and is_lying(T_obj)
         if flip:
             # pi about the base vertical through the object's origin, expressed in the object frame
             R = np.eye(4)

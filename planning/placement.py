@@ -19,13 +19,13 @@ from functools import lru_cache
 import numpy as np
 import open3d as o3d
 
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.transforms import make_T, rot_x, rot_y, trans
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.gripper import DROP_HEIGHT
+from kitchenbot.world.inventory import ObjectModel
 
-DROP_HEIGHT = 0.006  # m above the resting pose at release
 CUP_CLASSES = ("cup", "glass", "bowl", "mug")
 
 

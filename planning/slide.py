@@ -27,9 +27,9 @@ from kitchenbot.planning.grasps import _tf, object_name
 from kitchenbot.planning.motion import cartesian_line
 from kitchenbot.planning.types import CartesianPathFailed, NoIK, PlanningFailure, SlidePlan
 from kitchenbot.transforms import inv, make_T, rot_z, trans
+from kitchenbot.world.gripper import FINGERS
 
 PRESS_DEPTH = 0.003  # m the finger tips go into the surface (the simulator's tips; see fakes.arm._press_drag)
-SIM_TIP = 0.010  # m past the TCP where the fingers end (fakes.collision.GripperGeometry.tip_z)
 
 
 def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
@@ -206,7 +206,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     press_scene = base_scene.for_grasp(names[k_t])
     if under:
         press_scene = press_scene.allowing([(f"obj:{u}", pad) for u in under for pad in ("pad_a", "pad_b")])
-    z_tcp = p[2] + SIM_TIP - PRESS_DEPTH
+    z_tcp = p[2] + FINGERS.tip_z - PRESS_DEPTH
     timings: dict = {}
     first: PlanningFailure | None = None
     for dist, d in cands:

@@ -13,8 +13,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from kitchenbot.perception.inventory import GraspSpec
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.world.inventory import GraspSpec
 
 
 # ---- trajectories -------------------------------------------------------------------------------------------

@@ -15,17 +15,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from kitchenbot.perception.cell import AreaSpec, Cell
-from kitchenbot.perception.inventory import Inventory, ObjectModel
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.transforms import make_T, rot_x, rot_y, rot_z
+from kitchenbot.world.attitude import faces_down, is_level, is_upright
+from kitchenbot.world.cell import AreaSpec, Cell
+from kitchenbot.world.gripper import DROP_HEIGHT
+from kitchenbot.world.inventory import Inventory, ObjectModel
 
 CLEARANCE = 0.01  # m between neighbouring placed items
 # m between an item released with a near-level side grasp and its neighbours: the open Fin-Ray pads reach ~31 mm
 # beyond the item on both sides of the closing axis (plus the planner's margin), and they must open and back out
 PAD_ROOM = 0.04
-DROP_HEIGHT = 0.01  # m above the support at release (the object settles)
 
 
 @dataclass
@@ -136,7 +137,7 @@ class Task:
     def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> Placed:
         model = self.inventory[obj.obj_id]
         lo, hi, top = footprint(model, T_base_obj)
-        if model.is_rotationally_symmetric and abs(T_base_obj[2, 2]) > 0.95:
+        if model.is_rotationally_symmetric and is_level(T_base_obj):
             # an upright or inverted round item covers its disc whatever yaw the planner turned it to (the box
             # of its turned bounding box is up to 41 % wider and would waste rack/counter room)
             r = max(model.extents[:2]) / 2
@@ -162,7 +163,7 @@ class Task:
         over (inverted / on edge), or (given `obj`) they turn it by more than 120 degrees from how it lies (a cup
         upside down in the sink wanted upright on a stack). The executive then stages it on the counter
         (`staging_targets`) and picks it again."""
-        if any(t.T_base_obj[2, 2] < 0.9 for t in targets):
+        if any(not is_upright(t.T_base_obj) for t in targets):
             return True
         if obj is None:
             return False
@@ -188,8 +189,8 @@ class Task:
         zone = self.cell.spec.drop_zone
         lo = np.array(zone.origin_xy)
         hi = lo + np.array(zone.size_xy)
-        flip = (targets is not None and len(targets) > 0 and obj.T_base_obj[2, 2] < -0.5
-                and all(t.T_base_obj[2, 2] > 0.9 for t in targets))
+        flip = (targets is not None and len(targets) > 0 and faces_down(obj.T_base_obj)
+                and all(is_upright(t.T_base_obj) for t in targets))
         if flip:
             spots = area_spots(model, lo, hi, zone.z, self.placed, inverted, 2, centre_inside=True, clearance=PAD_ROOM)
             out = [PlaceTarget(T, "stage", free_yaw=True, support="counter (upside down, to flip it)") for T in spots]
@@ -300,7 +301,7 @@ def _on_a_pile(model: ObjectModel, placed: list[Placed], max_z: float = 0.35) ->
         if not over:
             continue
         top = max(over, key=lambda p: p.top_z)
-        if abs(top.T_base_obj[2, 2]) < 0.9 or not np.allclose(top.T_base_obj[:2, 3], base.T_base_obj[:2, 3]):
+        if not is_level(top.T_base_obj) or not np.allclose(top.T_base_obj[:2, 3], base.T_base_obj[:2, 3]):
             continue  # only on an upright item centred where we stand it
         if top.obj_id == model.obj_id:
             z = top.T_base_obj[2, 3] + nest_offset_of(model) + DROP_HEIGHT

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.tasks.base import Task, _drop_zone_targets, area_spots, as_is, footprint, on_top_of_same, upright
+from kitchenbot.world.attitude import is_upright
+from kitchenbot.world.inventory import ObjectModel
 
 MAX_STACK = 6
 
@@ -82,7 +83,7 @@ class CupStacking(Task):
         for t in out:
             t.support = "counter (out of a cup's way)"
         R = obj.T_base_obj[:3, :3]
-        if R[2, 2] < 0.95:
+        if not is_upright(obj.T_base_obj):
             z = self.cell.spec.drop_zone
             lo = np.array(z.origin_xy)
             for T in area_spots(model, lo, lo + np.array(z.size_xy), z.z, self.placed, as_is(R), 2, centre_inside="any"):

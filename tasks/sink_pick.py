@@ -21,13 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.tasks.base import (
     CLEARANCE,
-    DROP_HEIGHT,
     Placed,
     Task,
     area_spots,
@@ -35,6 +33,9 @@ from kitchenbot.tasks.base import (
     footprint,
     upright,
 )
+from kitchenbot.world.attitude import is_upright
+from kitchenbot.world.gripper import DROP_HEIGHT
+from kitchenbot.world.inventory import ObjectModel
 
 PILE_CLASSES = ("plate", "bowl", "cup")  # items a person piles up on the counter
 PILE_MAX_TOP = 0.20  # m above the counter: a pile higher gets unstable, and the tool must still reach over it
@@ -60,7 +61,7 @@ def pile_pose(model: ObjectModel, pile: list[Placed]) -> np.ndarray | None:
     """`model` upright on top of `pile` (centred on its top item): nested by its nesting height into the same
     model, else resting on the top item's top. None when the top item is not upright or the pile is too high."""
     top = pile[-1]
-    if top.T_base_obj[2, 2] < 0.95:
+    if not is_upright(top.T_base_obj):
         return None
     T = upright(model, top.T_base_obj[:2, 3], 0.0)
     if top.obj_id == model.obj_id:
@@ -87,7 +88,7 @@ class SinkPick(Task):
             T_base_obj[2, 3] -= DROP_HEIGHT
         p = super().record_placed(obj, target, T_base_obj)
         model = self.inventory[obj.obj_id]
-        if model.is_rotationally_symmetric and T_base_obj[2, 2] > 0.95:
+        if model.is_rotationally_symmetric and is_upright(T_base_obj):
             r = max(model.extents[:2]) / 2
             p.lo, p.hi = T_base_obj[:2, 3] - r, T_base_obj[:2, 3] + r
         return p
@@ -245,7 +246,7 @@ class SinkPick(Task):
         if not out and not any(m.cls == "plate" for m in self.pending if m is not model):
             add(self._pile_targets(model, lambda top: 0 if top.cls == "plate" else None)[:2], "a plate pile")
         R = obj.T_base_obj[:3, :3]
-        if R[2, 2] < 0.95:
+        if not is_upright(obj.T_base_obj):
             # Not upright in the sink (a glass on its side): no grasp may reach "upright", so also offer the
             # drop zone as it lies now (set down the way it is held): nested onto a pile of the same model
             # lying the same way (upside-down bowls onto an upside-down bowl), else a free spot.

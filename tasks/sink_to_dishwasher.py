@@ -1,7 +1,7 @@
 """sink-to-dishwasher: plates upright (on edge) in the lower rack, cups/glasses/bowls/mugs inverted in the upper
 (bowls in the lower one first; the others there when the upper one is full).
 
-Targets: the cell's rack slots (perception.cell.Slot) of the matching rack kind, skipping slots whose footprint
+Targets: the cell's rack slots (world.cell.Slot) of the matching rack kind, skipping slots whose footprint
 would overlap an item already placed or leave the rack. Plates stand on their rim with the face normal along
 base x (the lower rack's narrow x pitch); vessels go rim down. Success: nothing left in the sink and each
 placement verified at its slot.
@@ -14,9 +14,10 @@ import numpy as np
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Placed, Task, area_spots, footprint, inverted, on_edge
+from kitchenbot.world.attitude import faces_down, faces_up, is_level, is_lying
 
 VESSELS = ("cup", "glass", "bowl", "mug")
-RACK_WIRE = 0.006  # m, the racks' side wires (perception.cell)
+RACK_WIRE = 0.006  # m, the racks' side wires (world.cell)
 
 
 def from_the_back(xy) -> tuple[float, float]:
@@ -55,7 +56,7 @@ class SinkToDishwasher(Task):
             # goes in mouth-down as it lies (turned on its rim with that pinch it is released 5 cm up, over the
             # rails, and in a test at three spots the pads' retreat then hit it). Seed 9: two mouth-down bowls
             # in the upper rack left no room for a mug and a cup.
-            if obj.T_base_obj[2, 2] > -0.5:
+            if not faces_down(obj.T_base_obj):
                 lower = self._bowl_in_lower_rack(obj, on_edge, "on its rim")
             else:
                 lower = self._bowl_in_lower_rack(obj, inverted, "mouth-down")
@@ -65,7 +66,7 @@ class SinkToDishwasher(Task):
         if obj.cls == "plate":
             return self._targets(obj, "lower")
         upper = self._targets(obj, "upper")
-        if not isinstance(upper, NoFreeSlot) and obj.T_base_obj[2, 2] <= 0.5:
+        if not isinstance(upper, NoFreeSlot) and not faces_up(obj.T_base_obj):
             return upper
         # The upper rack is full (it takes about seven cups, glasses and mugs with the room a level grasp needs;
         # seed 4: six cups, two glasses and a mug), or the item stands upright and its free spots may all lie
@@ -84,7 +85,7 @@ class SinkToDishwasher(Task):
         out = super().staging_targets(obj, targets)
         if isinstance(out, NoFreeSlot):
             return out
-        return sorted(out, key=lambda t: abs(t.T_base_obj[2, 2]) > 0.5)  # lying first, stable
+        return sorted(out, key=lambda t: not is_lying(t.T_base_obj))  # lying first, stable
 
     def _bowl_in_lower_rack(self, obj: ObjectPose, pose, how: str) -> list[PlaceTarget]:
         """A bowl (or a vessel the full upper rack has no room for) in the lower rack, `pose` on_edge (on its rim,
@@ -151,7 +152,7 @@ class SinkToDishwasher(Task):
         standing or lying mouth-down, the distance of their discs; otherwise their xy boxes."""
         other = self.inventory.models.get(p.obj_id)
         if (model.is_rotationally_symmetric and other is not None and other.is_rotationally_symmetric
-                and abs(p.T_base_obj[2, 2]) > 0.95 and abs(T[2, 2]) > 0.95):
+                and is_level(p.T_base_obj) and is_level(T)):
             d = np.hypot(*(T[:2, 3] - p.T_base_obj[:2, 3]))
             return d >= max(model.extents[:2]) / 2 + max(other.extents[:2]) / 2 + CLEARANCE - 1e-9
         lo, hi, _ = footprint(model, T)
@@ -184,9 +185,9 @@ class SinkToDishwasher(Task):
             # level only coming in along +x..+30 degrees (a scan of release poses over the rack), so the pads open
             # along ~y: PAD_ROOM in y, 1 cm in x. An item already mouth-down is carried from above (a base grasp):
             # 1 cm is enough.
-            mouth_down = obj.T_base_obj[2, 2] < -0.5
+            mouth_down = faces_down(obj.T_base_obj)
             room = CLEARANCE if mouth_down else np.array([CLEARANCE, PAD_ROOM])
-            if obj.T_base_obj[2, 2] > 0.5:
+            if faces_up(obj.T_base_obj):
                 # Upright (in the sink or staged on the counter): only a level side grasp turns it over, and a
                 # level tool reaches only the rack's near part in x (centres up to ~0.53 m, a scan of release
                 # poses): the smallest x first, then nearest the robot in y. Six of them: the three nearest the

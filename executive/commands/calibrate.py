@@ -127,8 +127,8 @@ def _run_routine(args: argparse.Namespace) -> int:
     from kitchenbot.calibration.files import Corners, save_hand_eye, save_samples
     from kitchenbot.calibration.routine import RoutineSettings, run_routine, tool_spheres
     from kitchenbot.executive.config import load_config
-    from kitchenbot.perception.cell import Cell
     from kitchenbot.transforms import pose_error
+    from kitchenbot.world.cell import Cell
 
     if args.samples < 3:
         raise ValueError(f"--samples: expected at least 3 viewpoints, got {args.samples}")

@@ -32,8 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from kitchenbot.executive.config import load_config
-    from kitchenbot.perception.cell import Cell
     from kitchenbot.perception.evaluate import evaluate, sweep, write_bop_csv
+    from kitchenbot.world.cell import Cell
 
     if not args.dataset.is_dir():
         raise FileNotFoundError(f"{args.dataset}: dataset folder not found")

@@ -22,8 +22,8 @@ from kitchenbot.calibration.routine import (
 from kitchenbot.drivers.ur_kinematics import fk_flange, ur_model
 from kitchenbot.executive.cli import main
 from kitchenbot.executive.config import load_config
-from kitchenbot.perception.cell import Cell
 from kitchenbot.transforms import from_xyz_rpy, inv, make_T, pose_error, rot_x
+from kitchenbot.world.cell import Cell
 
 _spec = importlib.util.spec_from_file_location("calib_harness", Path(__file__).with_name("harness.py"))
 harness = importlib.util.module_from_spec(_spec)

@@ -12,13 +12,14 @@ from kitchenbot.fakes.arm import FakeArm, Trapezoid
 from kitchenbot.fakes.gripper import FakeGripper
 from kitchenbot.fakes.placement import drop_onto
 from kitchenbot.fakes.world import SimWorld
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
+from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.transforms import inv, trans
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
 
 CFG = CellConfig()
 HOME = np.array(CFG.robot.home)
-INVENTORY = Inventory.builtin()
+INVENTORY = ensure_grasps(Inventory.builtin())
 
 
 def make_rig(with_cup: bool = False):

@@ -11,12 +11,13 @@ from kitchenbot.drivers import DeviceNotConnectedError, HardwareError
 from kitchenbot.executive.config import CellConfig
 from kitchenbot.fakes.gripper import FakeGripper
 from kitchenbot.fakes.world import SimWorld
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory, ObjectModel
+from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.transforms import inv, trans
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory, ObjectModel
 
 CFG = CellConfig()
-INVENTORY = Inventory.builtin()
+INVENTORY = ensure_grasps(Inventory.builtin())
 
 
 def make_world() -> SimWorld:
@@ -122,7 +123,7 @@ def test_bad_arguments_and_connection():
 
 
 def test_upside_down_bowl_is_held_by_its_foot_ring():
-    """A foot-ring pinch (perception.inventory) from above an upside-down bowl: the pads stall on the ring."""
+    """A foot-ring pinch (world.gripper) from above an upside-down bowl: the pads stall on the ring."""
     world = make_world()
     bowl = INVENTORY.by_name("bowl")
     spec = next(g for g in bowl.grasps if g.name.startswith("foot_"))

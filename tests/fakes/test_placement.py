@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from kitchenbot.fakes.placement import _Body, _drop, _support_pivot, drop_onto, settle
 from kitchenbot.fakes.geometry import build_scene
+from kitchenbot.fakes.placement import _Body, _drop, _support_pivot, drop_onto, settle
 from kitchenbot.fakes.world import SimWorld
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.transforms import make_T, rot_x
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
 
 
 @pytest.fixture(scope="module")

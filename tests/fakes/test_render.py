@@ -7,9 +7,9 @@ from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutErro
 from kitchenbot.fakes.camera import FakeCamera
 from kitchenbot.fakes.render import oakd_intrinsics, render, stereo_noise
 from kitchenbot.fakes.world import SimWorld
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.transforms import make_T, rot_x, transform_points, inv
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
 
 
 @pytest.fixture(scope="module")

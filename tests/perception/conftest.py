@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.pipeline import Perceiver
 from kitchenbot.perception.settings import PerceptionSettings
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
 
 
 @pytest.fixture(scope="session")

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from kitchenbot.executive.config import CellConfig
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.pick_place import Planner
+from kitchenbot.world.inventory import Inventory
 
 
 @pytest.fixture(scope="session")
@@ -19,7 +20,7 @@ def cfg() -> CellConfig:
 
 @pytest.fixture(scope="session")
 def inventory() -> Inventory:
-    return Inventory.builtin()
+    return ensure_grasps(Inventory.builtin())
 
 
 @pytest.fixture(scope="session")
@@ -58,13 +59,13 @@ def grasps_hold():
     from kitchenbot.executive.config import CellConfig
     from kitchenbot.fakes.gripper import FakeGripper
     from kitchenbot.fakes.world import SimWorld
-    from kitchenbot.perception.cell import Cell
-    from kitchenbot.perception.inventory import Inventory
     from kitchenbot.transforms import inv
+    from kitchenbot.world.cell import Cell
+    from kitchenbot.world.inventory import Inventory
 
     def check(name: str, prefix: str, every: int) -> None:
         cfg = CellConfig()
-        inventory = Inventory.builtin()
+        inventory = ensure_grasps(Inventory.builtin())
         world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
         m = inventory.by_name(name)
         specs = [g for g in m.grasps if g.name.startswith(prefix)][::every]

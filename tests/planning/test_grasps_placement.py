@@ -8,6 +8,7 @@ import pytest
 from kitchenbot.planning.grasps import GraspStats
 from kitchenbot.planning.placement import SlotBook, nesting_height, stack_target
 from kitchenbot.planning.types import Grasp, NoFreeSlot, NoGraspableObject, PlanningFailure
+from kitchenbot.world.gripper import DROP_HEIGHT
 
 
 def test_grasps_ranked_and_from_above(planner, home, resting):
@@ -126,4 +127,4 @@ def test_stacking_raises_by_the_nesting_height(planner, resting):
     base = resting("cup", (0.45, 0.4), 3, z_floor=0.0)
     t = stack_target(cup, base)
     np.testing.assert_allclose(t.T_base_obj[:3, :3], base.T_base_obj[:3, :3])
-    assert t.T_base_obj[2, 3] - base.T_base_obj[2, 3] == pytest.approx(h + 0.006)
+    assert t.T_base_obj[2, 3] - base.T_base_obj[2, 3] == pytest.approx(h + DROP_HEIGHT)

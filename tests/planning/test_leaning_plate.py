@@ -1,16 +1,16 @@
 """A plate leaning against a basin wall (its upper lip on the wall): the standard rim pinches put the outer pad
 into the wall, so plates also get a narrow rim pinch (8 mm bite, 8 mm of slack per pad), level and rolled 45
-degrees about its closing axis (perception.inventory.generate_grasps, sink-pick seeds 22, 30, 46)."""
+degrees about its closing axis (planning.grasp_synthesis.generate_grasps, sink-pick seeds 22, 30, 46)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from kitchenbot.perception.inventory import NARROW_ROLLS
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning import grasps as grasps_mod
 from kitchenbot.planning.fcl_check import FclChecker, verify_pick
+from kitchenbot.planning.grasp_synthesis import NARROW_ROLLS
 from kitchenbot.transforms import make_T, rot_x
 
 

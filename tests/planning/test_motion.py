@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.perception.cell import Box
 from kitchenbot.planning.fcl_check import FclChecker
 from kitchenbot.planning.motion import (
     cartesian_line,
@@ -19,6 +18,7 @@ from kitchenbot.planning.motion import (
 from kitchenbot.planning.timing import time_parameterise
 from kitchenbot.planning.types import GoalInCollision, StartInCollision
 from kitchenbot.transforms import make_T, trans
+from kitchenbot.world.cell import Box
 
 
 def _q_at(planner, home, xyz):

@@ -7,8 +7,8 @@ from dataclasses import replace
 import numpy as np
 
 from kitchenbot.planning.grasps import OBSERVED_HITS, GraspStats, observed_in_grip, observed_in_tool
-from kitchenbot.perception.inventory import PAD_DEPTH
 from kitchenbot.transforms import trans
+from kitchenbot.world.gripper import PAD_DEPTH
 
 
 def test_points_in_a_pad_or_the_palm_count_points_between_the_pads_do_not(planner):

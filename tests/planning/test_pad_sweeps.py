@@ -3,10 +3,10 @@
 import coal
 import numpy as np
 
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.planning.collision import GripperGeometry, mesh_bvh
 from kitchenbot.planning.grasps import _tf, pad_sweeps
 from kitchenbot.transforms import trans
+from kitchenbot.world.inventory import Inventory
 
 
 def _hits(vol_T, bvh, T_obj):

@@ -11,8 +11,9 @@ from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.fakes.arm import FakeArm
 from kitchenbot.fakes.gripper import FakeGripper
 from kitchenbot.planning.pick_place import Planner
-from kitchenbot.planning.slide import PRESS_DEPTH, SIM_TIP, press_point
+from kitchenbot.planning.slide import PRESS_DEPTH, press_point
 from kitchenbot.transforms import make_T
+from kitchenbot.world.gripper import FINGERS
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -60,7 +61,7 @@ def test_level_push_of_a_nested_plate_jams(nested):
     cfg, world, arm, planner = nested
     o = world.objects[2]
     p = press_point(o.model, o.T_base_obj)
-    T = make_T(np.diag([1.0, -1.0, -1.0]), (p[0], p[1], p[2] + SIM_TIP - PRESS_DEPTH))
+    T = make_T(np.diag([1.0, -1.0, -1.0]), (p[0], p[1], p[2] + FINGERS.tip_z - PRESS_DEPTH))
     T_above = T.copy()
     T_above[2, 3] += 0.1
     q = planner.robot.ik_all(T_above, world.q)[0]
@@ -77,7 +78,7 @@ def test_fingers_pressing_too_deep_are_stopped(nested):
     cfg, world, arm, planner = nested
     o = world.objects[2]
     p = press_point(o.model, o.T_base_obj)
-    T = make_T(np.diag([1.0, -1.0, -1.0]), (p[0], p[1], p[2] + SIM_TIP - 0.009))  # 9 mm into the plate
+    T = make_T(np.diag([1.0, -1.0, -1.0]), (p[0], p[1], p[2] + FINGERS.tip_z - 0.009))  # 9 mm into the plate
     T_above = T.copy()
     T_above[2, 3] += 0.1
     arm.move_joints(planner.robot.ik_all(T_above, world.q)[0], speed=1.0)

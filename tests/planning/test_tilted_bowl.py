@@ -1,7 +1,7 @@
 """A bowl lying tilted on a pile (sink seed 31: at 129 degrees on two leaning side plates and a dinner plate, its
 foot ring facing the right basin wall): every rim pinch comes from below or runs into the plates, and the
 foot-ring pinch along the bowl's axis comes in 52 degrees from vertical, over the wall (the palm hits it). The
-foot-ring pinch pitched in from outside the ring (perception.inventory.generate_grasps, `footpitch`) comes in
+foot-ring pinch pitched in from outside the ring (planning.grasp_synthesis.generate_grasps, `footpitch`) comes in
 from above the pile."""
 
 from __future__ import annotations

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.transforms import make_T
+from kitchenbot.world.inventory import Inventory
 
 
 @pytest.fixture(scope="session")

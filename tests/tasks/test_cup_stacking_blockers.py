@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.perception.cell import Cell
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.tasks import make_task
 from kitchenbot.transforms import make_T, rot_y
+from kitchenbot.world.cell import Cell
 
 
 def put(inv, name, xyz, R=np.eye(3), k=0):

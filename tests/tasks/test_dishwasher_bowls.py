@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.perception.cell import Cell
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.tasks import make_task
 from kitchenbot.transforms import make_T
+from kitchenbot.world.cell import Cell
 
 MOUTH_DOWN = np.diag([1.0, -1.0, -1.0])
 

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.perception.cell import Cell
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.tasks import make_task
 from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, footprint
+from kitchenbot.world.cell import Cell
 
 MOUTH_DOWN = np.diag([1.0, -1.0, -1.0])
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.perception.cell import Cell
 from kitchenbot.tasks import make_task
 from kitchenbot.transforms import rot_x, rot_y
+from kitchenbot.world.cell import Cell
 
 MOUTH_DOWN = rot_x(np.pi)[:3, :3]
 LYING = rot_y(np.pi / 2)[:3, :3]

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.perception.cell import Cell
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.tasks import make_task
 from kitchenbot.tasks.base import PAD_ROOM, footprint
+from kitchenbot.world.cell import Cell
 
 MOUTH_DOWN = np.diag([1.0, -1.0, -1.0])
 
@@ -105,8 +105,9 @@ def test_a_new_stack_is_offered_after_the_top_of_the_existing_one(inv, sink_item
 def test_as_is_rests_the_lowest_point_on_the_support(inv):
     """A tilted mug (not symmetric) set down as it lay: its lowest point (in the base frame) just above the
     support."""
-    from kitchenbot.tasks.base import DROP_HEIGHT, as_is
+    from kitchenbot.tasks.base import as_is
     from kitchenbot.transforms import rot_x, rot_z
+    from kitchenbot.world.gripper import DROP_HEIGHT
 
     m = inv.by_name("mug")
     R = (rot_z(0.7) @ rot_x(1.1))[:3, :3]

@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.perception.cell import Cell
-from kitchenbot.perception.inventory import Inventory
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.tasks import make_task
-from kitchenbot.tasks.base import DROP_HEIGHT
 from kitchenbot.transforms import make_T
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.gripper import DROP_HEIGHT
+from kitchenbot.world.inventory import Inventory
 
 
 def in_sink(inv, name, k):

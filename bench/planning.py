@@ -91,11 +91,11 @@ def _perturb(T: np.ndarray, rng: np.random.Generator, mm: float, deg: float) -> 
 def run_bench(n_scenes: int, seed: int, cfg=None, objects_per_scene: int = 4, check_step: float = 0.003,
               progress=None, pose_noise: tuple[float, float] = (0.0, 0.0), clear: bool = False) -> dict:
     from kitchenbot.fakes.scenes import generate_scene  # the simulator's scene generator (bench only)
-    from kitchenbot.perception.inventory import Inventory
     from kitchenbot.perception.types import ObjectPose
     from kitchenbot.planning.fcl_check import FclChecker, verify_pick, verify_place
     from kitchenbot.planning.pick_place import Planner
     from kitchenbot.planning.placement import SlotBook
+    from kitchenbot.world.inventory import Inventory
 
     if cfg is None:
         from kitchenbot.executive.config import load_config

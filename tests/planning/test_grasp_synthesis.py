@@ -1,33 +1,17 @@
-"""The inventory: closed dishware meshes, BOP round trip, grasps, clear errors for broken input."""
-
-import json
+"""Grasp synthesis for the builtin dishware: grasps fit the gripper, touch the item, keep the open pads out of it."""
 
 import numpy as np
 import open3d as o3d
 import pytest
 
-from kitchenbot.perception.inventory import GRIPPER_MAX_OPENING, Inventory, InventoryError, pad_span
+from kitchenbot.planning.grasp_synthesis import ensure_grasps, pad_span
+from kitchenbot.world.gripper import MAX_OPENING
+from kitchenbot.world.inventory import Inventory
 
 
 @pytest.fixture(scope="module")
 def inventory():
-    return Inventory.builtin()
-
-
-def test_builtin_dishware_is_closed_with_wall_thickness(inventory):
-    names = {m.name for m in inventory}
-    assert {"dinner_plate", "side_plate", "bowl", "cup", "mug", "glass"} <= names
-    for m in inventory:
-        assert m.mesh.is_watertight(), m.name
-        assert m.mesh.get_volume() > 0, m.name
-        # BOP object frame: bounding-box centre at the origin.
-        bb = m.mesh.get_axis_aligned_bounding_box()
-        assert np.allclose(bb.get_center(), 0, atol=1e-9)
-        # Hollow: the solid volume is far below the bounding volume.
-        assert m.mesh.get_volume() < 0.3 * np.prod(m.extents), m.name
-        assert m.extents.max() - 1e-9 <= m.diameter <= np.linalg.norm(m.extents) + 1e-9
-    assert inventory.by_name("mug").symmetries_continuous == []
-    assert inventory.by_name("cup").symmetries_continuous
+    return ensure_grasps(Inventory.builtin())
 
 
 def test_grasps_fit_the_gripper_and_touch_the_object(inventory):
@@ -36,59 +20,12 @@ def test_grasps_fit_the_gripper_and_touch_the_object(inventory):
         for g in m.grasps:
             R = g.T_obj_tcp[:3, :3]
             assert np.allclose(R.T @ R, np.eye(3), atol=1e-9)
-            assert 0 < g.width < g.opening <= GRIPPER_MAX_OPENING
+            assert 0 < g.width < g.opening <= MAX_OPENING
             assert pad_span(m, g.T_obj_tcp) == pytest.approx(g.width, abs=1e-6)
     cup = inventory.by_name("cup")
     side = [g for g in cup.grasps if g.name.startswith("side")]
     # A side grasp closes across the cup: about its outer diameter at mid height.
     assert 0.06 < side[0].width < 0.085
-
-
-def test_symmetry_transforms_keep_a_round_item(inventory):
-    cup = inventory.by_name("cup")
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(cup.points)
-    for S in cup.symmetry_transforms(12)[1:]:
-        moved = cup.points @ S[:3, :3].T + S[:3, 3]
-        assert np.median(tree.query(moved)[0]) < 0.003
-
-
-def test_bop_round_trip(tmp_path, inventory):
-    inventory.save_bop(tmp_path / "models", tmp_path / "models" / "grasps.json")
-    info = json.loads((tmp_path / "models" / "models_info.json").read_text())
-    assert info["1"]["diameter"] == pytest.approx(inventory[1].diameter * 1000)
-    loaded = Inventory.load(tmp_path / "models", tmp_path / "models" / "grasps.json")
-    for m in inventory:
-        l2 = loaded[m.obj_id]
-        assert l2.name == m.name and l2.cls == m.cls and len(l2.grasps) == len(m.grasps)
-        assert np.allclose(l2.extents, m.extents, atol=1e-6)
-        assert bool(l2.symmetries_continuous) == bool(m.symmetries_continuous)
-        assert np.allclose(np.asarray(l2.mesh.vertices), np.asarray(m.mesh.vertices), atol=1e-6)
-    # Without a grasps file the models still load (e.g. someone else's BOP dataset).
-    bare = Inventory.load(tmp_path / "models")
-    assert bare[1].name == "obj_000001" and bare[1].grasps == []
-
-
-def test_broken_inputs_name_the_file(tmp_path, inventory):
-    with pytest.raises(InventoryError, match="models_info.json"):
-        Inventory.load(tmp_path)
-    inventory.save_bop(tmp_path / "m")
-    (tmp_path / "m" / "obj_000003.ply").unlink()
-    with pytest.raises(InventoryError, match="obj_000003.ply"):
-        Inventory.load(tmp_path / "m")
-    (tmp_path / "m" / "obj_000003.ply").write_text("ply\nformat ascii 1.0\nend_header\n")
-    with pytest.raises(InventoryError, match="obj_000003.ply"):
-        Inventory.load(tmp_path / "m")
-    inventory.save_bop(tmp_path / "m")
-    g = tmp_path / "grasps.json"
-    g.write_text(json.dumps({"units": "m", "objects": {"1": {"grasps": [{"name": "a", "opening": 0.05}]}}}))
-    with pytest.raises(InventoryError, match=r"grasps\.json: objects\.1\.grasps\[0\]: missing key 'T_obj_tcp'"):
-        Inventory.load(tmp_path / "m", g)
-    g.write_text(json.dumps({"units": "m", "objects": {"1": {"grasps": [
-        {"name": "a", "opening": 0.05, "width": 0.01, "T_obj_tcp": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}]}}}))
-    with pytest.raises(InventoryError, match="rigid transform"):
-        Inventory.load(tmp_path / "m", g)
 
 
 def test_mug_rim_grasps_straddle_the_wall(inventory):
@@ -103,7 +40,7 @@ def test_mug_rim_grasps_straddle_the_wall(inventory):
 def test_bowl_has_a_foot_ring_and_foot_ring_pinches(inventory):
     """The bowl stands on a 10 mm foot ring; its foot-ring pinches approach along +z (from above an upside-down
     bowl), straddle the ring (one pad inside, one outside) and stop short of the recessed bottom."""
-    from kitchenbot.perception.dishware import BOWL_FOOT
+    from kitchenbot.world.dishware import BOWL_FOOT
 
     bowl = inventory.by_name("bowl")
     V = np.asarray(bowl.mesh.vertices)
@@ -131,7 +68,7 @@ def test_bowl_has_a_foot_ring_and_foot_ring_pinches(inventory):
 def test_no_grasp_drives_its_open_pads_through_the_item(inventory):
     """Every vessel grasp keeps the open pads out of the item (the pads may touch their target in the planner,
     so a pad inside a lying cup's wall would go unchecked); the check itself catches a pad cut into a wall."""
-    from kitchenbot.perception.inventory import _pads_clear
+    from kitchenbot.planning.grasp_synthesis import _pads_clear
     from kitchenbot.transforms import rot_y
 
     for m in inventory:
@@ -156,8 +93,8 @@ def test_bowl_foot_ring_pinches_pitched_in_from_outside(inventory):
     """A bowl lying tilted offers its foot ring at a slant: the foot-ring pinch also comes pitched 10 and 20
     degrees about the ring's tangent, leaning in from outside the ring, closing across the ring wall, its open
     pads clear of the bowl (the outer pad's tip stops at the body's underside)."""
-    from kitchenbot.perception.dishware import BOWL_FOOT
-    from kitchenbot.perception.inventory import FOOT_PITCHES, _pads_clear
+    from kitchenbot.planning.grasp_synthesis import FOOT_PITCHES, _pads_clear
+    from kitchenbot.world.dishware import BOWL_FOOT
 
     bowl = inventory.by_name("bowl")
     ro, w, h = BOWL_FOOT

@@ -32,9 +32,9 @@ def bench_perception(args: argparse.Namespace) -> int:
 
     from kitchenbot.executive.config import load_config
     from kitchenbot.perception import bop
-    from kitchenbot.perception.cell import Cell
-    from kitchenbot.perception.inventory import Inventory
     from kitchenbot.perception.pipeline import Perceiver
+    from kitchenbot.world.cell import Cell
+    from kitchenbot.world.inventory import Inventory
 
     if args.cores:
         os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[: args.cores]))

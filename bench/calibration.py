@@ -83,8 +83,8 @@ def sim_table(seeds: int = 5, samples: int = 15, report: Path | None = None) -> 
     from kitchenbot.calibration.routine import RoutineSettings, run_routine, tool_spheres
     from kitchenbot.executive.calibration_sim import make_calibration_sim
     from kitchenbot.executive.config import load_config
-    from kitchenbot.perception.cell import Cell
     from kitchenbot.transforms import pose_error
+    from kitchenbot.world.cell import Cell
 
     cfg = load_config()
     spec = CharucoSpec()

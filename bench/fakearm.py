@@ -28,6 +28,7 @@ def bench_fakearm(args: argparse.Namespace) -> int:
     from kitchenbot.fakes import FakeArm, FakeGripper, generate_scene
     from kitchenbot.fakes import collision as coll
     from kitchenbot.fakes.placement import drop_onto
+    from kitchenbot.planning.grasp_synthesis import generate_grasps
     from kitchenbot.transforms import trans
 
     cfg = CellConfig()
@@ -56,7 +57,7 @@ def bench_fakearm(args: argparse.Namespace) -> int:
                 t = time.perf_counter()
                 arm.move_joints(np.array(q), speed=1.0, accel=2.0)
                 times["move_joints"].append(time.perf_counter() - t)
-            spec = next(g for g in world.objects[cup].model.grasps if g.name.startswith("rim"))
+            spec = next(g for g in generate_grasps(world.objects[cup].model) if g.name.startswith("rim"))
             T_grasp = world.objects[cup].T_base_obj @ spec.T_obj_tcp
             for T in (T_grasp @ trans(0, 0, -0.08), T_grasp):
                 t = time.perf_counter()
