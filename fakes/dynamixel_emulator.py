@@ -285,7 +285,7 @@ class Servo:
     current: float = 0.0  # units, signed
     temperature: float = 30.0
     rebooting_until: float = 0.0
-    overload_after_s: float = 1.5  # seconds of saturated stall before Overload (not published by ROBOTIS; a model)
+    overload_after_s: float = 2.0  # seconds of saturated stall before Overload (not published by ROBOTIS; a model)
     saturated_s: float = 0.0  # how long the output has been saturated while stalled
     last_t: float = field(default_factory=time.monotonic)
     start_t: float = field(default_factory=time.monotonic)
@@ -666,7 +666,7 @@ def serve(
     baudrate: int = 57600,
     check_baud: bool = True,
     extra_ids: tuple[int, ...] = (),
-    overload_after_s: float = 1.5,
+    overload_after_s: float = 2.0,
 ) -> None:
     """Run the emulator until stdin closes: print the pty path first, then answer the bus and the control
     channel (one JSON object per line on stdin -> one on stdout). `extra_ids`: more XM430s on the same bus
@@ -739,7 +739,7 @@ class DynamixelEmulator:
         max_opening: float = 0.085,
         object_width: float | None = None,
         extra_ids: tuple[int, ...] = (),
-        overload_after_s: float = 1.5,
+        overload_after_s: float = 2.0,
     ):
         """`extra_ids`: more servos on the bus (empty grippers); `overload_after_s`: seconds of saturated stall
         before the servo latches Overload."""
@@ -858,7 +858,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--object-width", type=float, default=None)
     p.add_argument("--no-baud-check", action="store_true")
     p.add_argument("--extra-ids", default="", help="comma-separated ids of more servos on the bus")
-    p.add_argument("--overload-after", type=float, default=1.5, help="seconds of saturated stall before Overload")
+    p.add_argument("--overload-after", type=float, default=2.0, help="seconds of saturated stall before Overload")
     a = p.parse_args(argv)
     mech = GripperMechanics(a.closed_ticks, a.open_ticks, a.max_opening, a.object_width)
     extra = tuple(int(x) for x in a.extra_ids.split(",") if x.strip())

@@ -358,26 +358,25 @@ def test_a_current_limit_below_friction_is_not_holding(emu, gripper):
 
 
 def test_a_held_grasp_does_not_saturate_into_overload(emu, gripper):
-    emu.set_overload_after(0.3)
+    """Once grasp() returns the position loop is no longer saturated (the emulator's overload timer is reset and
+    stays so), so no time held can trip Overload (the test after next shows a saturated stall does)."""
     emu.set_object(0.040)
     gripper.open()
     r = gripper.grasp(current_limit=0.5)
     assert r.holding and r.current == pytest.approx(0.9 * 0.5, rel=0.15)  # below the clamp: not saturated
-    s = emu.state()
-    assert s["saturated_s"] == 0.0
-    time.sleep(0.6)  # twice the emulator's overload time passes with the object held
+    assert emu.state()["saturated_s"] == 0.0
     st = gripper.status()
     assert st.error is None and st.holding
-    assert emu.state()["torque_enable"] == 1
+    s = emu.state()
+    assert s["saturated_s"] == 0.0 and s["torque_enable"] == 1
 
 
-def test_fully_closed_grasp_does_not_trip_overload(emu, gripper):
-    emu.set_overload_after(0.3)
+def test_fully_closed_grasp_does_not_saturate_into_overload(emu, gripper):
     gripper.open()
     assert not gripper.grasp(current_limit=0.5).holding
-    time.sleep(0.6)
     assert gripper.status().error is None
-    assert emu.state()["torque_enable"] == 1
+    s = emu.state()
+    assert s["saturated_s"] == 0.0 and s["torque_enable"] == 1
 
 
 def test_a_sustained_saturated_stall_trips_overload_and_shuts_down(emu):
