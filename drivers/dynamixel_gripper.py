@@ -4,10 +4,12 @@ The servo runs in current-based position mode (Operating Mode 5): it moves to th
 harder than the goal current, so closing on a cup stalls on its wall with the current at the goal. A grasp is
 *holding* when the fingers closed during the grasp (not a stall on friction where they started) and stalled
 inside the object range (above ``min_holding_opening``, below ``max_holding_opening``) with the current near the
-goal. A stall far short of the goal saturates the servo's position loop, and a real XM430 latches Overload after a
-few seconds of that (torque off: the object drops); so once the fingers stall on an object the goal is moved to
-just past the stalled position, where the loop asks for ~90 % of the goal current and no longer saturates (as
-gripper firmwares do), and with nothing held the goal is set to where the fingers stopped.
+goal. A stall far short of the goal saturates the servo's position loop, and a real XM430 latches Overload when
+that lasts (torque off: the object drops); so once the fingers stall on an object the goal is moved to just past
+the stalled position, where the loop asks for ~90 % of the goal current and no longer saturates, and with nothing
+held the goal is set to where the fingers stopped. The offset assumes the loop asks for Position P Gain / 128
+current units per tick of error (the emulator's model); if the servo's loop is stiffer, the offset is halved until
+the present current falls below the Goal Current.
 
 Connecting never switches torque off on a servo that is on and configured (it may be holding something); the
 EEPROM settings (operating mode, Current Limit) are written only when they differ, and when the servo holds an
@@ -52,7 +54,7 @@ ADDR_CURRENT_LIMIT = 38  # 2 (EEPROM)
 ADDR_SHUTDOWN = 63  # 1 (EEPROM): which hardware errors turn torque off
 ADDR_TORQUE_ENABLE = 64  # 1
 ADDR_HARDWARE_ERROR = 70  # 1
-ADDR_POSITION_P_GAIN = 84  # 2: the position loop asks for Kp/128 current units per tick of error
+ADDR_POSITION_P_GAIN = 84  # 2: assumed: the position loop asks for Kp/128 current units per tick of error
 ADDR_GOAL_CURRENT = 102  # 2
 ADDR_GOAL_POSITION = 116  # 4
 ADDR_MOVING = 122  # 1; one READ of 122..146 gets every present value at once
