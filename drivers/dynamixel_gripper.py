@@ -2,7 +2,18 @@
 
 The servo runs in current-based position mode (Operating Mode 5): it moves to the goal position but never pushes
 harder than the goal current, so closing on a cup stalls on its wall with the current at the goal. A grasp is
-*holding* when the fingers stalled before they were fully closed with the current near the goal.
+*holding* when the fingers closed during the grasp (not a stall on friction where they started) and stalled
+inside the object range (above ``min_holding_opening``, below ``max_holding_opening``) with the current near the
+goal. A stall far short of the goal saturates the servo's position loop, and a real XM430 latches Overload when
+that lasts (torque off: the object drops); so once the fingers stall on an object the goal is moved to just past
+the stalled position, where the loop asks for ~90 % of the goal current and no longer saturates, and with nothing
+held the goal is set to where the fingers stopped. The offset assumes the loop asks for Position P Gain / 128
+current units per tick of error (the emulator's model); if the servo's loop is stiffer, the offset is halved until
+the present current falls below the Goal Current.
+
+Connecting never switches torque off on a servo that is on and configured (it may be holding something); the
+EEPROM settings (operating mode, Current Limit) are written only when they differ, and when the servo holds an
+object that write waits for the next open()/grasp().
 
 Calibration (linear, documented in the constructor): the opening between the finger pads is
 ``max_opening * (ticks - closed_ticks) / (open_ticks - closed_ticks)``; ``closed_ticks`` is the servo position
@@ -23,6 +34,7 @@ import termios
 import time
 from dataclasses import dataclass
 
+import serial
 from dynamixel_sdk import PacketHandler, PortHandler
 from serial import SerialException
 
@@ -42,6 +54,7 @@ ADDR_CURRENT_LIMIT = 38  # 2 (EEPROM)
 ADDR_SHUTDOWN = 63  # 1 (EEPROM): which hardware errors turn torque off
 ADDR_TORQUE_ENABLE = 64  # 1
 ADDR_HARDWARE_ERROR = 70  # 1
+ADDR_POSITION_P_GAIN = 84  # 2: assumed: the position loop asks for Kp/128 current units per tick of error
 ADDR_GOAL_CURRENT = 102  # 2
 ADDR_GOAL_POSITION = 116  # 4
 ADDR_MOVING = 122  # 1; one READ of 122..146 gets every present value at once
@@ -85,9 +98,12 @@ def _signed(value: int, size: int) -> int:
 
 
 class DxlPortHandler(PortHandler):
-    """The SDK's PortHandler with two changes:
+    """The SDK's PortHandler with four changes:
+    - the port is opened exclusively (pyserial ``exclusive=True``, an flock): a second program (the doctor, a
+      Dynamixel Wizard, another kitchenbot) cannot interleave packets with ours; it gets "port in use";
     - a floor on the status-packet timeout: the SDK waits 2 x 16 ms (the FTDI latency timer) + transfer time;
       a loaded host or a slow USB hub can need more before declaring a timeout;
+    - timeouts on the monotonic clock (the SDK uses time.time(), which jumps when NTP steps the clock);
     - no busy wait: the SDK polls a non-blocking read in a tight loop while it waits for a status packet,
       burning a core; here an empty read blocks in select() until a byte arrives (at most 1 ms), which wakes
       as soon as data is there, so latency is unchanged."""
@@ -95,6 +111,20 @@ class DxlPortHandler(PortHandler):
     def __init__(self, port_name: str, min_timeout_ms: float = 0.0):
         super().__init__(port_name)
         self.min_timeout_ms = min_timeout_ms
+
+    def setupPort(self, cflag_baud):  # noqa: N802 - SDK method name
+        if self.is_open:
+            self.closePort()
+        self.ser = serial.Serial(
+            port=self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS, timeout=0, exclusive=True
+        )
+        self.is_open = True
+        self.ser.reset_input_buffer()
+        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+        return True
+
+    def getCurrentTime(self):  # noqa: N802 - SDK method name (milliseconds)
+        return time.monotonic() * 1000.0
 
     def readPort(self, length):  # noqa: N802 - SDK method name
         data = self.ser.read(length)
@@ -136,7 +166,10 @@ class DynamixelGripper(Gripper):
         current_limit_ma: float = 600.0,
         closing_overshoot_ticks: int = 40,
         min_holding_opening: float = 0.004,
+        max_holding_opening: float | None = None,
+        min_grasp_travel: float = 0.001,
         holding_current_fraction: float = 0.7,
+        hold_current_fraction: float = 0.9,
         position_tolerance_ticks: int = 25,
         retries: int = 3,
         poll_interval: float = 0.01,
@@ -146,7 +179,13 @@ class DynamixelGripper(Gripper):
         """`closed_ticks`/`open_ticks`/`max_opening`: the linear calibration above. `current_limit_ma` is
         written to Current Limit (@38) at connect and bounds every grasp. `closing_overshoot_ticks`: a grasp
         aims this far past closed so the pads press together when there is nothing between them.
-        `min_holding_opening` (m): below it a stall counts as fully closed (not holding).
+        `min_holding_opening` (m): below it a stall counts as fully closed (not holding); `max_holding_opening`
+        (m, default 2 mm short of `max_opening`): above it a stall is not on an object. `min_grasp_travel` (m): the
+        fingers must close at least this far during a grasp to hold (a stall where they started is friction: a
+        current limit too low to move them). `holding_current_fraction`: the present current that counts as
+        pressing, of the goal current. `hold_current_fraction`: after the stall the goal moves just past the
+        stalled position so that the position loop asks for this fraction of the goal current (not saturated:
+        no Overload).
         `retries`: attempts per transaction on timeouts/corrupt packets; `min_packet_timeout_ms`: a floor on the
         SDK's status-packet timeout (0 keeps the SDK's ~34 ms)."""
         if closed_ticks == open_ticks:
@@ -163,7 +202,19 @@ class DynamixelGripper(Gripper):
         self.max_current = self.current_limit_units * CURRENT_UNIT_A
         self.closing_overshoot_ticks = int(closing_overshoot_ticks)
         self.min_holding_opening = float(min_holding_opening)
+        self.max_holding_opening = (
+            self.max_opening - 0.002 if max_holding_opening is None else float(max_holding_opening)
+        )
+        if not (0.0 <= self.min_holding_opening < self.max_holding_opening <= self.max_opening):
+            raise ValueError(
+                f"holding range {self.min_holding_opening}..{self.max_holding_opening} m: expected "
+                f"0 <= min_holding_opening < max_holding_opening <= max_opening ({self.max_opening} m)"
+            )
+        self.min_grasp_travel = float(min_grasp_travel)
         self.holding_current_fraction = float(holding_current_fraction)
+        if not (0.0 < hold_current_fraction < 1.0):
+            raise ValueError(f"hold_current_fraction {hold_current_fraction}: expected 0 < fraction < 1")
+        self.hold_current_fraction = float(hold_current_fraction)
         self.position_tolerance_ticks = int(position_tolerance_ticks)
         self.retries = max(1, int(retries))
         self.poll_interval = float(poll_interval)
@@ -175,6 +226,9 @@ class DynamixelGripper(Gripper):
         self._ph = PacketHandler(2.0)
         self._goal_current_units = self.current_limit_units
         self._grasping = False
+        self._hold_units = 0  # present current (units, + closing) when the last grasp settled on its hold
+        self._needs_configure = False  # EEPROM settings differ, deferred because the servo held an object
+        self._p_gain_per_tick = 800 / 128.0  # Position P Gain (@84) / 128, read at connect
         self._temperature_limit_c = 80.0
         self._shutdown_mask = 0x34  # XM430 default: overheating, electrical shock, overload
         self._voltage_range = (9.5, 16.0)
@@ -207,14 +261,47 @@ class DynamixelGripper(Gripper):
             self._temperature_limit_c = float(self._read(ADDR_TEMPERATURE_LIMIT, 1))
             self._shutdown_mask = self._read(ADDR_SHUTDOWN, 1)
             self._voltage_range = (self._read(ADDR_MIN_VOLTAGE_LIMIT, 2) / 10.0, self._read(ADDR_MAX_VOLTAGE_LIMIT, 2) / 10.0)
+            self._p_gain_per_tick = max(1, self._read(ADDR_POSITION_P_GAIN, 2)) / 128.0
             hw = self._read(ADDR_HARDWARE_ERROR, 1)
             if hw:
                 log.warning("gripper servo reports a hardware error at connect: %s", decode_hardware_error(hw))
                 return  # stay connected so status()/reboot() work; commands raise HardwareError
-            self._configure()
+            self._adopt_or_configure()
         except BaseException:
             self.disconnect()
             raise
+
+    def _adopt_or_configure(self) -> None:
+        """At connect: a servo with torque on keeps it (it may be holding an object: switching torque off would
+        drop it). Its grasp state is taken over when it presses on something; EEPROM settings that differ are
+        written now when nothing is held, else at the next open()/grasp()."""
+        self._needs_configure = self._eeprom_differs()
+        if not self._read(ADDR_TORQUE_ENABLE, 1):
+            self._configure()
+            return
+        goal_units = abs(_signed(self._read(ADDR_GOAL_CURRENT, 2), 2)) or self.current_limit_units
+        p = self._present()
+        pressing = (
+            not p.moving
+            and self.min_holding_opening < self.ticks_to_opening(p.position) < self.max_holding_opening
+            and p.current_units * self._closing_sign >= 0.3 * goal_units
+        )
+        if pressing:
+            self._grasping = True
+            self._goal_current_units = goal_units
+            self._hold_units = p.current_units * self._closing_sign
+            log.info(
+                "gripper servo holds something at connect (%.1f mm, %.2f A): torque kept on%s",
+                self.ticks_to_opening(p.position) * 1000, self._hold_units * CURRENT_UNIT_A,
+                "; its operating mode/Current Limit will be rewritten at the next open()" if self._needs_configure else "",
+            )
+        elif self._needs_configure:
+            self._configure()
+
+    def _eeprom_differs(self) -> bool:
+        return self._read(ADDR_OPERATING_MODE, 1) != MODE_CURRENT_BASED_POSITION or (
+            self._read(ADDR_CURRENT_LIMIT, 2) != self.current_limit_units
+        )
 
     def _open_port(self) -> None:
         if not os.path.exists(self.port_name):
@@ -227,6 +314,8 @@ class DynamixelGripper(Gripper):
             port.openPort()
         except (SerialException, OSError) as e:
             hint = " (add your user to the 'dialout' group)" if "ermission" in str(e) else ""
+            if "exclusively lock" in str(e):
+                hint = " (another program has it open: a Dynamixel Wizard, a second kitchenbot, a running daemon?)"
             raise DeviceNotConnectedError(
                 f"Dynamixel gripper: cannot open serial port {self.port_name}: {e}{hint}"
             ) from None
@@ -261,13 +350,17 @@ class DynamixelGripper(Gripper):
                 self.disconnect()
 
     def _configure(self) -> None:
-        """EEPROM settings need torque off: operating mode and current limit (only written when different)."""
-        self._write(ADDR_TORQUE_ENABLE, 1, 0)
-        if self._read(ADDR_OPERATING_MODE, 1) != MODE_CURRENT_BASED_POSITION:
-            self._write(ADDR_OPERATING_MODE, 1, MODE_CURRENT_BASED_POSITION)
-        if self._read(ADDR_CURRENT_LIMIT, 2) != self.current_limit_units:
-            self._write(ADDR_CURRENT_LIMIT, 2, self.current_limit_units)
-        self._write(ADDR_TORQUE_ENABLE, 1, 1)
+        """Operating mode and Current Limit (EEPROM: written only when different, with torque off), then torque on."""
+        if self._eeprom_differs():
+            if self._read(ADDR_TORQUE_ENABLE, 1):
+                self._write(ADDR_TORQUE_ENABLE, 1, 0)
+            if self._read(ADDR_OPERATING_MODE, 1) != MODE_CURRENT_BASED_POSITION:
+                self._write(ADDR_OPERATING_MODE, 1, MODE_CURRENT_BASED_POSITION)
+            if self._read(ADDR_CURRENT_LIMIT, 2) != self.current_limit_units:
+                self._write(ADDR_CURRENT_LIMIT, 2, self.current_limit_units)
+        self._needs_configure = False
+        if not self._read(ADDR_TORQUE_ENABLE, 1):
+            self._write(ADDR_TORQUE_ENABLE, 1, 1)
 
     def disconnect(self) -> None:
         port, self._port = self._port, None
@@ -395,19 +488,21 @@ class DynamixelGripper(Gripper):
         return p
 
     def _ensure_torque(self) -> None:
-        if not self._read(ADDR_TORQUE_ENABLE, 1):
-            if self._read(ADDR_OPERATING_MODE, 1) != MODE_CURRENT_BASED_POSITION or (
-                self._read(ADDR_CURRENT_LIMIT, 2) != self.current_limit_units
-            ):
-                self._configure()
-            else:
-                self._write(ADDR_TORQUE_ENABLE, 1, 1)
+        if self._needs_configure or not self._read(ADDR_TORQUE_ENABLE, 1):
+            self._configure()
 
     # ---- commands ---------------------------------------------------------------------------------
-    def _holding(self, p: _Present, goal_units: int) -> bool:
-        stalled = not p.moving  # Present Velocity under the servo's Moving Threshold
-        pushing = p.current_units * self._closing_sign >= self.holding_current_fraction * goal_units
-        return stalled and pushing and self.ticks_to_opening(p.position) > self.min_holding_opening
+    def _pressing(self, p: _Present, units: float) -> bool:
+        return p.current_units * self._closing_sign >= self.holding_current_fraction * units
+
+    def _in_object_range(self, p: _Present) -> bool:
+        return self.min_holding_opening < self.ticks_to_opening(p.position) < self.max_holding_opening
+
+    def _holding(self, p: _Present) -> bool:
+        """Still on the object the last grasp closed on: stalled inside the object range, still pressing with
+        most of the current it held with (an object that slipped out lets the fingers run on to the hold goal,
+        where the current falls away)."""
+        return (not p.moving) and self._in_object_range(p) and self._pressing(p, self._hold_units)
 
     def open(self, opening: float | None = None, timeout: float = 3.0) -> None:
         target = self.max_opening if opening is None else float(opening)
@@ -432,36 +527,71 @@ class DynamixelGripper(Gripper):
                 )
             time.sleep(self.poll_interval)
 
-    def grasp(self, current_limit: float, timeout: float = 3.0) -> GraspResult:
-        limit = self._check_current(current_limit)
-        self._check_healthy()
-        self._ensure_torque()
-        goal_units = max(1, min(self.current_limit_units, int(round(limit / CURRENT_UNIT_A))))
-        self._goal_current_units = goal_units
-        self._write(ADDR_GOAL_CURRENT, 2, goal_units)
-        goal = self.closed_ticks + self._closing_sign * self.closing_overshoot_ticks
-        self._write(ADDR_GOAL_POSITION, 4, goal)
-        self._grasping = True
-        deadline = time.monotonic() + timeout
-        settled = 0
-        last_pos = None
+    def _settle(
+        self, goal: int, goal_units: int, deadline: float, timeout: float, what: str, *, anywhere: bool = False
+    ) -> _Present:
+        """Poll until the fingers stop (3 polls in a row within a tick, not moving) pressing or at the goal
+        (`anywhere`: wherever they stop)."""
+        settled, last_pos = 0, None
         while True:
             time.sleep(self.poll_interval)
             p = self._check_healthy()
             reached = abs(p.position - goal) <= self.position_tolerance_ticks
             still = last_pos is not None and abs(p.position - last_pos) <= 1 and not p.moving
-            pushing = p.current_units * self._closing_sign >= self.holding_current_fraction * goal_units
-            settled = settled + 1 if (still and (pushing or reached)) else 0
+            pressing = p.current_units * self._closing_sign >= self.holding_current_fraction * goal_units
+            settled = settled + 1 if (still and (pressing or reached or anywhere)) else 0
             last_pos = p.position
             if settled >= 3:
-                opening = max(0.0, self.ticks_to_opening(p.position))
-                holding = self._holding(p, goal_units)
-                return GraspResult(holding=holding, opening=opening, current=p.current_units * self._closing_sign * CURRENT_UNIT_A)
+                return p
             if time.monotonic() > deadline:
                 raise DriverTimeoutError(
-                    f"Dynamixel gripper: grasp did not settle within {timeout} s "
+                    f"Dynamixel gripper: {what} did not settle within {timeout} s "
                     f"(at {self.ticks_to_opening(p.position) * 1000:.1f} mm, {p.current_units * CURRENT_UNIT_A:.2f} A)"
                 )
+
+    def grasp(self, current_limit: float, timeout: float = 3.0) -> GraspResult:
+        limit = self._check_current(current_limit)
+        start = self._check_healthy().position
+        self._ensure_torque()
+        goal_units = max(1, min(self.current_limit_units, int(round(limit / CURRENT_UNIT_A))))
+        self._goal_current_units = goal_units
+        self._grasping = False
+        self._write(ADDR_GOAL_CURRENT, 2, goal_units)
+        goal = self.closed_ticks + self._closing_sign * self.closing_overshoot_ticks
+        self._write(ADDR_GOAL_POSITION, 4, goal)
+        deadline = time.monotonic() + timeout
+        p = self._settle(goal, goal_units, deadline, timeout, "grasp")
+        travel = (p.position - start) * self._closing_sign * abs(self.max_opening / (self.open_ticks - self.closed_ticks))
+        on_object = (
+            travel >= self.min_grasp_travel and self._in_object_range(p) and self._pressing(p, goal_units)
+        )
+        if not on_object:
+            # Fully closed, or stuck where it started: no force is needed, and a goal left 40 ticks past a
+            # stall would saturate the position loop until the servo trips Overload.
+            self._write(ADDR_GOAL_POSITION, 4, p.position)
+            if travel < self.min_grasp_travel:
+                log.warning(
+                    "gripper: fingers did not close (moved %.1f mm at %.2f A): the current limit may be below the "
+                    "fingers' friction", travel * 1000, limit,
+                )
+            return GraspResult(False, max(0.0, self.ticks_to_opening(p.position)), self._amps(p))
+        # Hold just past the stalled position: the position loop asks for hold_current_fraction of the goal
+        # current instead of saturating at it. Where the servo's loop is stiffer than Kp/128 per tick, the
+        # offset is halved until the current falls below the clamp.
+        offset = max(1, int(round(self.hold_current_fraction * goal_units / self._p_gain_per_tick)))
+        for _ in range(4):
+            hold_goal = p.position + self._closing_sign * offset
+            self._write(ADDR_GOAL_POSITION, 4, hold_goal)
+            p = self._settle(hold_goal, goal_units, deadline, timeout, "grasp hold", anywhere=True)
+            if p.current_units * self._closing_sign < 0.97 * goal_units or offset == 1:
+                break
+            offset = max(1, offset // 2)
+        self._hold_units = p.current_units * self._closing_sign
+        self._grasping = self._in_object_range(p) and self._hold_units >= 0.3 * goal_units
+        return GraspResult(self._grasping, max(0.0, self.ticks_to_opening(p.position)), self._amps(p))
+
+    def _amps(self, p: _Present) -> float:
+        return p.current_units * self._closing_sign * CURRENT_UNIT_A
 
     def status(self) -> GripperStatus:
         p = self._present()
@@ -469,8 +599,8 @@ class DynamixelGripper(Gripper):
         shut_down = bool(hw & self._shutdown_mask)
         return GripperStatus(
             opening=self.ticks_to_opening(p.position),
-            current=p.current_units * self._closing_sign * CURRENT_UNIT_A,
-            holding=self._grasping and not shut_down and self._holding(p, self._goal_current_units),
+            current=self._amps(p),
+            holding=self._grasping and not shut_down and self._holding(p),
             moving=p.moving,
             error=decode_hardware_error(hw),
             temperature_c=p.temperature_c,

@@ -4,8 +4,13 @@ to the colour image, both paired by a Sync node so every Frame holds one moment.
 Pipeline: ``Camera(CAM_A).requestOutput((w, h), BGR888i, fps)`` -> Sync["rgb"] and StereoDepth.inputAlignTo;
 ``Camera(CAM_B/C)`` -> StereoDepth (ROBOTICS preset, left-right check, subpixel) -> depth (uint16 mm, aligned to
 CAM_A at (w, h)) -> Sync["depth"] -> host queue. RVC4 devices align with an ImageAlign node instead.
-Intrinsics: ``readCalibration().getCameraIntrinsics(CAM_A, w, h)``, i.e. at the requested size.
+Intrinsics: from each frame's own ``ImgFrame.getTransformation().getIntrinsicMatrix()`` (the aligned depth's, else
+the colour's): it follows every crop/scale depthai applied to produce that output, so K matches the pixels even
+when the sensor mode is cropped; ``readCalibration().getCameraIntrinsics(CAM_A, w, h)`` only until the first frame.
 
+Unplugged: automatic reconnection is off (``setMaxReconnectionAttempts(0)``) and the pipeline stops on device
+loss, so the host queue closes at once and depthai 3 raises ``MessageQueue.QueueException``; that becomes
+DeviceNotConnectedError ("disconnected"), not a misleading timeout after the queue waited for a reconnect.
 No device -> DeviceNotConnectedError saying what to check; no synchronised frame in time -> DriverTimeoutError.
 The message-to-Frame conversion is a pure function (:func:`frame_from_messages`) so it is tested without a device.
 """
@@ -49,6 +54,21 @@ def frame_from_messages(rgb_bgr: np.ndarray, depth_mm: np.ndarray, K: np.ndarray
         K=np.asarray(K, dtype=np.float64).reshape(3, 3),
         stamp=float(stamp),
     )
+
+
+def frame_intrinsics(rgb: Any, depth: Any, fallback: np.ndarray) -> np.ndarray:
+    """K of the pixels in this frame pair: the aligned depth's ImgTransformation (depthai 3 carries the
+    intrinsics through every crop/scale/alignment), else the colour frame's, else `fallback` (the calibration
+    at the requested size). The Frame's K describes the colour image's pixels, so depth of another size (resized
+    to the colour image later) does not give it; nor does a transformation whose size is not its frame's."""
+    same_size = (depth.getWidth(), depth.getHeight()) == (rgb.getWidth(), rgb.getHeight())
+    for msg in ((depth, rgb) if same_size else (rgb,)):
+        t = msg.getTransformation()
+        if t.isValid() and tuple(t.getSize()) == (msg.getWidth(), msg.getHeight()):
+            K = np.asarray(t.getIntrinsicMatrix(), dtype=np.float64).reshape(3, 3)
+            if np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0:
+                return K
+    return fallback
 
 
 def _no_device_message(device_id: str | None, available: list[str]) -> str:
@@ -97,7 +117,11 @@ class OakDCamera(Camera):
         except RuntimeError as e:
             raise DeviceNotConnectedError(f"OAK-D camera {ids[0] if ids else ''}: cannot open the device: {e}") from None
         try:
+            # An unplugged camera must end the capture at once (the caller decides to reconnect), not leave the
+            # host queue idle while depthai retries in the background.
+            device.setMaxReconnectionAttempts(0)
             pipeline = dai.Pipeline(device)
+            pipeline.setStopOnDeviceLoss(True)
             self._queue = self._build(dai, pipeline, device)
             calib = device.readCalibration()
             self._K = np.array(
@@ -163,18 +187,27 @@ class OakDCamera(Camera):
 
     # ---- frames -----------------------------------------------------------------------------------
     def capture(self, timeout: float = 2.0) -> Frame:
+        import depthai as dai
+
         if self._queue is None or self._K is None:
             raise DeviceNotConnectedError("OAK-D camera: not connected; call connect() first")
         try:
             group = self._queue.get(datetime.timedelta(seconds=timeout))
-        except RuntimeError as e:  # the queue closes when the device drops
-            raise DeviceNotConnectedError(f"OAK-D camera: link lost while waiting for a frame: {e}") from None
+        except (dai.MessageQueue.QueueException, RuntimeError) as e:  # the queue closes when the device drops
+            self._queue = None
+            raise DeviceNotConnectedError(
+                f"OAK-D camera: disconnected while waiting for a frame ({e}); check the USB cable, then connect() again"
+            ) from None
         if group is None:
+            if self._device is not None and self._device.isClosed():
+                self._queue = None
+                raise DeviceNotConnectedError("OAK-D camera: disconnected (the device closed); connect() again")
             raise DriverTimeoutError(
                 f"OAK-D camera: no synchronised RGB-D frame within {timeout:.2f} s "
                 f"(sync threshold {self.sync_threshold_s * 1000:.0f} ms at {self.fps:g} fps)"
             )
         rgb, depth = group["rgb"], group["depth"]
+        self._K = frame_intrinsics(rgb, depth, self._K)
         return frame_from_messages(
             rgb.getCvFrame(), depth.getFrame(), self._K, rgb.getTimestamp().total_seconds()
         )

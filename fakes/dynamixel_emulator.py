@@ -6,8 +6,14 @@ BULK read/write, status packets with the error byte (bit 7 = hardware alert). Be
 XM430 control table (EEPROM and RAM areas; EEPROM writes refused while torque is on) and a small model of the
 Fin-Ray gripper it drives: the fingers close at a limited speed, stall on a simulated object (or on each other
 when fully closed), and in current-based position mode the present current then rises to the goal current.
-Hardware errors (overload, overheating, ...) can be injected; a shutdown error turns torque off and only a
-REBOOT clears it.
+The position loop is proportional (Position P Gain @84 / 128 current units per tick of position error) and
+clamped at the Goal Current: a stall whose position error asks for more than the clamp (a goal far past the
+object) is a saturated output, and after ``overload_after_s`` of it the servo latches Overload (bit 5 of @70), as a
+real XM430 does after a sustained stall far from its goal. Hardware errors (overload, overheating, ...) can also be
+injected; an error in the Shutdown mask (@63) turns torque off and only a REBOOT clears it. REBOOT restores the RAM
+area as at power-on: torque off, errors cleared, Goal Current = Current Limit (@38), Goal PWM = PWM Limit (@36),
+Goal Position = the present position. Several servos may share the bus (``extra_ids``); their answers to a sync
+or bulk read come in the order of the ids in the instruction.
 
 Why hand-written: the SDK is the client under test, so the emulator must not share its code; and no library
 emulates a Dynamixel. This module uses only the standard library, so the child process starts in ~50 ms.
@@ -279,6 +285,8 @@ class Servo:
     current: float = 0.0  # units, signed
     temperature: float = 30.0
     rebooting_until: float = 0.0
+    overload_after_s: float = 2.0  # seconds of saturated stall before Overload (not published by ROBOTIS; a model)
+    saturated_s: float = 0.0  # how long the output has been saturated while stalled
     last_t: float = field(default_factory=time.monotonic)
     start_t: float = field(default_factory=time.monotonic)
 
@@ -287,7 +295,16 @@ class Servo:
             self._put(f, f.default)
         self.position = float(self.mech.open_ticks)
         self.temperature = self.ambient_c
+        self._power_on_goals()
         self._publish()
+
+    def _power_on_goals(self) -> None:
+        """RAM goals whose initial value the e-Manual gives as '-': taken from the EEPROM limits and the present
+        position at power-on/REBOOT, so torque-on neither jumps nor runs at a stale current."""
+        self.set("goal_pwm", self.get("pwm_limit"))
+        self.set("goal_current", self.get("current_limit"))
+        self.set("goal_velocity", 0)
+        self.set("goal_position", round(self.position))
 
     # ---- raw table access -------------------------------------------------------------------------
     def _put(self, f: Field, value: int) -> None:
@@ -351,12 +368,17 @@ class Servo:
             self._put(f, value)
 
     def reboot(self, now: float) -> None:
-        """RAM back to defaults (torque off, errors cleared), EEPROM kept; deaf for a moment while booting."""
+        """As at power-on: RAM back to its initial values (torque off, hardware error cleared, goals from the
+        EEPROM limits and the present position), EEPROM kept; deaf for a moment while booting. A cause that
+        persists (a servo still too hot) latches its error again on the next step."""
         for f in FIELDS:
             if not f.eeprom:
                 self._put(f, f.default)
+        self._power_on_goals()
         self.velocity = 0.0
         self.current = 0.0
+        self.saturated_s = 0.0
+        self.start_t = now
         self.rebooting_until = now + 0.05
         self._publish()
 
@@ -366,6 +388,7 @@ class Servo:
             self.set("torque_enable", 0)
             self.velocity = 0.0
             self.current = 0.0
+            self.saturated_s = 0.0
         self._publish()
 
     # ---- physics ---------------------------------------------------------------------------------
@@ -385,9 +408,13 @@ class Servo:
     def _step(self, dt: float) -> None:
         m = self.mech
         sign_close = m.closing_sign()
+        saturated = False
         if not self.get("torque_enable"):
             self.velocity = 0.0
             self.current = 0.0
+            # limp: deflected Fin-Ray fingers spring back to the object's surface (a held object is let go)
+            if (self.position - m.stop_ticks()) * sign_close > 0:
+                self.position = m.stop_ticks()
         else:
             limit = self.get("current_limit")
             if self.get("operating_mode") == MODE_CURRENT_BASED_POSITION:
@@ -401,8 +428,13 @@ class Servo:
             stop = m.stop_ticks()
             past_stop = (self.position - stop) * sign_close  # > 0: fingers deflected against the stop
             if direction == sign_close and past_stop >= -0.5:
-                # Pressing: current rises towards the limit (time constant 30 ms); fingers deflect with it.
-                magnitude = abs(self.current) + (max_cur - abs(self.current)) * min(1.0, dt / 0.03)
+                # Pressing: the position loop asks for Kp/128 current units per tick of error, clamped at the
+                # goal current (saturated when it asks for more); the current follows with a 30 ms time constant
+                # and the fingers deflect with it.
+                demand = self.get("position_p_gain") / 128.0 * abs(err)
+                target = min(demand, max_cur)
+                saturated = demand >= max_cur
+                magnitude = abs(self.current) + (target - abs(self.current)) * min(1.0, dt / 0.03)
                 self.current = sign_close * min(magnitude, max_cur)
                 deflection = abs(self.current) / m.stiffness
                 new_pos = stop + sign_close * deflection
@@ -417,8 +449,9 @@ class Servo:
                 self.current = sign_close * min(max(past_stop, 0.0) * m.stiffness, max_cur)
             else:
                 if max_cur < m.free_current:
-                    self.velocity = 0.0  # too weak to move the fingers
+                    self.velocity = 0.0  # too weak to move the fingers (friction): stalled at full output
                     self.current = direction * max_cur
+                    saturated = True
                 else:
                     step = min(abs(err), self._speed_limit() * dt)
                     new_pos = self.position + direction * step
@@ -432,6 +465,12 @@ class Servo:
                     self.position = float(m.open_ticks)
                     self.velocity = 0.0
                     self.current = direction * max_cur
+                    saturated = True
+        # Overload: the output stays saturated while the motor does not turn (under the Moving Threshold)
+        stalled = abs(self.velocity) <= self.get("moving_threshold") * VELOCITY_UNIT_TPS
+        self.saturated_s = self.saturated_s + dt if (saturated and stalled) else 0.0
+        if self.saturated_s >= self.overload_after_s and not self.hw_error & HW_OVERLOAD:
+            self.fault(HW_OVERLOAD)
         # temperature: I^2 heating, first-order cooling to ambient (tau 120 s)
         amps = abs(self.current) * CURRENT_UNIT_A
         self.temperature += dt * (0.8 * amps * amps - (self.temperature - self.ambient_c) / 120.0)
@@ -459,6 +498,7 @@ class Servo:
         d = {f.name: self.get(f.name) for f in FIELDS}
         d["position_exact"] = self.position
         d["object_width"] = self.mech.object_width
+        d["saturated_s"] = self.saturated_s
         return d
 
 
@@ -466,74 +506,91 @@ class Servo:
 # The bus: packets in, status packets out
 # ==================================================================================================
 class Bus:
-    def __init__(self, servo: Servo):
-        self.servo = servo
+    """Every servo on one RS-485/TTL bus. A packet is heard by all; each answers for itself. Group reads are
+    answered in the order of the ids in the instruction (on a real bus each servo waits for the status packet
+    of the id before it), whatever order the servos were connected in."""
 
-    def _reply(self, error: int, params: bytes = b"", *, instruction: int) -> bytes:
-        level = self.servo.get("status_return_level")
+    def __init__(self, servos: list[Servo]):
+        self.servos = list(servos)
+
+    def by_id(self, servo_id: int) -> Servo | None:
+        return next((s for s in self.servos if s.servo_id == servo_id), None)
+
+    @staticmethod
+    def _reply(s: Servo, error: int, params: bytes = b"", *, instruction: int) -> bytes:
+        level = s.get("status_return_level")
         if instruction == INST_PING or level == 2 or (level == 1 and instruction == INST_READ):
-            return status_packet(self.servo.servo_id, self.servo.error_byte(error), params)
+            return status_packet(s.servo_id, s.error_byte(error), params)
         return b""
 
     def handle(self, pkt: Packet, now: float) -> bytes:
-        s = self.servo
-        if now < s.rebooting_until:
-            return b""
-        sid = s.servo_id
-        mine = pkt.servo_id == sid
-        broadcast = pkt.servo_id == BROADCAST_ID
         group = pkt.instruction in (INST_SYNC_READ, INST_SYNC_WRITE, INST_BULK_READ, INST_BULK_WRITE)
-        if not (mine or broadcast):
-            return b""
+        awake = [s for s in self.servos if now >= s.rebooting_until]
+        for s in awake:
+            s.advance(now)
+        if group:
+            if not pkt.crc_ok or pkt.servo_id != BROADCAST_ID:
+                return b""
+            return self._group(pkt.instruction, pkt.params, awake)
+        if pkt.servo_id == BROADCAST_ID:
+            targets = sorted(awake, key=lambda s: s.servo_id)
+        else:
+            targets = [s for s in awake if s.servo_id == pkt.servo_id]
+        return b"".join(self._one(s, pkt, now) for s in targets)
+
+    def _one(self, s: Servo, pkt: Packet, now: float) -> bytes:
+        sid = s.servo_id
+        broadcast = pkt.servo_id == BROADCAST_ID
         if not pkt.crc_ok:
-            return status_packet(sid, s.error_byte(ERR_CRC)) if mine else b""
-        s.advance(now)
-        p = pkt.params
+            return b"" if broadcast else status_packet(sid, s.error_byte(ERR_CRC))
         try:
-            if pkt.instruction == INST_PING:
+            if pkt.instruction == INST_PING:  # a broadcast PING is answered by every servo, in id order
                 info = s.get("model_number").to_bytes(2, "little") + bytes([s.get("firmware_version")])
                 return status_packet(sid, s.error_byte(), info)
-            if group:
-                return self._group(pkt.instruction, p)
-            reply = self._single(pkt.instruction, p, now)
+            reply = self._single(s, pkt.instruction, pkt.params, now)
             return b"" if broadcast else reply  # broadcast WRITE/REBOOT act but are never answered
         except AccessError as e:
-            return self._reply(e.code, instruction=pkt.instruction) if mine else b""
+            return b"" if broadcast else self._reply(s, e.code, instruction=pkt.instruction)
 
-    def _single(self, instruction: int, p: bytes, now: float) -> bytes:
-        """READ / WRITE / REBOOT addressed to this servo (or broadcast); raises AccessError to refuse."""
-        s = self.servo
+    def _single(self, s: Servo, instruction: int, p: bytes, now: float) -> bytes:
+        """READ / WRITE / REBOOT addressed to one servo (or broadcast); raises AccessError to refuse."""
         if instruction == INST_READ:
             if len(p) != 4:
                 raise AccessError(ERR_DATA_LENGTH)
             addr, length = int.from_bytes(p[0:2], "little"), int.from_bytes(p[2:4], "little")
-            return self._reply(0, s.read(addr, length), instruction=INST_READ)
+            return self._reply(s, 0, s.read(addr, length), instruction=INST_READ)
         if instruction == INST_WRITE:
             if len(p) < 3:
                 raise AccessError(ERR_DATA_LENGTH)
             s.write(int.from_bytes(p[0:2], "little"), p[2:])
             s._publish()
-            return self._reply(0, instruction=INST_WRITE)
+            return self._reply(s, 0, instruction=INST_WRITE)
         if instruction == INST_REBOOT:
-            reply = self._reply(0, instruction=INST_REBOOT)
+            reply = self._reply(s, 0, instruction=INST_REBOOT)
             s.reboot(now)
             return reply  # sent before the servo goes deaf
         raise AccessError(ERR_INSTRUCTION)
 
-    def _group(self, instruction: int, p: bytes) -> bytes:
-        s = self.servo
-        sid = s.servo_id
+    @staticmethod
+    def _read_status(s: Servo, addr: int, length: int) -> bytes:
+        try:
+            return status_packet(s.servo_id, s.error_byte(), s.read(addr, length))
+        except AccessError as e:
+            return status_packet(s.servo_id, s.error_byte(e.code))
+
+    def _group(self, instruction: int, p: bytes, awake: list[Servo]) -> bytes:
+        by_id = {s.servo_id: s for s in awake}
+        out = bytearray()
         if instruction == INST_SYNC_READ:  # addr(2) len(2) id...
             addr, length = int.from_bytes(p[0:2], "little"), int.from_bytes(p[2:4], "little")
-            if sid in p[4:]:
-                try:
-                    return status_packet(sid, s.error_byte(), s.read(addr, length))
-                except AccessError as e:
-                    return status_packet(sid, s.error_byte(e.code))
+            for sid in p[4:]:  # the instruction's order, not the bus's
+                if sid in by_id:
+                    out += self._read_status(by_id[sid], addr, length)
         elif instruction == INST_SYNC_WRITE:  # addr(2) len(2) [id data(len)]...
             addr, length = int.from_bytes(p[0:2], "little"), int.from_bytes(p[2:4], "little")
             for i in range(4, len(p) - length, length + 1):
-                if p[i] == sid:
+                s = by_id.get(p[i])
+                if s is not None:
                     try:
                         s.write(addr, p[i + 1 : i + 1 + length])
                         s._publish()
@@ -541,25 +598,23 @@ class Bus:
                         pass  # sync write has no status packet
         elif instruction == INST_BULK_READ:  # [id addr(2) len(2)]...
             for i in range(0, len(p) - 4, 5):
-                if p[i] == sid:
+                s = by_id.get(p[i])
+                if s is not None:
                     addr, length = int.from_bytes(p[i + 1 : i + 3], "little"), int.from_bytes(p[i + 3 : i + 5], "little")
-                    try:
-                        return status_packet(sid, s.error_byte(), s.read(addr, length))
-                    except AccessError as e:
-                        return status_packet(sid, s.error_byte(e.code))
+                    out += self._read_status(s, addr, length)
         elif instruction == INST_BULK_WRITE:  # [id addr(2) len(2) data(len)]...
             i = 0
             while i + 5 <= len(p):
                 length = int.from_bytes(p[i + 3 : i + 5], "little")
-                if p[i] == sid:
+                s = by_id.get(p[i])
+                if s is not None:
                     try:
                         s.write(int.from_bytes(p[i + 1 : i + 3], "little"), p[i + 5 : i + 5 + length])
                         s._publish()
                     except AccessError:
                         pass
                 i += 5 + length
-        return b""
-
+        return bytes(out)
 
 # ==================================================================================================
 # The child process: pty + control channel
@@ -574,9 +629,12 @@ def _slave_baud(slave_fd: int) -> int | None:
         return None
 
 
-def _control(servo: Servo, state: dict, msg: dict) -> dict:
+def _control(bus: Bus, state: dict, msg: dict) -> dict:
     cmd = msg.get("cmd")
     now = time.monotonic()
+    servo = bus.by_id(msg["id"]) if msg.get("id") is not None else bus.servos[0]
+    if servo is None:
+        return {"ok": False, "error": f"no servo with id {msg['id']} on the bus"}
     servo.advance(now)
     if cmd == "set":
         if "object_width" in msg:
@@ -587,6 +645,8 @@ def _control(servo: Servo, state: dict, msg: dict) -> dict:
             servo.temperature = float(msg["temperature"])
         if "silent" in msg:
             state["silent"] = bool(msg["silent"])
+        if "overload_after_s" in msg:
+            servo.overload_after_s = float(msg["overload_after_s"])
         servo.advance(now)
         return {"ok": True}
     if cmd == "fault":
@@ -600,18 +660,30 @@ def _control(servo: Servo, state: dict, msg: dict) -> dict:
     return {"ok": False, "error": f"unknown command {cmd!r}"}
 
 
-def serve(mech: GripperMechanics, servo_id: int = 1, baudrate: int = 57600, check_baud: bool = True) -> None:
+def serve(
+    mech: GripperMechanics,
+    servo_id: int = 1,
+    baudrate: int = 57600,
+    check_baud: bool = True,
+    extra_ids: tuple[int, ...] = (),
+    overload_after_s: float = 2.0,
+) -> None:
     """Run the emulator until stdin closes: print the pty path first, then answer the bus and the control
-    channel (one JSON object per line on stdin -> one on stdout)."""
+    channel (one JSON object per line on stdin -> one on stdout). `extra_ids`: more XM430s on the same bus
+    (each driving an empty gripper), listed after the first."""
     master, slave = os.openpty()
     tty.setraw(slave)  # no echo / line editing until the client configures the port itself
-    servo = Servo(mech=mech)
-    servo.set("id", servo_id)
     code = {v: k for k, v in BAUD_CODES.items()}.get(baudrate)
     if code is None:
         raise SystemExit(f"baudrate {baudrate}: expected one of {sorted(BAUD_CODES.values())}")
-    servo.set("baud_rate", code)
-    bus = Bus(servo)
+    servos = []
+    for i, sid in enumerate((servo_id, *extra_ids)):
+        servo = Servo(mech=mech if i == 0 else GripperMechanics(), overload_after_s=overload_after_s)
+        servo.set("id", sid)
+        servo.set("baud_rate", code)
+        servos.append(servo)
+    servo = servos[0]
+    bus = Bus(servos)
     parser = PacketParser()
     state = {"silent": False, "packets": 0}
     sys.stdout.write(json.dumps({"port": os.ttyname(slave), "pid": os.getpid()}) + "\n")
@@ -643,7 +715,7 @@ def serve(mech: GripperMechanics, servo_id: int = 1, baudrate: int = 57600, chec
                 if not line:  # parent gone: exit so no orphan keeps the pty
                     return
                 try:
-                    out = _control(servo, state, json.loads(line))
+                    out = _control(bus, state, json.loads(line))
                 except (ValueError, TypeError) as e:
                     out = {"ok": False, "error": str(e)}
                 sys.stdout.write(json.dumps(out) + "\n")
@@ -666,13 +738,20 @@ class DynamixelEmulator:
         open_ticks: int = 3072,
         max_opening: float = 0.085,
         object_width: float | None = None,
+        extra_ids: tuple[int, ...] = (),
+        overload_after_s: float = 2.0,
     ):
+        """`extra_ids`: more servos on the bus (empty grippers); `overload_after_s`: seconds of saturated stall
+        before the servo latches Overload."""
         self.args = [
             "--id", str(servo_id), "--baudrate", str(baudrate), "--closed-ticks", str(closed_ticks),
             "--open-ticks", str(open_ticks), "--max-opening", str(max_opening),
+            "--overload-after", str(overload_after_s),
         ]  # fmt: skip
         if object_width is not None:
             self.args += ["--object-width", str(object_width)]
+        if extra_ids:
+            self.args += ["--extra-ids", ",".join(str(i) for i in extra_ids)]
         self.proc: subprocess.Popen | None = None
         self.port = ""
         self.pid = 0
@@ -722,13 +801,18 @@ class DynamixelEmulator:
         """Stop (or resume) answering on the bus, like a servo that lost power."""
         self._call(cmd="set", silent=silent)
 
-    def inject_fault(self, kind: str) -> None:
-        """Latch a hardware error: overload, overheating, encoder, electrical_shock, input_voltage."""
-        self._call(cmd="fault", kind=kind)
+    def set_overload_after(self, seconds: float) -> None:
+        """Seconds of saturated stall before Overload latches."""
+        self._call(cmd="set", overload_after_s=seconds)
 
-    def state(self) -> dict:
-        """The control table by field name, plus the exact position and the object width."""
-        return self._call(cmd="state")["state"]
+    def inject_fault(self, kind: str, servo_id: int | None = None) -> None:
+        """Latch a hardware error: overload, overheating, encoder, electrical_shock, input_voltage."""
+        self._call(cmd="fault", kind=kind, id=servo_id)
+
+    def state(self, servo_id: int | None = None) -> dict:
+        """The control table by field name, plus the exact position and the object width (first servo unless
+        `servo_id` names another on the bus)."""
+        return self._call(cmd="state", id=servo_id)["state"]
 
     def packets_seen(self) -> int:
         return self._call(cmd="state")["packets"]
@@ -773,10 +857,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--max-opening", type=float, default=0.085)
     p.add_argument("--object-width", type=float, default=None)
     p.add_argument("--no-baud-check", action="store_true")
+    p.add_argument("--extra-ids", default="", help="comma-separated ids of more servos on the bus")
+    p.add_argument("--overload-after", type=float, default=2.0, help="seconds of saturated stall before Overload")
     a = p.parse_args(argv)
     mech = GripperMechanics(a.closed_ticks, a.open_ticks, a.max_opening, a.object_width)
+    extra = tuple(int(x) for x in a.extra_ids.split(",") if x.strip())
     try:
-        serve(mech, a.id, a.baudrate, check_baud=not a.no_baud_check)
+        serve(mech, a.id, a.baudrate, check_baud=not a.no_baud_check, extra_ids=extra,
+              overload_after_s=a.overload_after)
     except KeyboardInterrupt:
         pass
 

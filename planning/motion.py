@@ -12,6 +12,12 @@ the distance of every geometry distal to joint j (links, tool, held object) from
 - Every returned segment is then re-checked densely at ``validity_resolution`` (4 mm of point travel,
   :func:`check_segment`); a path that fails the dense check is never returned (the query is re-planned at
   the fine resolution once, then reported as a failure).
+
+Budget. By default a query searches for ``timeout`` seconds and simplifies for ``simplify_timeout`` seconds of
+wall time, so on a loaded machine it does less work and may fail or return another path. With ``max_iterations``
+the search stops after that many RRT-Connect iterations (termination checks) and every simplification step runs;
+with ``seed`` OMPL is reseeded before the query, so its plan does not depend on what was planned before it in the
+process. Both together make a plan a function of its inputs alone (tests; reproducible benchmarks).
 """
 
 from __future__ import annotations
@@ -41,6 +47,17 @@ try:  # OMPL seeds once per process, before its first sample: plans are reproduc
     ou.RNG.setSeed(1)
 except Exception:  # noqa: BLE001 - already sampling (another module used OMPL first): keep its seed
     pass
+
+
+def _reseed_ompl(seed: int) -> None:
+    """Restart OMPL's seed generator: the RNGs a query creates next (its state sampler, the path simplifier's)
+    draw their seeds from it in creation order. OMPL logs an error for a reseed after sampling started (it is
+    only non-deterministic across threads, and planning runs on one), so its log is muted meanwhile."""
+    ou.setLogLevel(ou.LogLevel.LOG_NONE)
+    try:
+        ou.RNG.setSeed(int(seed) % (2**32 - 1) + 1)  # OMPL ignores 0
+    finally:
+        ou.setLogLevel(ou.LogLevel.LOG_WARN)
 
 
 # ---- point-travel bounds ---------------------------------------------------------------------------------------
@@ -124,8 +141,13 @@ def plan_joint_path(
     simplify_timeout: float = 0.2,
     planning_resolution: float = 0.015,
     validity_resolution: float = 0.004,
+    max_iterations: int | None = None,
+    seed: int | None = None,
 ) -> JointPlan | PlanningFailure:
-    """Collision-free joint polyline from q_start to q_goal (RRT-Connect, simplified, densely re-checked)."""
+    """Collision-free joint polyline from q_start to q_goal (RRT-Connect, simplified, densely re-checked).
+    `max_iterations` replaces the wall-clock budgets by a work budget; `seed` makes the search repeatable."""
+    if max_iterations is not None and max_iterations < 1:
+        return InvalidInput(f"max_iterations {max_iterations}: expected a positive number of iterations")
     q_start, q_goal = np.asarray(q_start, float), np.asarray(q_goal, float)
     if q_start.shape != (6,) or q_goal.shape != (6,) or not (np.all(np.isfinite(q_start)) and np.all(np.isfinite(q_goal))):
         return InvalidInput("q_start/q_goal: expected 6 finite joint values each")
@@ -144,7 +166,7 @@ def plan_joint_path(
             t2 = time.perf_counter()
             return JointPlan(np.vstack([q_start, q_goal]), (t1 - t0) * 1e3, 0.0, (t2 - t1) * 1e3, used_rrt=False)
     for resolution in (planning_resolution, validity_resolution):
-        res = _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolution)
+        res = _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolution, max_iterations, seed)
         if isinstance(res, PlanningFailure):
             return res
         path, plan_ms, simp_ms = res
@@ -156,8 +178,10 @@ def plan_joint_path(
     return PlannerTimeout("no path passed the dense re-check", {"resolution": validity_resolution})
 
 
-def _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolution):
+def _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolution, max_iterations=None, seed=None):
     robot = scene.world.robot
+    if seed is not None:
+        _reseed_ompl(seed)
     space = ob.RealVectorStateSpace(6)
     bounds = ob.RealVectorBounds(6)
     # Search box: the joint limits, narrowed to a turn around start and goal (no multi-turn detours).
@@ -186,10 +210,21 @@ def _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolutio
         goal[i] = float(q_goal[i])
     ss.setStartAndGoalStates(start, goal)
     t0 = time.perf_counter()
-    solved = ss.solve(float(timeout))
+    if max_iterations is None:
+        solved = ss.solve(float(timeout))
+        budget = f"{timeout:.2f} s"
+    else:
+        checks = [0]
+
+        def spent() -> bool:  # OMPL evaluates it once per iteration (and before each goal sample)
+            checks[0] += 1
+            return checks[0] > max_iterations
+
+        solved = ss.solve(ob.PlannerTerminationCondition(spent))
+        budget = f"{max_iterations} iterations"
     t1 = time.perf_counter()
     if not solved or not ss.haveExactSolutionPath():
-        return PlannerTimeout(f"RRT-Connect found no path in {timeout:.2f} s", {"resolution": resolution})
+        return PlannerTimeout(f"RRT-Connect found no path in {budget}", {"resolution": resolution})
     if simplify_timeout > 0:
         # OMPL's PathSimplifier steps, not simplifySolution(): that one runs B-spline smoothing passes that
         # overshoot any time budget here (~200-400 ms per query with Python validity checks) for a ~20 %
@@ -197,8 +232,8 @@ def _rrt_connect(scene, q_start, q_goal, r, timeout, simplify_timeout, resolutio
         ps = ss.getPathSimplifier()
         path = ss.getSolutionPath()
         for step in (ps.reduceVertices, ps.collapseCloseVertices, ps.partialShortcutPath, ps.reduceVertices):
-            if time.perf_counter() - t1 > simplify_timeout:
-                break
+            if max_iterations is None and time.perf_counter() - t1 > simplify_timeout:
+                break  # with a work budget every step runs: the path must not depend on the machine's load
             step(path)
     t2 = time.perf_counter()
     p = ss.getSolutionPath()

@@ -177,6 +177,7 @@ class Planner:
         res = plan_joint_path(
             scene, q0, q1, timeout=s.planner_timeout, simplify_timeout=s.simplify_timeout,
             planning_resolution=self.planning_resolution, validity_resolution=s.validity_resolution,
+            max_iterations=s.planner_max_iterations, seed=s.planner_seed,
         )
         timings[f"{name}_plan_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(res, PlanningFailure):

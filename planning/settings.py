@@ -1,8 +1,26 @@
-"""Planning settings (the `planning:` section of the cell config)."""
+"""Planning settings (the `planning:` section of the cell config).
+
+Two defaults come from the environment, so that a whole process tree (the test suite, `kitchenbot` subprocesses,
+the daemon's worker) can run its planners on a work budget without editing every config:
+``KITCHENBOT_PLANNER_MAX_ITERATIONS`` and ``KITCHENBOT_PLANNER_SEED`` (unset: wall-clock budgets, process-wide
+seed). A value in the config file wins over them.
+"""
 
 from __future__ import annotations
 
+import os
+
 from pydantic import BaseModel, ConfigDict, Field
+
+
+def _env_int(name: str) -> int | None:
+    value = os.environ.get(name, "").strip()
+    if not value:
+        return None
+    try:
+        return int(value)
+    except ValueError:
+        raise ValueError(f"environment variable {name}={value!r}: expected an integer") from None
 
 
 class PlanningSettings(BaseModel):
@@ -10,6 +28,18 @@ class PlanningSettings(BaseModel):
 
     planner_timeout: float = Field(1.0, gt=0.0, le=60.0, description="seconds per RRT-Connect query")
     simplify_timeout: float = Field(0.2, ge=0.0, le=10.0)
+    planner_max_iterations: int | None = Field(
+        default_factory=lambda: _env_int("KITCHENBOT_PLANNER_MAX_ITERATIONS"), ge=1, le=10_000_000,
+        validate_default=True,
+        description="when set, RRT-Connect stops after this many iterations instead of after planner_timeout, and "
+                    "simplification runs all its steps (simplify_timeout > 0) instead of stopping on time: plans do "
+                    "not depend on the machine's load (tests, reproducible benchmarks)",
+    )
+    planner_seed: int | None = Field(
+        default_factory=lambda: _env_int("KITCHENBOT_PLANNER_SEED"), ge=0, le=2**31 - 1, validate_default=True,
+        description="when set, OMPL is reseeded before every query, so a plan does not depend on the queries "
+                    "planned before it in the process",
+    )
     validity_resolution: float = Field(0.004, gt=0.0, le=0.05, description="max TCP travel (m) between checked states")
     approach_distance: float = Field(0.10, gt=0.0, le=0.3, description="straight approach/retreat, metres")
     lift_height: float = Field(0.15, gt=0.0, le=0.5)

@@ -11,6 +11,13 @@ import os
 import numpy as np
 import pytest
 
+# Every planner in the suite (in this process, in `kitchenbot` subprocesses, in the daemon's worker) stops
+# RRT-Connect after a fixed number of iterations from a fixed seed instead of after a wall-clock budget: a plan
+# is then the same on an idle machine and on a loaded one. Set before kitchenbot is imported (the config's
+# defaults read them). ~200 iterations are about the default 1 s budget on an idle machine.
+os.environ.setdefault("KITCHENBOT_PLANNER_MAX_ITERATIONS", "200")
+os.environ.setdefault("KITCHENBOT_PLANNER_SEED", "0")
+
 
 def pytest_collection_modifyitems(config, items):
     if os.environ.get("KITCHENBOT_HIL") == "1":

@@ -67,11 +67,14 @@ def check_gripper(cfg) -> DeviceReport:
     try:
         info = gripper.probe()
     except DriverError as e:
-        return DeviceReport(
-            "gripper", g.kind, "no", "?", str(e),
-            f"Plug in the U2D2 and 12 V supply; check drivers.gripper.port ({g.port}), baudrate ({g.baudrate}) "
-            f"and servo_id ({g.servo_id}) with the Dynamixel Wizard.",
-        )  # fmt: skip
+        if "another program has it open" in str(e):  # the port is opened exclusively: never talk over a run
+            fix = f"Stop what holds {g.port} (a running kitchenbot or daemon, a Dynamixel Wizard), then run the doctor again."
+        else:
+            fix = (
+                f"Plug in the U2D2 and 12 V supply; check drivers.gripper.port ({g.port}), baudrate ({g.baudrate}) "
+                f"and servo_id ({g.servo_id}) with the Dynamixel Wizard."
+            )
+        return DeviceReport("gripper", g.kind, "no", "?", str(e), fix)
     fix = ""
     if info["hardware_error"]:
         fix = f"Hardware error '{info['hardware_error']}': remove the cause, then reboot the servo (gripper.reboot())."

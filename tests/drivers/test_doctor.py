@@ -47,6 +47,23 @@ def test_doctor_reads_the_servo_on_the_emulator_and_flags_a_hardware_error(tmp_p
         assert "Hardware error 'overload'" in capsys.readouterr().out
 
 
+def test_doctor_does_not_talk_over_a_gripper_in_use(tmp_path, capsys):
+    from kitchenbot.drivers.dynamixel_gripper import DynamixelGripper
+
+    with DynamixelEmulator() as emu:
+        g = DynamixelGripper(emu.port, min_packet_timeout_ms=100)
+        g.connect()  # a run holds the port
+        try:
+            cfg = _config(tmp_path, {"gripper": {"kind": "dynamixel", "port": emu.port}})
+            before = emu.packets_seen()
+            assert main(["doctor", "--config", cfg]) == 1
+            out = capsys.readouterr().out
+            assert "another program has it open" in out and f"Stop what holds {emu.port}" in out
+            assert emu.packets_seen() == before  # not one packet interleaved with the run's
+        finally:
+            g.disconnect()
+
+
 def test_doctor_on_absent_arm_and_camera(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(
         "kitchenbot.drivers.oakd_camera.OakDCamera.available_devices", staticmethod(lambda: [])

@@ -278,3 +278,199 @@ def test_sync_and_bulk_instructions(emu):
         assert br.getData(1, 0, 2) == 1020
     finally:
         port.closePort()
+
+
+# ---- issue 15: what a real XM430 does ---------------------------------------------------------------------
+def _wait_for(cond, what: str, timeout: float = 10.0):
+    """Poll `cond` until true (the emulator runs in real time in another process); fail after `timeout`."""
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.02)
+
+
+def _raw(emu) -> tuple[PortHandler, PacketHandler]:
+    port = _port(emu)
+    assert port.openPort() and port.setBaudRate(57600)
+    return port, PacketHandler(2.0)
+
+
+def test_reconnecting_keeps_torque_on_and_the_object_held(emu, gripper):
+    emu.set_object(0.040)
+    gripper.open()
+    assert gripper.grasp(current_limit=0.5).holding
+    before = emu.state()
+    gripper.disconnect()  # e.g. the executive restarts
+    g2 = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=100)
+    g2.connect()
+    try:
+        after = emu.state()
+        assert after["torque_enable"] == 1  # never switched off: the object did not drop
+        assert after["goal_position"] == before["goal_position"]
+        assert after["goal_current"] == before["goal_current"]
+        st = g2.status()
+        assert st.holding and st.opening == pytest.approx(0.040, abs=0.003)
+    finally:
+        g2.disconnect()
+
+
+def test_reconnect_with_another_current_limit_defers_the_eeprom_write_while_holding(emu, gripper):
+    emu.set_object(0.040)
+    gripper.open()
+    assert gripper.grasp(current_limit=0.5).holding
+    gripper.disconnect()
+    g2 = DynamixelGripper(emu.port, 57600, 1, current_limit_ma=800, min_packet_timeout_ms=100)
+    g2.connect()
+    try:
+        s = emu.state()
+        assert s["torque_enable"] == 1 and s["current_limit"] == round(0.6 / 0.00269)  # not rewritten yet
+        assert g2.status().holding
+        g2.open()  # releasing anyway: now the EEPROM write happens
+        s = emu.state()
+        assert s["current_limit"] == round(0.8 / 0.00269) and s["torque_enable"] == 1
+    finally:
+        g2.disconnect()
+
+
+def test_connect_to_an_idle_servo_with_torque_on_writes_no_eeprom(emu, gripper):
+    gripper.open(0.05)
+    gripper.disconnect()
+    g2 = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=100)
+    port, ph = _raw(emu)
+    port.closePort()  # the exclusive lock is released: connect may open it
+    g2.connect()
+    try:
+        s = emu.state()
+        assert s["torque_enable"] == 1
+        assert abs(s["goal_position"] - g2.opening_to_ticks(0.05)) <= 1  # not reset to the present position
+    finally:
+        g2.disconnect()
+
+
+def test_a_current_limit_below_friction_is_not_holding(emu, gripper):
+    gripper.open()
+    emu.set_object(0.040)
+    r = gripper.grasp(current_limit=0.015)  # 5 units: below the 8 the fingers need to move
+    assert not r.holding
+    assert r.opening == pytest.approx(0.085, abs=0.002)  # the fingers never moved
+    assert not gripper.status().holding
+
+
+def test_a_held_grasp_does_not_saturate_into_overload(emu, gripper):
+    """Once grasp() returns the position loop is no longer saturated (the emulator's overload timer is reset and
+    stays so), so no time held can trip Overload (the test after next shows a saturated stall does)."""
+    emu.set_object(0.040)
+    gripper.open()
+    r = gripper.grasp(current_limit=0.5)
+    assert r.holding and r.current == pytest.approx(0.9 * 0.5, rel=0.15)  # below the clamp: not saturated
+    assert emu.state()["saturated_s"] == 0.0
+    st = gripper.status()
+    assert st.error is None and st.holding
+    s = emu.state()
+    assert s["saturated_s"] == 0.0 and s["torque_enable"] == 1
+
+
+def test_fully_closed_grasp_does_not_saturate_into_overload(emu, gripper):
+    gripper.open()
+    assert not gripper.grasp(current_limit=0.5).holding
+    assert gripper.status().error is None
+    s = emu.state()
+    assert s["saturated_s"] == 0.0 and s["torque_enable"] == 1
+
+
+def test_a_sustained_saturated_stall_trips_overload_and_shuts_down(emu):
+    """What the old driver did: goal 40 ticks past closed with nothing between the fingers (and far past an
+    object). The servo latches Overload, the Shutdown mask (@63) turns torque off."""
+    emu.set_overload_after(0.3)
+    port, ph = _raw(emu)
+    try:
+        assert ph.write1ByteTxRx(port, 1, 11, 5) == (0, 0)  # current-based position
+        assert ph.write1ByteTxRx(port, 1, 64, 1) == (0, 0)
+        assert ph.write2ByteTxRx(port, 1, 102, 186) == (0, 0)  # 0.5 A
+        assert ph.write4ByteTxRx(port, 1, 116, 2048 - 40) == (0, 0)  # closing is towards fewer ticks here
+        _wait_for(lambda: emu.state()["hardware_error_status"] & 0x20, "Overload")
+        s = emu.state()
+        assert s["torque_enable"] == 0
+        _, result, error = ph.read1ByteTxRx(port, 1, 70)
+        assert result == 0 and error & 0x80  # every status packet now carries the alert bit
+        assert ph.write1ByteTxRx(port, 1, 64, 1) == (0, 0x81)  # result fail + alert: no torque before REBOOT
+        # With Overload left out of the Shutdown mask the servo reports it and keeps torque on.
+        assert ph.reboot(port, 1)[0] == 0
+        _wait_for(lambda: ph.ping(port, 1)[1] == 0, "the servo back after REBOOT")
+        assert ph.write1ByteTxRx(port, 1, 63, 0x14) == (0, 0)  # overheating + electrical shock only
+        assert ph.write1ByteTxRx(port, 1, 64, 1) == (0, 0)
+        assert ph.write2ByteTxRx(port, 1, 102, 186) == (0, 0)  # REBOOT restored it to the Current Limit
+        assert ph.write4ByteTxRx(port, 1, 116, 2048 - 40) == (0, 0)
+        _wait_for(lambda: emu.state()["hardware_error_status"] & 0x20, "Overload (reported only)")
+        assert emu.state()["torque_enable"] == 1
+    finally:
+        port.closePort()
+
+
+def test_reboot_restores_the_ram_goals_as_at_power_on(emu, gripper):
+    emu.set_object(0.040)
+    gripper.open()
+    assert gripper.grasp(current_limit=0.3).holding
+    emu.inject_fault("overload")
+    assert emu.state()["torque_enable"] == 0
+    gripper.reboot()
+    s = emu.state()
+    assert s["hardware_error_status"] == 0 and s["torque_enable"] == 0
+    assert s["goal_current"] == s["current_limit"] == gripper.current_limit_units  # not 0.3 A, not 1193
+    assert s["goal_pwm"] == s["pwm_limit"]
+    assert s["goal_position"] == s["present_position"]  # torque on will not jump
+    assert s["realtime_tick"] < 1000
+    assert not gripper.status().holding
+    port_pos = s["present_position"]
+    gripper.open(0.06)
+    assert emu.state()["torque_enable"] == 1 and emu.state()["present_position"] != port_pos
+
+
+def test_group_reads_answer_in_the_order_of_the_instruction():
+    from kitchenbot.fakes.dynamixel_emulator import PacketParser
+
+    with DynamixelEmulator(servo_id=1, extra_ids=(3, 2)) as emu:
+        port, ph = _raw(emu)
+        try:
+            for ids in ([3, 1, 2], [2, 3, 1]):
+                port.clearPort()
+                assert ph.syncReadTx(port, 0, 2, ids, len(ids), False) == 0  # Model Number of each
+                parser, got = PacketParser(), []
+                deadline = time.monotonic() + 5.0
+                while len(got) < len(ids) and time.monotonic() < deadline:
+                    got += parser.feed(bytes(port.readPort(256)))
+                port.is_using = False  # read raw here, not through the SDK's rxPacket (which clears it)
+                assert [p.servo_id for p in got] == ids
+                assert all(p.params[1:3] == (1020).to_bytes(2, "little") for p in got)
+                bulk = []
+                for i in reversed(ids):
+                    bulk += [i, 132, 0, 4, 0]  # Present Position
+                port.clearPort()
+                assert ph.bulkReadTx(port, bulk, len(bulk), False) == 0
+                parser, got = PacketParser(), []
+                deadline = time.monotonic() + 5.0
+                while len(got) < len(ids) and time.monotonic() < deadline:
+                    got += parser.feed(bytes(port.readPort(256)))
+                port.is_using = False  # read raw here, not through the SDK's rxPacket (which clears it)
+                assert [p.servo_id for p in got] == list(reversed(ids))
+            # The SDK's GroupSyncRead reads them back too.
+            from dynamixel_sdk import GroupSyncRead
+
+            sr = GroupSyncRead(port, ph, 0, 2)
+            for i in (2, 1, 3):
+                assert sr.addParam(i)
+            assert sr.txRxPacket() == 0
+            assert [sr.getData(i, 0, 2) for i in (1, 2, 3)] == [1020] * 3
+            assert ph.ping(port, 3)[1] == 0 and emu.state(3)["id"] == 3
+        finally:
+            port.closePort()
+
+
+def test_the_serial_port_is_opened_exclusively(emu, gripper):
+    other = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=100)
+    with pytest.raises(DeviceNotConnectedError, match="another program has it open"):
+        other.connect()
+    with pytest.raises(DeviceNotConnectedError, match="another program has it open"):
+        other.probe()  # the doctor does not interleave packets with a running gripper either
+    assert gripper.status().error is None

@@ -83,3 +83,58 @@ def test_capture_reads_synchronised_groups_and_times_out(rng):
     with pytest.raises(DriverTimeoutError, match="no synchronised RGB-D frame within 0.20 s"):
         cam.capture(timeout=0.2)
     assert 0.15 < time.monotonic() - t0 < 5.0
+
+
+# ---- issue 15: unplugged device, intrinsics from the frames -------------------------------------------------
+def _connected(cam, queue, device=None):
+    """What connect() leaves behind on a device: the Sync node's host queue, K from the calibration."""
+    cam._queue, cam._K, cam._device = queue, K, device
+
+
+def test_a_closed_queue_is_a_disconnect_not_a_leaked_queue_exception():
+    """depthai 3 closes the host queue when the device is lost and raises MessageQueue.QueueException (not a
+    RuntimeError) from get(); also when it closes while capture() waits."""
+    import threading
+
+    cam = OakDCamera(width=64, height=48)
+    q = dai.MessageQueue("sync", 4, False)
+    _connected(cam, q)
+    threading.Timer(0.1, q.close).start()  # unplugged while waiting
+    with pytest.raises(DeviceNotConnectedError, match="disconnected"):
+        cam.capture(timeout=60.0)  # returns when the queue closes, not after the timeout
+    assert not cam.is_connected
+    with pytest.raises(DeviceNotConnectedError, match="not connected"):
+        cam.capture()
+
+
+def test_a_closed_device_with_an_idle_queue_is_a_disconnect_not_a_timeout():
+    class ClosedDevice:  # only what capture() asks of a dai.Device after an empty wait
+        def isClosed(self):
+            return True
+
+    cam = OakDCamera(width=64, height=48)
+    _connected(cam, dai.MessageQueue("sync", 4, False), ClosedDevice())
+    with pytest.raises(DeviceNotConnectedError, match="disconnected"):
+        cam.capture(timeout=0.05)
+
+
+def test_intrinsics_come_from_the_aligned_frames_transformation(rng):
+    cam = OakDCamera(width=64, height=48)
+    _connected(cam, dai.MessageQueue("sync", 4, False))
+    g = _group(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), np.full((48, 64), 1000, np.uint16), 1.0)
+    K_sensor = [[900.0, 0.0, 640.0], [0.0, 900.0, 400.0], [0.0, 0.0, 1.0]]
+    for name in ("rgb", "depth"):  # the sensor at 1280x800, scaled to 64x40 and padded/cropped to 64x48
+        t = dai.ImgTransformation(1280, 800)
+        t.setIntrinsicMatrix(K_sensor)
+        t.addScale(0.05, 0.05)
+        t.addCrop(0, -4, 64, 48)
+        g[name].setTransformation(t)
+    cam._queue.send(g)
+    f = cam.capture(timeout=5.0)
+    expected = np.asarray(g["depth"].getTransformation().getIntrinsicMatrix())
+    np.testing.assert_allclose(f.K, expected)
+    assert f.K[0, 0] == pytest.approx(45.0) and f.K[1, 2] == pytest.approx(24.0)  # 400 * 0.05 + 4
+    np.testing.assert_allclose(cam.intrinsics(), f.K)
+    # A frame without a transformation keeps the last good K.
+    cam._queue.send(_group(np.zeros((48, 64, 3), np.uint8), np.zeros((48, 64), np.uint16), 2.0))
+    np.testing.assert_allclose(cam.capture(timeout=5.0).K, f.K)

@@ -52,7 +52,7 @@ def test_straight_line_through_the_wall_is_rejected(planner, wall_case):
 
 def test_planned_path_goes_around_the_wall(planner, wall_case):
     qa, qb, wall, scene = wall_case
-    res = plan_joint_path(scene, qa, qb, timeout=5.0, planning_resolution=planner.planning_resolution)
+    res = plan_joint_path(scene, qa, qb, planning_resolution=planner.planning_resolution, max_iterations=2000, seed=0)
     assert not hasattr(res, "kind"), res
     path = res.path
     np.testing.assert_allclose(path[0], qa)
@@ -103,3 +103,44 @@ def test_timing_within_safety_limits(planner, home):
     # faster limits give a shorter trajectory; the joint speed limit is reached but not exceeded
     vel = np.abs(np.diff(traj.q, axis=0) / np.diff(traj.times)[:, None])
     assert vel.max() <= planner.limits.max_joint_speed.max() * 1.02
+
+
+def test_a_work_budget_and_seed_make_a_plan_independent_of_load_and_history(planner, wall_case):
+    qa, qb, wall, scene = wall_case
+    kw = dict(planning_resolution=planner.planning_resolution, max_iterations=2000, seed=3)
+    first = plan_joint_path(scene, qa, qb, **kw)
+    assert not hasattr(first, "kind"), first
+    plan_joint_path(scene, qb, qa, planning_resolution=planner.planning_resolution, max_iterations=2000, seed=11)
+    again = plan_joint_path(scene, qa, qb, **kw)  # another query (other samples drawn) in between
+    np.testing.assert_array_equal(first.path, again.path)
+
+
+def test_an_exhausted_iteration_budget_is_a_planner_timeout_naming_it(planner, wall_case):
+    from kitchenbot.planning.types import InvalidInput, PlannerTimeout
+
+    qa, qb, wall, scene = wall_case
+    fails = [plan_joint_path(scene, qa, qb, planning_resolution=planner.planning_resolution, max_iterations=1, seed=s)
+             for s in range(4)]
+    failed = [f for f in fails if isinstance(f, PlannerTimeout)]
+    assert failed and all("in 1 iterations" in str(f) for f in failed)
+    assert isinstance(plan_joint_path(scene, qa, qb, max_iterations=0), InvalidInput)
+
+
+def test_planner_work_budget_settings_come_from_the_config_or_the_environment(monkeypatch):
+    from pydantic import ValidationError
+
+    from kitchenbot.planning.settings import PlanningSettings
+
+    monkeypatch.setenv("KITCHENBOT_PLANNER_MAX_ITERATIONS", "300")
+    monkeypatch.setenv("KITCHENBOT_PLANNER_SEED", "4")
+    s = PlanningSettings()
+    assert (s.planner_max_iterations, s.planner_seed) == (300, 4)
+    assert PlanningSettings(planner_max_iterations=50).planner_max_iterations == 50  # the config file wins
+    monkeypatch.delenv("KITCHENBOT_PLANNER_MAX_ITERATIONS")
+    monkeypatch.delenv("KITCHENBOT_PLANNER_SEED")
+    assert PlanningSettings().planner_max_iterations is None  # default: the wall-clock budget
+    with pytest.raises(ValidationError, match="planner_max_iterations"):
+        PlanningSettings(planner_max_iterations=0)
+    monkeypatch.setenv("KITCHENBOT_PLANNER_SEED", "soon")
+    with pytest.raises(ValueError, match="KITCHENBOT_PLANNER_SEED='soon': expected an integer"):
+        PlanningSettings()
