@@ -435,6 +435,7 @@ class URArm(Arm):
         with self._rx_lock:
             self._rtde_r = r
             self._lag_base = self._last_check = None
+        self._prime(r)
         with self._ctrl_lock:
             self._rtde_c = c
         self._rebuild_times = []
@@ -464,22 +465,27 @@ class URArm(Arm):
         """Before a motion: the control script runs and uses our TCP and payload. A script restarted by
         reuploadScript or by ur_rtde's own reconnect runs with the installation's tool until we re-send it."""
         c = self._ctrl()
-        if not self._call("isProgramRunning", c.isProgramRunning):
-            self._raise_for_safety()
-            log.warning("UR arm at %s: the control script is not running; uploading it again", self.host)
-            self._reupload(c)
+        for _ in range(2):
+            if not self._call("isProgramRunning", c.isProgramRunning):
+                self._fresh_safety()  # a protective or emergency stop ends the script: report that, do not upload
+                log.warning("UR arm at %s: the control script is not running; uploading it again", self.host)
+                self._reupload(c)
+                return c
+            try:
+                tcp = np.asarray(self._call("getTCPOffset", c.getTCPOffset), float)
+            except DriverError:  # the script stopped under the call: isProgramRunning now knows
+                continue
+            stale = tcp.shape != (6,) or not np.allclose(tcp, self._tcp_pose(), atol=1e-6)
+            r = self._recv()
+            if hasattr(r, "getPayload"):
+                stale |= abs(float(r.getPayload()) - self.payload_kg) > 1e-6
+            if stale:  # a control script we did not start (reuploadScript, ur_rtde's reconnect)
+                log.warning("UR arm at %s: a new control script runs with the installation's TCP/payload; "
+                            "sending ours again", self.host)
+                self._apply_tool()
+                self.tool_reapplied += 1
             return c
-        tcp = np.asarray(self._call("getTCPOffset", c.getTCPOffset), float)
-        stale = tcp.shape != (6,) or not np.allclose(tcp, self._tcp_pose(), atol=1e-6)
-        r = self._recv()
-        if hasattr(r, "getPayload"):
-            stale |= abs(float(r.getPayload()) - self.payload_kg) > 1e-6
-        if stale:
-            log.warning("UR arm at %s: a new control script runs with the installation's TCP/payload; "
-                        "sending ours again", self.host)
-            self._apply_tool()
-            self.tool_reapplied += 1
-        return c
+        raise DriverError(f"UR arm at {self.host}: the control script keeps stopping; check the pendant's log")
 
     def _reupload(self, c: Any) -> None:
         if not self._call("reuploadScript", c.reuploadScript):
@@ -538,6 +544,23 @@ class URArm(Arm):
             self._lag_base, self._last_check = base, (now, ts)
             return lag - base
 
+    def _prime(self, r: Any) -> None:
+        """Start the data-age reference at a new interface's first sample."""
+        try:
+            self._data_age(float(r.getTimestamp()), self._clock())
+        except RuntimeError:
+            pass
+
+    def _fresh_safety(self) -> None:
+        """_raise_for_safety on receive data newer than now: the control stream (isProgramRunning) and the
+        receive stream (safety bits) are separate connections, a few cycles apart."""
+        r = self._recv()
+        ts0 = float(r.getTimestamp())
+        deadline = time.monotonic() + 0.5
+        while float(r.getTimestamp()) <= ts0 + 2.0 / self.frequency and time.monotonic() < deadline:
+            time.sleep(0.002)
+        self._raise_for_safety()
+
     def _check_receive(self, r: Any) -> Any:
         """The receive interface, after making sure it is connected and its data is younger than
         `receive_timeout`; otherwise a rebuilt one."""
@@ -587,6 +610,7 @@ class URArm(Arm):
             with self._rx_lock:
                 self._rtde_r = new
                 self._lag_base = self._last_check = None
+            self._prime(new)
             _retire(old, self._graveyard)
             self.receive_rebuilds += 1
             return new
@@ -606,7 +630,11 @@ class URArm(Arm):
         return self._check_receive(r)
 
     def _ctrl(self) -> Any:
-        """The control interface, reconnected (bounded, with backoff) when its link dropped."""
+        """The control interface, reconnected (bounded, with backoff) when its link dropped. reconnect() uploads
+        a new control script, so the tool is sent again. (ur_rtde 1.6.5's own reconnect, run by the
+        interface's receive thread when the controller closes the connection, never clears its reconnect
+        flag: it reconnects and uploads a new script every cycle and can crash the process; the emulator
+        reproduces it. Nothing in-process recovers from that: see docs/hardware.md.)"""
         with self._ctrl_lock:
             if self._rtde_c is None or self._link_lost:
                 raise DeviceNotConnectedError(
@@ -619,7 +647,7 @@ class URArm(Arm):
                 log.warning("UR arm at %s: control link down, reconnect attempt %d", self.host, attempt + 1)
                 try:
                     if c.reconnect() and c.isConnected():
-                        self._apply_tool()  # reconnect() uploads a new control script
+                        self._apply_tool()
                         self.tool_reapplied += 1
                         return c
                 except RuntimeError:
@@ -811,7 +839,7 @@ class URArm(Arm):
             self._servo_thread = None
         if err is not None:
             raise err
-        self._raise_for_safety()  # a stop that ended the motion
+        self._fresh_safety()  # a stop that ended the motion; and state reads after wait() see the end
 
     def stop(self, decel: float = 3.0) -> None:
         """Stop now: stopL for a linear move (decel in m/s^2), else stopJ (rad/s^2); a streamed trajectory ends

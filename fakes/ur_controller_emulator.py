@@ -27,6 +27,9 @@ import subprocess
 import sys
 import time
 
+# Run by path, not with -m: importing the package would import `kitchenbot.fakes` (the whole simulator).
+CONTROLLER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ur_controller", "controller.py")
+
 
 class URControllerEmulator:
     def __init__(self, *, model: str = "ur5e", polyscope: str = "5.15.0", q0=None,
@@ -49,7 +52,7 @@ class URControllerEmulator:
         for _ in range(5):
             host = self.fixed_host or self._random_host()
             self.proc = subprocess.Popen(
-                [sys.executable, "-u", "-m", "kitchenbot.fakes.ur_controller.controller", "--host", host, *self.args],
+                [sys.executable, "-u", CONTROLLER, "--host", host, *self.args],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1,
             )
             sel = selectors.DefaultSelector()
@@ -83,7 +86,7 @@ class URControllerEmulator:
         return self._call(cmd="state")["state"]
 
     def set(self, **kw) -> None:
-        """stall_new (new RTDE streams handshake but send no data), silent (new TCP connections on every port
+        """stall_new (new RTDE receive streams handshake but send no data), silent (new TCP connections on every port
         are accepted and never answered), refuse_unlock, fieldbus (EtherNet/IP/PROFINET holds input registers
         0-23), remote_control, unlock_delay, contact_z (a surface at this base-frame height), q (teleport)."""
         self._call(cmd="set", **kw)
@@ -110,12 +113,15 @@ class URControllerEmulator:
         """The control script stops (as after a runtime error): runtime_state STOPPED, TCP/payload revert."""
         self._call(cmd="fault", kind="stop_script")
 
-    def stall(self, active: bool = True) -> None:
-        """The RTDE streams open now stop (or resume) sending data packages; the TCP links stay up."""
-        self._call(cmd="fault", kind="stall", active=active)
+    def stall(self, active: bool = True, which: str = "rtde_receive") -> None:
+        """The RTDE streams open now stop (or resume) sending data packages; the TCP links stay up. `which`:
+        rtde_receive (clients without input recipes, the default), rtde_control, or rtde (both). A stalled
+        control stream sends ur_rtde's control interface into its reconnect loop (see drivers/ur_rtde_arm.py)."""
+        self._call(cmd="fault", kind="stall", active=active, which=which)
 
     def disconnect(self, which: str = "all") -> None:
-        """Close the current connections: all, rtde, dashboard or script."""
+        """Close the current connections: all, rtde, rtde_receive (RTDE clients without input recipes),
+        rtde_control (with input recipes), dashboard or script."""
         self._call(cmd="fault", kind="disconnect", which=which)
 
     # ---- lifetime -------------------------------------------------------------------------------------

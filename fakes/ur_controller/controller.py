@@ -20,22 +20,21 @@ import time
 import numpy as np
 
 from kitchenbot.drivers.ur_kinematics import ur_model
-from kitchenbot.fakes.ur_controller import protocol as P
-from kitchenbot.fakes.ur_controller.robot import (
-    BIT_EMERGENCY_STOPPED,
-    BIT_NORMAL_MODE,
-    BIT_PROTECTIVE_STOPPED,
-    BIT_ROBOT_EMERGENCY_STOPPED,
-    BIT_STOPPED_DUE_TO_SAFETY,
-    ROBOT_MODES,
-    SAFETY_MODE_NORMAL,
-    SAFETY_MODE_PROTECTIVE_STOP,
-    SAFETY_MODE_ROBOT_EMERGENCY_STOP,
-    Brake,
-    Robot,
-    T_to_pose,
-)
-from kitchenbot.fakes.ur_controller.script import ControlScript
+
+# The emulator process runs this file as a script, so `kitchenbot.fakes`' package __init__ (the whole simulator,
+# seconds to import) stays out of it; imported as part of the package, the relative imports apply.
+try:
+    from . import protocol as P
+    from . import robot as R
+    from .script import ControlScript
+except ImportError:
+    import protocol as P  # type: ignore[no-redef]
+    import robot as R  # type: ignore[no-redef]
+    from script import ControlScript  # type: ignore[no-redef]
+
+Brake, Robot, T_to_pose, ROBOT_MODES = R.Brake, R.Robot, R.T_to_pose, R.ROBOT_MODES
+SAFETY_MODE_NORMAL, SAFETY_MODE_PROTECTIVE_STOP = R.SAFETY_MODE_NORMAL, R.SAFETY_MODE_PROTECTIVE_STOP
+SAFETY_MODE_ROBOT_EMERGENCY_STOP = R.SAFETY_MODE_ROBOT_EMERGENCY_STOP
 
 PERIOD = 0.002  # s, one control cycle (e-Series: 500 Hz)
 RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2
@@ -89,6 +88,7 @@ class Conn:
 
     def close(self) -> None:
         self.closed = True
+        self.claimed.clear()  # a closed connection holds no input registers
         try:
             self.sock.shutdown(socket.SHUT_RDWR)
         except OSError:
@@ -208,10 +208,10 @@ class Controller:
     def safety_bits(self) -> int:
         m = self.robot.safety_mode
         if m == SAFETY_MODE_NORMAL:
-            return 1 << BIT_NORMAL_MODE
+            return 1 << R.BIT_NORMAL_MODE
         if m == SAFETY_MODE_PROTECTIVE_STOP:
-            return (1 << BIT_PROTECTIVE_STOPPED) | (1 << BIT_STOPPED_DUE_TO_SAFETY)
-        return (1 << BIT_ROBOT_EMERGENCY_STOPPED) | (1 << BIT_EMERGENCY_STOPPED) | (1 << BIT_STOPPED_DUE_TO_SAFETY)
+            return (1 << R.BIT_PROTECTIVE_STOPPED) | (1 << R.BIT_STOPPED_DUE_TO_SAFETY)
+        return (1 << R.BIT_ROBOT_EMERGENCY_STOPPED) | (1 << R.BIT_EMERGENCY_STOPPED) | (1 << R.BIT_STOPPED_DUE_TO_SAFETY)
 
     # ---- the control loop -----------------------------------------------------------------------------
     def cycle(self) -> None:
@@ -334,7 +334,7 @@ class Controller:
             ok = bool(c.out_names)
             c.started = ok
             c.next_send = self.now
-            c.stalled = self.stall_new
+            c.stalled = self.stall_new and not c.inputs  # stall_new: new receive clients (no input recipes)
             return P.package(kind, bytes([1 if ok else 0]))
         if kind == P.PAUSE:
             c.started = False
@@ -353,6 +353,7 @@ class Controller:
         cmd = line.strip()
         low = cmd.lower()
         r = self.robot
+        self.log(f"dashboard: {low}")
         ps56 = self._has_remote_control_mode()
         if low == "robotmode":
             return f"Robotmode: {ROBOT_MODES.get(r.mode, 'RUNNING')}"
@@ -393,8 +394,6 @@ class Controller:
         if low == "running":
             return f"Program running: {'true' if self.script is not None else 'false'}"
         if low == "stop":
-            if self.script is None:
-                return "Failed to execute: stop"
             self.stop_program("dashboard stop")
             return "Stopped"
         if low == "restart safety":
@@ -434,14 +433,18 @@ class Controller:
             elif kind == "stop_script":
                 self.stop_program("script stopped (injected)")
             elif kind == "stall":
+                which = msg.get("which", "rtde_receive")
                 for c in self.conns:
-                    if c.kind == "rtde" and c.started:
+                    role = "rtde_control" if c.inputs else "rtde_receive"
+                    if c.kind == "rtde" and c.started and which in ("rtde", role):
                         c.stalled = bool(msg.get("active", True))
             elif kind == "disconnect":
                 which = msg.get("which", "all")
                 for c in list(self.conns):
-                    if which in ("all", c.kind):
+                    role = c.kind if c.kind != "rtde" else ("rtde_control" if c.inputs else "rtde_receive")
+                    if which in ("all", c.kind, role):
                         c.close()
+                        self._forget(c)
             else:
                 return {"ok": False, "error": f"unknown fault {kind!r}"}
             return {"ok": True}
@@ -571,6 +574,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--tcp", default="[0,0,0,0,0,0]", help="installation TCP, JSON [x,y,z,rx,ry,rz]")
     p.add_argument("--unlock-delay", type=float, default=5.0)
     a = p.parse_args(argv)
+    import faulthandler
+    import signal
+
+    faulthandler.register(signal.SIGUSR1)  # `kill -USR1 <pid>` prints every thread's stack to stderr
     ctl = Controller(a.host, a.model, json.loads(a.q0) if a.q0 else None, a.polyscope, json.loads(a.tcp),
                      a.unlock_delay)
     try:

@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.fakes.ur_controller.robot import Brake, JointMove, LinearMove, ServoTrack, pose_to_T
+try:
+    from .robot import Brake, JointMove, LinearMove, ServoTrack, T_to_pose, pose_to_T
+except ImportError:  # run as a script in the emulator process (see controller.py)
+    from robot import Brake, JointMove, LinearMove, ServoTrack, T_to_pose, pose_to_T  # type: ignore[no-redef]
 
 READY, DONE = 1, 2
 REALTIME = {24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71}
@@ -173,8 +176,6 @@ class ControlScript:
             ok = np.all(q >= np.asarray(r.model.joint_lower)) and np.all(q <= np.asarray(r.model.joint_upper))
             self.out_int(1, 1 if ok else 0)
         elif cmd == 40:  # get_tcp_offset
-            from kitchenbot.fakes.ur_controller.robot import T_to_pose
-
             for i, v in enumerate(T_to_pose(r.tcp)):
                 self.out_double(i, v)
         elif cmd == 31:
