@@ -88,7 +88,8 @@ class URControllerEmulator:
     def set(self, **kw) -> None:
         """stall_new (new RTDE receive streams handshake but send no data), silent (new TCP connections on every port
         are accepted and never answered), refuse_unlock, fieldbus (EtherNet/IP/PROFINET holds input registers
-        0-23), remote_control, unlock_delay, contact_z (a surface at this base-frame height), q (teleport)."""
+        0-23), remote_control, unlock_delay, thread_start_delay (a busy control script begins an async move
+        this many seconds after accepting it; by default it begins in the next 2 ms cycle), contact_z (a surface at this base-frame height), q (teleport)."""
         self._call(cmd="set", **kw)
 
     def wait_for(self, predicate, timeout: float = 10.0, what: str = "condition") -> dict:

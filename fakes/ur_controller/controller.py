@@ -125,6 +125,7 @@ class Controller:
         self.refuse_unlock = False
         self.fieldbus = False
         self.remote_control = True
+        self.thread_start_delay = 0.0  # s: a busy control script starts an async move this much later
         self.stopping = False
 
     @property
@@ -159,7 +160,7 @@ class Controller:
             self.log(f"program not started: {why}")
             return
         r.reset_program_settings()
-        self.script = ControlScript(self.regs, r, offset, self.log)
+        self.script = ControlScript(self.regs, r, offset, self.log, lambda: self.now, self.thread_start_delay)
         self.program_starts += 1
         self.log("program started")
 
@@ -218,6 +219,8 @@ class Controller:
         self.cycles += 1
         r = self.robot
         r.step(PERIOD)
+        while r.finished:
+            self.log(f"{r.finished.pop(0)} done")
         if r.last_failure:
             why, r.last_failure = r.last_failure, None
             self.protective_stop(why)
@@ -241,7 +244,7 @@ class Controller:
             with self.lock:
                 for _ in range(n):
                     self.cycle()
-                self.publish()
+                    self.publish()
             next_t += n * PERIOD
             if now - next_t > 0.1:  # starved for long: do not replay the backlog
                 next_t = now
@@ -288,7 +291,8 @@ class Controller:
                 continue
             if c.kind != "rtde" or not c.started or c.stalled or t + 1e-9 < c.next_send:
                 continue
-            c.next_send = max(c.next_send + 1.0 / c.frequency, t + 0.5 / c.frequency)
+            # every 500/f cycles of controller time, counted from the first package
+            c.next_send = (c.next_send if t - c.next_send < PERIOD / 2 else t) + 1.0 / c.frequency
             if v is None:
                 v = self.values()
             body = P.pack_fields(c.out_types, [self._field(v, n, ty) for n, ty in zip(c.out_names, c.out_types)])
@@ -454,6 +458,10 @@ class Controller:
                     setattr(self, key, bool(msg[key]))
             if "unlock_delay" in msg:
                 self.unlock_delay = float(msg["unlock_delay"])
+            if "thread_start_delay" in msg:
+                self.thread_start_delay = float(msg["thread_start_delay"])
+                if self.script is not None:
+                    self.script.thread_start_delay = self.thread_start_delay
             if "contact_z" in msg:
                 r.contact_z = None if msg["contact_z"] is None else float(msg["contact_z"])
             if "q" in msg:

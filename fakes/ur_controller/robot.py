@@ -76,24 +76,34 @@ class PathMotion:
         self.length, self.v, self.a = float(length), float(v), float(a)
         self.s = 0.0
         self.sd = 0.0
+        self.t = 0.0  # time along the profile
         self.brake: float | None = None
         self.done = self.length <= 1e-12
         self.failed: str | None = None
+        v_peak = min(self.v, math.sqrt(max(self.length, 0.0) * self.a))
+        self.t_acc = v_peak / self.a
+        self.t_flat = (self.length - v_peak * self.t_acc) / self.v if v_peak >= self.v else 0.0
+        self.v_peak = v_peak
+
+    def _profile(self, t: float) -> tuple[float, float]:
+        a, ta, tf, vp = self.a, self.t_acc, self.t_flat, self.v_peak
+        if t < ta:
+            return 0.5 * a * t * t, a * t
+        if t < ta + tf:
+            return 0.5 * a * ta * ta + vp * (t - ta), vp
+        td = min(t - ta - tf, ta)
+        return 0.5 * a * ta * ta + vp * tf + vp * td - 0.5 * a * td * td, vp - a * td
 
     def step_s(self, dt: float) -> None:
-        if self.brake is not None:
-            self.sd = max(0.0, self.sd - self.brake * dt)
-        else:
-            remaining = self.length - self.s
-            if self.sd * self.sd / (2 * self.a) >= remaining:
-                self.sd = max(self.sd - self.a * dt, 0.0)
-                if self.sd == 0.0 or self.sd * dt >= remaining:
-                    self.s, self.sd, self.done = self.length, 0.0, True
-                    return
-            else:
-                self.sd = min(self.sd + self.a * dt, self.v)
+        if self.brake is None:  # the trapezoid in closed form
+            self.t += dt
+            self.s, self.sd = self._profile(self.t)
+            if self.t >= 2 * self.t_acc + self.t_flat:
+                self.s, self.sd, self.done = self.length, 0.0, True
+            return
+        self.sd = max(0.0, self.sd - self.brake * dt)  # braking from wherever we are
         self.s = min(self.length, self.s + self.sd * dt)
-        if self.s >= self.length or (self.brake is not None and self.sd == 0.0):
+        if self.s >= self.length or self.sd == 0.0:
             self.sd, self.done = 0.0, True
 
 
@@ -200,6 +210,7 @@ class Robot:
         self.contact_z: float | None = None  # a rigid-ish horizontal surface at this height (base frame)
         self.contact_stiffness = 2.0e4  # N/m
         self.last_failure: str | None = None
+        self.finished: list[str] = []  # kinds of motions that ended since the controller last looked
 
     # ---- kinematics ---------------------------------------------------------------------------------
     def tcp_T(self, q=None) -> np.ndarray:
@@ -260,3 +271,4 @@ class Robot:
         if m.done:
             self.qd = np.zeros(6) if not isinstance(m, ServoTrack) else self.qd
             self.motion = None
+            self.finished.append(m.kind + (" braked" if getattr(m, "brake", None) is not None else ""))

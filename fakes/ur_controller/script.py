@@ -30,8 +30,10 @@ STOP_DECEL_ON_KILL = 4.0  # rad/s^2: a killed move thread leaves the robot braki
 
 
 class ControlScript:
-    def __init__(self, regs: dict, robot, offset: int, log):
+    def __init__(self, regs: dict, robot, offset: int, log, now=lambda: 0.0, thread_start_delay: float = 0.0):
         self.regs, self.robot, self.offset, self.log = regs, robot, offset, log
+        self.now = now  # controller time
+        self.thread_start_delay = thread_start_delay  # extra latency before a `run`ed thread begins (busy script)
         self.keep_running = True
         self.executing = False
         self.blocking = None  # the motion a synchronous command waits for
@@ -95,8 +97,9 @@ class ControlScript:
                 self.out_int(0, DONE)
 
     def _run_move_thread(self) -> None:
-        if self.move_pending is not None:  # `run move_thread()` from the previous cycle begins now
-            m, self.move_pending = self.move_pending, None
+        if self.move_pending is not None and self.now() >= self.move_pending[1]:
+            # `run move_thread()` from an earlier cycle begins now
+            m, self.move_pending = self.move_pending[0], None
             self.write_async(0)
             self.move_motion = m
             self.robot.motion = m
@@ -117,7 +120,7 @@ class ControlScript:
         self._stop_async_move()
         self._end_servo()
         if asynchronous:
-            self.move_pending = motion
+            self.move_pending = (motion, self.now() + self.thread_start_delay)
         else:
             self.robot.motion = motion
             self.blocking = motion

@@ -159,8 +159,9 @@ def test_a_stopped_script_is_uploaded_again_before_the_next_motion(emu, arm):
 
 # ---- motion --------------------------------------------------------------------------------------------
 def test_synchronous_move_returns_only_when_the_arm_is_there(emu, arm):
-    # The control script starts an async move a cycle after moveJ returns; a wait that trusted the first
-    # progress reading (< 0, "finished") returned at once, with the arm still at HOME.
+    # The control script starts an async move a cycle (here, busy: 0.2 s) after moveJ returns; a wait that
+    # trusted the first progress reading (< 0, "finished") returned at once, with the arm still at HOME.
+    emu.set(thread_start_delay=0.2)
     target = HOME + np.array([0.2, 0, 0, 0, 0, 0])
     arm.move_joints(target, speed=1.0, accel=1.4)
     np.testing.assert_allclose(arm.joint_positions(), target, atol=1e-6)
@@ -168,6 +169,7 @@ def test_synchronous_move_returns_only_when_the_arm_is_there(emu, arm):
 
 
 def test_async_move_is_moving_from_the_start_and_wait_ends_it(emu, arm):
+    emu.set(thread_start_delay=0.2)
     target = HOME + np.array([0.1, 0, 0, 0, 0, 0])
     arm.move_joints(target, asynchronous=True)
     assert arm.is_moving()
