@@ -3,24 +3,36 @@
 Every command was already checked by :class:`~kitchenbot.drivers.arm.Arm` (joint limits, speeds, workspace)
 before a hook here runs; this module only talks to the controller and maps its failures to our errors.
 
-Field failures it guards against (DESIGN.md section 7):
-- nothing listens at the host: the ur_rtde constructors raise ``RuntimeError`` at once -> DeviceNotConnectedError
-  naming the host and what to check;
-- the receive thread dies while ``isConnected()`` stays true: a watchdog (background thread, and a check on every
-  read) requires the RTDE timestamp to advance within ``receive_timeout`` and otherwise rebuilds the receive
-  interface, a bounded number of times with exponential backoff, then declares the link lost;
-- the control link drops (CPU load, network): ``reconnect()`` with the same bounded policy;
-- motions cannot be paused, only stopped: every move is started asynchronously and polled (progress, safety
-  status), synchronous calls simply wait; :meth:`stop` uses stopJ/stopL/servoStop;
-- protective and emergency stops come from the safety status bits; a protective stop is unlocked through the
-  dashboard server only when someone calls :meth:`unlock_protective_stop`.
+What the vendor library does that shapes this driver (ur_rtde 1.6.5, checked against fakes/ur_controller):
+- its constructors hold the Python GIL while they wait for the controller: against a host that accepts TCP and
+  never answers they block the whole process for minutes, against one that handshakes but never streams they
+  return after 2.5 s with a dead interface. So before any constructor runs, a short pure-Python RTDE handshake
+  with a timeout (:func:`preflight_rtde`) proves the controller answers and streams;
+- ``disconnect()`` sleeps 0.5 s and so does the destructor, GIL held: replaced receive interfaces are
+  disconnected in a background thread and kept referenced until :meth:`URArm.disconnect`;
+- ``setTcp``/``setPayload`` hold only for the running control script; ``reuploadScript`` and ur_rtde's own
+  reconnect start a new one. Before each motion the active TCP (``getTCPOffset``) and payload (RTDE
+  ``payload``) are compared with the config and re-sent when they differ;
+- an async move starts in the control script's next cycle: ``getAsyncOperationProgress()`` still reads
+  "finished" right after moveJ returns. A motion counts as started once the async operation id changed;
+- ``DashboardClient.unlockProtectiveStop()`` returns None on success and raises RuntimeError("Unlock
+  protective stop failure: <reply>") when the controller refuses;
+- range checks raise ``ValueError`` (mapped to LimitViolation), everything else ``RuntimeError``.
 
-The three interfaces come from injectable factories so tests can hand in fakes at this boundary.
+Field failures guarded against (DESIGN.md section 7): the receive stream stalls or dies (data age: controller
+time must advance with the host clock, and ``isConnected()``; a watchdog thread and every read check it and
+rebuild the receive interface a bounded number of times), the control link drops (``reconnect()``, bounded),
+protective and emergency stops (safety status bits). :meth:`stop` only needs the control interface and its
+own lock, so a receive rebuild never delays or refuses it.
+
+The three interfaces come from injectable factories; tests use the real classes against the emulator.
 """
 
 from __future__ import annotations
 
 import logging
+import socket
+import struct
 import threading
 import time
 from collections.abc import Callable
@@ -43,6 +55,8 @@ from kitchenbot.transforms import to_rotvec
 
 log = logging.getLogger(__name__)
 
+RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
+
 # RTDE safety_status_bits (UR RTDE guide)
 SAFETY_BIT_NORMAL = 0
 SAFETY_BIT_REDUCED = 1
@@ -55,6 +69,15 @@ SAFETY_BIT_EMERGENCY_STOPPED = 7
 SAFETY_BIT_VIOLATION = 8
 SAFETY_BIT_FAULT = 9
 SAFETY_BIT_STOPPED_DUE_TO_SAFETY = 10
+
+# How fast the controller clock may drift against the host clock before the data counts as ageing (s/s).
+CLOCK_DRIFT_ALLOWANCE = 1e-3
+
+FIELDBUS_HINT = (
+    "RTDE input registers are held by another client or a fieldbus adapter (EtherNet/IP, PROFINET or MODBUS) on "
+    "the controller: disable the adapter on the pendant (Installation > Fieldbus) or set "
+    "drivers.arm.upper_range_registers: true so ur_rtde uses registers 24-47"
+)
 
 
 def safety_from_bits(bits: int) -> SafetyState:
@@ -81,16 +104,117 @@ def resample_trajectory(times: np.ndarray, q: np.ndarray, dt: float) -> np.ndarr
     return np.stack([np.interp(grid, times, q[:, j]) for j in range(q.shape[1])], axis=1)
 
 
-def _default_receive(host: str, frequency: float) -> Any:
+def polyscope_at_least(version: str, major: int, minor: int) -> bool | None:
+    """Whether a PolyScope version string ("5.15.0.112233" or "URSoftware 5.15...") is >= major.minor; None
+    when it cannot be read."""
+    import re
+
+    m = re.search(r"(\d+)\.(\d+)", str(version))
+    if not m:
+        return None
+    return (int(m.group(1)), int(m.group(2))) >= (major, minor)
+
+
+# ---- bounded checks before a vendor constructor (which would hold the GIL) ----------------------------------
+def _recv_exactly(s: socket.socket, n: int) -> bytes:
+    buf = b""
+    while len(buf) < n:
+        chunk = s.recv(n - len(buf))
+        if not chunk:
+            raise ConnectionResetError("the controller closed the connection")
+        buf += chunk
+    return buf
+
+
+def _connect(host: str, port: int, what: str, timeout: float) -> socket.socket:
+    try:
+        return socket.create_connection((host, port), timeout=timeout)
+    except TimeoutError:
+        raise DeviceNotConnectedError(
+            f"UR arm at {host}: no answer on TCP port {port} ({what}) within {timeout:.1f} s: host unreachable? "
+            "Check the controller is on, the IP (drivers.arm.host) and the network cable."
+        ) from None
+    except OSError as e:
+        raise DeviceNotConnectedError(
+            f"UR arm at {host}: cannot open TCP port {port} ({what}): {e.strerror or e}. Check the controller is "
+            "on, the IP (drivers.arm.host), the network cable, and that the robot is in Remote Control mode."
+        ) from None
+
+
+def preflight_rtde(host: str, timeout: float = 2.0) -> tuple[int, int, int, int]:
+    """A minimal RTDE session (protocol version, controller version, a one-field output recipe, start, first
+    data package, pause) with socket timeouts, so an unreachable, silent or non-streaming controller is found
+    in bounded time. Returns the controller version. Raises DeviceNotConnectedError saying which step failed."""
+    deadline = time.monotonic() + timeout
+    s = _connect(host, RTDE_PORT, "RTDE", timeout)
+    stage = "answer the RTDE handshake"
+
+    def request(kind: str, payload: bytes, expect: str | None) -> bytes:
+        if kind:
+            s.sendall(struct.pack(">HB", 3 + len(payload), ord(kind)) + payload)
+        while True:
+            s.settimeout(max(1e-3, deadline - time.monotonic()))
+            size, got = struct.unpack(">HB", _recv_exactly(s, 3))
+            body = _recv_exactly(s, size - 3)
+            if expect is None or got == ord(expect):
+                return body
+
+    try:
+        with s:
+            if not request("V", struct.pack(">H", 2), "V")[:1] == b"\x01":
+                raise DeviceNotConnectedError(f"UR arm at {host}: the controller refused RTDE protocol version 2")
+            version = struct.unpack(">IIII", request("v", b"", "v")[:16])
+            reply = request("O", struct.pack(">d", 10.0) + b"timestamp", "O")
+            if b"NOT_FOUND" in reply:
+                raise DeviceNotConnectedError(f"UR arm at {host}: the RTDE server does not know 'timestamp'")
+            request("S", b"", "S")
+            stage = "send RTDE data after the handshake (the RTDE stream is stalled)"
+            request("", b"", "U")
+            try:
+                s.sendall(struct.pack(">HB", 3, ord("P")))
+            except OSError:
+                pass
+            return version
+    except (TimeoutError, socket.timeout):
+        raise DeviceNotConnectedError(
+            f"UR arm at {host}: the controller accepted TCP port {RTDE_PORT} but did not {stage} within "
+            f"{timeout:.1f} s. Restart the controller (or its RTDE service) and check nothing else floods it."
+        ) from None
+    except (ConnectionError, OSError, struct.error) as e:
+        raise DeviceNotConnectedError(f"UR arm at {host}: the RTDE connection failed while waiting to {stage}: {e}") from None
+
+
+def preflight_dashboard(host: str, timeout: float = 2.0) -> None:
+    """Connect to the dashboard server and read its greeting within `timeout`."""
+    s = _connect(host, DASHBOARD_PORT, "dashboard server", timeout)
+    with s:
+        s.settimeout(timeout)
+        try:
+            greeting = s.recv(256)
+        except (TimeoutError, socket.timeout):
+            raise DeviceNotConnectedError(
+                f"UR arm at {host}: the dashboard server (port {DASHBOARD_PORT}) accepted the connection but sent "
+                f"no greeting within {timeout:.1f} s"
+            ) from None
+        except OSError as e:
+            raise DeviceNotConnectedError(f"UR arm at {host}: dashboard server: {e}") from None
+        if not greeting:
+            raise DeviceNotConnectedError(f"UR arm at {host}: the dashboard server closed the connection at once")
+
+
+def _default_receive(host: str, frequency: float, upper_range: bool = False) -> Any:
     import rtde_receive
 
-    return rtde_receive.RTDEReceiveInterface(host, frequency)
+    return rtde_receive.RTDEReceiveInterface(host, frequency, [], False, upper_range)
 
 
-def _default_control(host: str, frequency: float) -> Any:
+def _default_control(host: str, frequency: float, upper_range: bool = False) -> Any:
     import rtde_control
 
-    return rtde_control.RTDEControlInterface(host, frequency)
+    flags = rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT
+    if upper_range:
+        flags |= rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS
+    return rtde_control.RTDEControlInterface(host, frequency, flags)
 
 
 def _default_dashboard(host: str) -> Any:
@@ -101,50 +225,82 @@ def _default_dashboard(host: str) -> Any:
     return d
 
 
+def _retire(iface: Any, graveyard: list) -> None:
+    """Disconnect a replaced interface off the caller's thread (the vendor call sleeps 0.5 s) and keep the object
+    referenced: its destructor would sleep again with the GIL held."""
+    if iface is None:
+        return
+    graveyard.append(iface)
+
+    def run() -> None:
+        try:
+            iface.disconnect()
+        except Exception:  # noqa: BLE001 - best effort on a dead link
+            pass
+
+    threading.Thread(target=run, name="ur-rtde-retire", daemon=True).start()
+
+
 def probe(
     host: str,
     frequency: float = 500.0,
     watch: float = 0.2,
+    timeout: float = 2.0,
     receive_factory: Callable[[str, float], Any] = _default_receive,
     dashboard_factory: Callable[[str], Any] = _default_dashboard,
+    preflight: bool = True,
 ) -> dict:
     """Read-only health check (for `kitchenbot doctor`): no control script is uploaded, nothing moves.
-    Opens the receive interface, checks that its timestamp advances over `watch` seconds, reads the safety
-    state, then asks the dashboard server for model/version/modes. Raises DeviceNotConnectedError."""
+    Bounded in time (`timeout` per step) on an unreachable or silent host. Opens the receive interface, checks
+    that its timestamp advances over `watch` seconds, reads the safety state, then asks the dashboard server
+    for model/version/modes. `remote_control` is None where PolyScope (< 5.6) has no such mode.
+    Raises DeviceNotConnectedError."""
+    if preflight:
+        preflight_rtde(host, timeout)
     try:
         r = receive_factory(host, frequency)
     except RuntimeError as e:
         raise DeviceNotConnectedError(
-            f"UR arm at {host}: cannot open the RTDE receive interface (TCP port 30004): {e}"
+            f"UR arm at {host}: cannot open the RTDE receive interface (TCP port {RTDE_PORT}): {e}"
         ) from None
     try:
         t0 = float(r.getTimestamp())
         time.sleep(watch)
         t1 = float(r.getTimestamp())
         info = {
-            "streaming": t1 > t0,
+            "streaming": t1 > t0 and bool(r.isConnected()),
             "safety": safety_from_bits(r.getSafetyStatusBits()).value,
             "q": np.round(np.asarray(r.getActualQ(), float), 3).tolist(),
         }
     finally:
-        URArm._close_quietly(r)
+        _close_quietly(r)
     try:
+        if preflight:
+            preflight_dashboard(host, timeout)
         d = dashboard_factory(host)
-    except RuntimeError as e:
+    except (RuntimeError, DeviceNotConnectedError) as e:
         info["dashboard"] = f"unreachable ({e})"
         return info
     try:
-        info.update(
-            model=str(d.getRobotModel()),
-            polyscope=str(d.polyscopeVersion()),
-            robot_mode=str(d.robotmode()),
-            remote_control=bool(d.isInRemoteControl()),
-        )
+        version = str(d.polyscopeVersion())
+        info.update(model=str(d.getRobotModel()), polyscope=version, robot_mode=str(d.robotmode()))
+        has_remote = polyscope_at_least(version, 5, 6)
+        info["remote_control"] = bool(d.isInRemoteControl()) if has_remote else None
     except RuntimeError as e:
         info["dashboard"] = f"error ({e})"
     finally:
-        URArm._close_quietly(d)
+        _close_quietly(d)
     return info
+
+
+def _close_quietly(iface: Any, *calls: str) -> None:
+    if iface is None:
+        return
+    for name in (*calls, "disconnect"):
+        try:
+            getattr(iface, name)()
+        except Exception:  # noqa: BLE001 - best effort while tearing down a dead link
+            pass
 
 
 class URArm(Arm):
@@ -158,106 +314,189 @@ class URArm(Arm):
         *,
         frequency: float = 500.0,
         receive_timeout: float = 0.1,
+        connect_timeout: float = 2.0,
         payload_kg: float = 0.0,
         cog: tuple[float, float, float] = (0.0, 0.0, 0.0),
         reconnect_attempts: int = 3,
         reconnect_backoff: float = 0.2,
         servo_lookahead: float = 0.1,
         servo_gain: float = 300.0,
+        servo_settle_tolerance: float = 1e-3,
+        servo_settle_time: float = 1.0,
+        motion_start_timeout: float = 1.0,
+        upper_range_registers: bool = False,
         watchdog: bool = True,
-        receive_factory: Callable[[str, float], Any] = _default_receive,
-        control_factory: Callable[[str, float], Any] = _default_control,
+        preflight: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+        receive_factory: Callable[[str, float], Any] | None = None,
+        control_factory: Callable[[str, float], Any] | None = None,
         dashboard_factory: Callable[[str], Any] = _default_dashboard,
     ):
         super().__init__(model, limits)
         self.host = host
         self.frequency = float(frequency)
         self.receive_timeout = float(receive_timeout)
+        self.connect_timeout = float(connect_timeout)
         self.payload_kg = float(payload_kg)
         self.cog = tuple(float(c) for c in cog)
         self.reconnect_attempts = max(1, int(reconnect_attempts))
         self.reconnect_backoff = float(reconnect_backoff)
         self.servo_lookahead = float(servo_lookahead)
         self.servo_gain = float(servo_gain)
+        self.servo_settle_tolerance = float(servo_settle_tolerance)
+        self.servo_settle_time = float(servo_settle_time)
+        self.motion_start_timeout = float(motion_start_timeout)
+        self.upper_range_registers = bool(upper_range_registers)
         self.use_watchdog = watchdog
-        self._receive_factory = receive_factory
-        self._control_factory = control_factory
+        self.use_preflight = preflight
+        self._clock = clock  # host clock for the data age and the rebuild window (tests inject one)
+        self._receive_factory = receive_factory or (
+            lambda h, f: _default_receive(h, f, self.upper_range_registers))
+        self._control_factory = control_factory or (
+            lambda h, f: _default_control(h, f, self.upper_range_registers))
         self._dashboard_factory = dashboard_factory
 
-        self._lock = threading.RLock()
+        # Locks: the control interface takes one command at a time (`_ctrl_lock`, the only lock stop() takes);
+        # the receive interface is swapped under `_rx_lock` (no I/O under it); one rebuild at a time.
+        self._ctrl_lock = threading.RLock()
+        self._rx_lock = threading.Lock()
+        self._rebuild_lock = threading.Lock()
         self._rtde_r: Any = None
         self._rtde_c: Any = None
         self._dashboard: Any = None
-        self._last_ts: float | None = None
-        self._last_change = 0.0
-        self._rebuild_times: list[float] = []  # monotonic times of recent rebuilds (bounded per window)
+        self._graveyard: list[Any] = []  # replaced interfaces, released in disconnect()
+        self._lag_base: float | None = None  # host time minus controller time when the data was freshest
+        self._last_check: tuple[float, float] | None = None  # (host time, controller time) of the last check
+        self._rebuild_times: list[float] = []  # clock() of recent rebuilds (bounded per window)
         self.rebuild_window = 10.0  # s: more than `reconnect_attempts` rebuilds in this window = link lost
         self._link_lost: str | None = None
-        self.receive_rebuilds = 0  # how often the watchdog rebuilt the receive interface
+        self.receive_rebuilds = 0  # how often the receive interface was rebuilt
+        self.tool_reapplied = 0  # how often TCP/payload were re-sent because a new control script had started
         self._watchdog: threading.Thread | None = None
         self._stop_watchdog = threading.Event()
         self._motion: str | None = None  # "J", "L", "servo" while a motion we started may run
+        self._op_before: int | None = None  # async operation id before our move was sent
+        self._started = False  # the async move was seen running (or finished) in the control script
+        self._start_deadline = 0.0
         self._servo_thread: threading.Thread | None = None
         self._servo_stop = threading.Event()
         self._servo_error: BaseException | None = None
 
     # ---- connection -------------------------------------------------------------------------------
     def _unreachable(self, what: str, port: int, e: BaseException) -> DeviceNotConnectedError:
+        text = str(e)
+        if "already in use" in text:
+            return DeviceNotConnectedError(f"UR arm at {self.host}: cannot open the RTDE {what} interface: {FIELDBUS_HINT}. ({text})")
+        if "remote control" in text.lower():
+            return DeviceNotConnectedError(
+                f"UR arm at {self.host}: the controller is in Local mode: switch the pendant to Remote Control "
+                f"(PolyScope >= 5.6) so the control script may be uploaded. ({text})"
+            )
         return DeviceNotConnectedError(
-            f"UR arm at {self.host}: cannot open the RTDE {what} interface (TCP port {port}): {e}. "
+            f"UR arm at {self.host}: cannot open the RTDE {what} interface (TCP port {port}): {text}. "
             "Check the controller is on, the IP (drivers.arm.host), the network cable, and that the robot is in "
-            "Remote Control mode."
+            "Remote Control mode, powered on with its brakes released."
         )
 
     def _make_receive(self) -> Any:
+        if self.use_preflight:
+            preflight_rtde(self.host, self.connect_timeout)
         try:
-            return self._receive_factory(self.host, self.frequency)
+            r = self._receive_factory(self.host, self.frequency)
         except RuntimeError as e:
-            raise self._unreachable("receive", 30004, e) from None
+            raise self._unreachable("receive", RTDE_PORT, e) from None
+        if not r.isConnected():  # handshake done but no data: the vendor constructor returns a dead interface
+            _retire(r, self._graveyard)
+            raise DeviceNotConnectedError(f"UR arm at {self.host}: the RTDE receive interface connected but gets no data")
+        return r
+
+    def _make_control(self) -> Any:
+        if self.use_preflight:
+            preflight_rtde(self.host, self.connect_timeout)
+            preflight_dashboard(self.host, self.connect_timeout)
+            _connect(self.host, SCRIPT_PORT, "script port", self.connect_timeout).close()
+        try:
+            return self._control_factory(self.host, self.frequency)
+        except RuntimeError as e:
+            raise self._unreachable("control", RTDE_PORT, e) from None
 
     def connect(self) -> None:
         if self.is_connected:
             return
         if self._rtde_r is not None or self._rtde_c is not None or self._watchdog is not None:
             self.disconnect()  # after a lost link: drop the dead interfaces and the old watchdog first
-        with self._lock:
-            self._link_lost = None
-            self._rtde_r = self._make_receive()
-            try:
-                self._rtde_c = self._control_factory(self.host, self.frequency)
-            except RuntimeError as e:
-                self._close_quietly(self._rtde_r)
-                self._rtde_r = None
-                raise self._unreachable("control", 30004, e) from None
-            self._mark_fresh()
-            self._rebuild_times = []
-            try:
-                self._apply_tool()
-            except (DriverError, RuntimeError):
-                self.disconnect()
-                raise
+        self._link_lost = None
+        r = self._make_receive()
+        try:
+            c = self._make_control()
+        except DeviceNotConnectedError:
+            _retire(r, self._graveyard)
+            raise
+        with self._rx_lock:
+            self._rtde_r = r
+            self._lag_base = self._last_check = None
+        self._prime(r)
+        with self._ctrl_lock:
+            self._rtde_c = c
+        self._rebuild_times = []
+        try:
+            self._apply_tool()
+        except (DriverError, RuntimeError):
+            self.disconnect()
+            raise
         if self.use_watchdog:
             self._stop_watchdog.clear()
             self._watchdog = threading.Thread(target=self._watchdog_loop, name="ur-rtde-watchdog", daemon=True)
             self._watchdog.start()
 
+    def _tcp_pose(self) -> list[float]:
+        return to_rotvec(self.limits.T_flange_tcp).tolist()
+
     def _apply_tool(self) -> None:
         """TCP and payload from the config, so the controller's own checks and moveL use the same tool."""
-        tcp = to_rotvec(self.limits.T_flange_tcp).tolist()
-        if not self._rtde_c.setTcp(tcp):
+        tcp = self._tcp_pose()
+        c = self._rtde_c
+        if not self._call("setTcp", c.setTcp, tcp):
             raise DriverError(f"UR arm at {self.host}: the controller refused setTcp({tcp})")
-        if not self._rtde_c.setPayload(self.payload_kg, list(self.cog)):
+        if not self._call("setPayload", c.setPayload, self.payload_kg, list(self.cog)):
             raise DriverError(f"UR arm at {self.host}: the controller refused setPayload({self.payload_kg} kg)")
 
-    @staticmethod
-    def _close_quietly(iface: Any, *calls: str) -> None:
-        if iface is None:
-            return
-        for name in (*calls, "disconnect"):
+    def _ensure_program(self) -> Any:
+        """Before a motion: the control script runs and uses our TCP and payload. A script restarted by
+        reuploadScript or by ur_rtde's own reconnect runs with the installation's tool until we re-send it."""
+        c = self._ctrl()
+        for _ in range(2):
+            if not self._call("isProgramRunning", c.isProgramRunning):
+                self._fresh_safety()  # a protective or emergency stop ends the script: report that, do not upload
+                log.warning("UR arm at %s: the control script is not running; uploading it again", self.host)
+                self._reupload(c)
+                return c
             try:
-                getattr(iface, name)()
-            except Exception:  # noqa: BLE001 - best effort while tearing down a dead link
-                pass
+                tcp = np.asarray(self._call("getTCPOffset", c.getTCPOffset), float)
+            except DriverError:  # the script stopped under the call: isProgramRunning now knows
+                continue
+            stale = tcp.shape != (6,) or not np.allclose(tcp, self._tcp_pose(), atol=1e-6)
+            r = self._recv()
+            if hasattr(r, "getPayload"):
+                stale |= abs(float(r.getPayload()) - self.payload_kg) > 1e-6
+            if stale:  # a control script we did not start (reuploadScript, ur_rtde's reconnect)
+                log.warning("UR arm at %s: a new control script runs with the installation's TCP/payload; "
+                            "sending ours again", self.host)
+                self._apply_tool()
+                self.tool_reapplied += 1
+            return c
+        raise DriverError(f"UR arm at {self.host}: the control script keeps stopping; check the pendant's log")
+
+    def _reupload(self, c: Any) -> None:
+        if not self._call("reuploadScript", c.reuploadScript):
+            raise DriverError(f"UR arm at {self.host}: uploading the control script failed")
+        deadline = time.monotonic() + 5.0
+        while not self._call("isProgramRunning", c.isProgramRunning):
+            if time.monotonic() > deadline:
+                raise DriverError(f"UR arm at {self.host}: the control script did not start within 5 s after upload")
+            time.sleep(0.01)
+        self._apply_tool()
+        self.tool_reapplied += 1
 
     def disconnect(self) -> None:
         self._stop_watchdog.set()
@@ -265,12 +504,16 @@ class URArm(Arm):
             self._watchdog.join(timeout=2.0)
         self._watchdog = None
         self._end_servo_thread()
-        with self._lock:
-            self._close_quietly(self._rtde_c, "stopScript")
-            self._close_quietly(self._rtde_r)
-            self._close_quietly(self._dashboard)
-            self._rtde_c = self._rtde_r = self._dashboard = None
-            self._motion = None
+        with self._ctrl_lock:
+            c, self._rtde_c = self._rtde_c, None
+            _close_quietly(c, "stopScript")
+            d, self._dashboard = self._dashboard, None
+            _close_quietly(d)
+        with self._rx_lock:
+            r, self._rtde_r = self._rtde_r, None
+        _close_quietly(r)
+        self._graveyard.clear()  # the vendor destructors sleep 0.5 s each; nothing moves now
+        self._motion = None
 
     @property
     def is_connected(self) -> bool:
@@ -280,83 +523,119 @@ class URArm(Arm):
     def _watchdog_loop(self) -> None:
         period = max(0.005, self.receive_timeout / 2)
         while not self._stop_watchdog.wait(period):
+            if self._rtde_r is None or self._link_lost:
+                continue
             try:
-                with self._lock:
-                    if self._rtde_r is None or self._link_lost:
-                        continue
-                    self._check_receive()
+                self._recv()
             except DeviceNotConnectedError as e:
                 log.error("%s", e)
-                self._emergency_stop_motion()
                 return
 
-    def _check_receive(self) -> Any:
-        """The receive interface, after making sure its timestamp advanced within `receive_timeout`."""
-        now = time.monotonic()
-        try:
-            ts = float(self._rtde_r.getTimestamp())
-        except RuntimeError as e:
-            return self._rebuild_receive(f"reading the timestamp failed ({e})")
-        if ts != self._last_ts:
-            self._last_ts, self._last_change = ts, now
-            return self._rtde_r
-        if now - self._last_change > self.receive_timeout:
-            return self._rebuild_receive(
-                f"the RTDE timestamp has not advanced for {now - self._last_change:.2f} s (stalled at {ts:.3f} s)"
-            )
-        return self._rtde_r
+    def _data_age(self, ts: float, now: float) -> float:
+        """How old the controller's latest data is: the growth of (host time - controller time) over its
+        smallest value, which may creep up by CLOCK_DRIFT_ALLOWANCE to absorb clock drift."""
+        with self._rx_lock:
+            lag = now - ts
+            last = self._last_check
+            if self._lag_base is None or last is None or ts < last[1]:  # new interface or controller restarted
+                base = lag
+            else:
+                base = min(lag, self._lag_base + CLOCK_DRIFT_ALLOWANCE * max(0.0, now - last[0]))
+            self._lag_base, self._last_check = base, (now, ts)
+            return lag - base
 
-    def _rebuild_receive(self, reason: str) -> Any:
-        """Replace a stalled/dead receive interface; bounded attempts with exponential backoff."""
-        now = time.monotonic()
-        self._rebuild_times = [t for t in self._rebuild_times if now - t < self.rebuild_window]
-        if len(self._rebuild_times) >= self.reconnect_attempts:
-            return self._lose_link(
-                f"receive link keeps stalling ({reason}) after {len(self._rebuild_times)} rebuilds "
-                f"in {self.rebuild_window:.0f} s"
-            )
-        self._rebuild_times.append(now)
-        log.warning("UR arm at %s: %s; rebuilding the RTDE receive interface", self.host, reason)
-        self._close_quietly(self._rtde_r)
-        self._rtde_r = None
-        last: BaseException | None = None
-        for attempt in range(self.reconnect_attempts):
-            try:
-                self._rtde_r = self._receive_factory(self.host, self.frequency)
-                break
-            except RuntimeError as e:
-                last = e
-                time.sleep(self.reconnect_backoff * 2**attempt)
-        if self._rtde_r is None:
-            return self._lose_link(f"{reason}; rebuilding the receive interface failed {self.reconnect_attempts} times ({last})")
-        self.receive_rebuilds += 1
-        self._mark_fresh()
-        return self._rtde_r
-
-    def _mark_fresh(self) -> None:
-        """Start the stall clock at the interface's current timestamp: one that never advances is caught
-        `receive_timeout` after it was built."""
+    def _prime(self, r: Any) -> None:
+        """Start the data-age reference at a new interface's first sample."""
         try:
-            self._last_ts = float(self._rtde_r.getTimestamp())
+            self._data_age(float(r.getTimestamp()), self._clock())
         except RuntimeError:
-            self._last_ts = None
-        self._last_change = time.monotonic()
+            pass
+
+    def _fresh_safety(self) -> None:
+        """_raise_for_safety on receive data newer than now: the control stream (isProgramRunning) and the
+        receive stream (safety bits) are separate connections, a few cycles apart."""
+        r = self._recv()
+        ts0 = float(r.getTimestamp())
+        deadline = time.monotonic() + 0.5
+        while float(r.getTimestamp()) <= ts0 + 2.0 / self.frequency and time.monotonic() < deadline:
+            time.sleep(0.002)
+        self._raise_for_safety()
+
+    def _check_receive(self, r: Any) -> Any:
+        """The receive interface, after making sure it is connected and its data is younger than
+        `receive_timeout`; otherwise a rebuilt one."""
+        now = self._clock()
+        try:
+            connected = bool(r.isConnected())
+            ts = float(r.getTimestamp())
+        except RuntimeError as e:
+            return self._rebuild_receive(r, f"reading the timestamp failed ({e})")
+        if not connected:
+            return self._rebuild_receive(r, "the RTDE receive interface lost its connection")
+        age = self._data_age(ts, now)
+        if age > self.receive_timeout:
+            return self._rebuild_receive(
+                r, f"the RTDE data is {age:.2f} s old (controller time stopped at {ts:.3f} s)"
+            )
+        return r
+
+    def _rebuild_receive(self, old: Any, reason: str) -> Any:
+        """Replace a stalled/dead receive interface; bounded attempts with exponential backoff. Runs without
+        the control lock, so stop() keeps working meanwhile."""
+        with self._rebuild_lock:
+            if self._link_lost:
+                return self._lose_link(self._link_lost)
+            if self._rtde_r is not old:  # another thread rebuilt it while we waited
+                return self._rtde_r
+            now = self._clock()
+            self._rebuild_times = [t for t in self._rebuild_times if now - t < self.rebuild_window]
+            if len(self._rebuild_times) >= self.reconnect_attempts:
+                return self._lose_link(
+                    f"receive link keeps stalling ({reason}) after {len(self._rebuild_times)} rebuilds "
+                    f"in {self.rebuild_window:.0f} s"
+                )
+            self._rebuild_times.append(now)
+            log.warning("UR arm at %s: %s; rebuilding the RTDE receive interface", self.host, reason)
+            new, last = None, None
+            for attempt in range(self.reconnect_attempts):
+                try:
+                    new = self._make_receive()
+                    break
+                except DeviceNotConnectedError as e:
+                    last = e
+                    time.sleep(self.reconnect_backoff * 2**attempt)
+            if new is None:
+                return self._lose_link(f"{reason}; rebuilding the receive interface failed "
+                                       f"{self.reconnect_attempts} times ({last})")
+            with self._rx_lock:
+                self._rtde_r = new
+                self._lag_base = self._last_check = None
+            self._prime(new)
+            _retire(old, self._graveyard)
+            self.receive_rebuilds += 1
+            return new
 
     def _lose_link(self, why: str) -> Any:
         self._link_lost = why
+        self._emergency_stop_motion()
         raise DeviceNotConnectedError(f"UR arm at {self.host}: link lost: {why}. Call connect() again.")
 
     def _recv(self) -> Any:
-        with self._lock:
-            if self._link_lost:
-                raise DeviceNotConnectedError(f"UR arm at {self.host}: link lost: {self._link_lost}. Call connect() again.")
-            if self._rtde_r is None:
-                raise DeviceNotConnectedError(f"UR arm at {self.host}: not connected; call connect() first")
-            return self._check_receive()
+        if self._link_lost:
+            raise DeviceNotConnectedError(f"UR arm at {self.host}: link lost: {self._link_lost}. Call connect() again.")
+        with self._rx_lock:
+            r = self._rtde_r
+        if r is None:
+            raise DeviceNotConnectedError(f"UR arm at {self.host}: not connected; call connect() first")
+        return self._check_receive(r)
 
     def _ctrl(self) -> Any:
-        """The control interface, reconnected (bounded, with backoff) when its link dropped."""
-        with self._lock:
+        """The control interface, reconnected (bounded, with backoff) when its link dropped. reconnect() uploads
+        a new control script, so the tool is sent again. (ur_rtde 1.6.5's own reconnect, run by the
+        interface's receive thread when the controller closes the connection, never clears its reconnect
+        flag: it reconnects and uploads a new script every cycle and can crash the process; the emulator
+        reproduces it. Nothing in-process recovers from that: see docs/hardware.md.)"""
+        with self._ctrl_lock:
             if self._rtde_c is None or self._link_lost:
                 raise DeviceNotConnectedError(
                     f"UR arm at {self.host}: not connected{': ' + self._link_lost if self._link_lost else ''}"
@@ -369,16 +648,22 @@ class URArm(Arm):
                 try:
                     if c.reconnect() and c.isConnected():
                         self._apply_tool()
+                        self.tool_reapplied += 1
                         return c
                 except RuntimeError:
                     pass
                 time.sleep(self.reconnect_backoff * 2**attempt)
-            return self._lose_link(f"control link dropped and {self.reconnect_attempts} reconnects failed")
+        return self._lose_link(f"control link dropped and {self.reconnect_attempts} reconnects failed")
 
     def _call(self, what: str, fn: Callable, *args) -> Any:
-        """Run a control call, mapping ur_rtde's RuntimeError (script not running, link down) to ours."""
+        """One control call under the control lock, mapping ur_rtde's errors to ours: ValueError (a range
+        check in ur_rtde) -> LimitViolation, RuntimeError (script not running, link down) -> the safety error
+        if a stop explains it, else DriverError."""
         try:
-            return fn(*args)
+            with self._ctrl_lock:
+                return fn(*args)
+        except ValueError as e:
+            raise LimitViolation(f"UR arm at {self.host}: ur_rtde refused {what}: {e}") from None
         except RuntimeError as e:
             self._raise_for_safety()
             raise DriverError(f"UR arm at {self.host}: {what} failed: {e}") from None
@@ -412,18 +697,25 @@ class URArm(Arm):
             raise DriverError(f"UR arm at {self.host}: safety fault/violation; check the teach pendant")
 
     # ---- motion -----------------------------------------------------------------------------------
-    def _start(self, kind: str, what: str, fn: Callable, *args) -> None:
+    def _async_op(self, c: Any) -> tuple[bool, int]:
+        st = self._call("getAsyncOperationProgressEx", c.getAsyncOperationProgressEx)
+        return bool(st.isAsyncOperationRunning()), int(st.operationId())
+
+    def _start(self, kind: str, what: str, c: Any, fn: Callable, *args) -> None:
         self._end_servo_thread()
+        _, op_before = self._async_op(c)
         ok = self._call(what, fn, *args)
         if not ok:
             self._raise_for_safety()
             raise DriverError(f"UR arm at {self.host}: the controller refused {what}")
+        self._op_before, self._started = op_before, False
+        self._start_deadline = time.monotonic() + self.motion_start_timeout
         self._motion = kind
 
     def _move_joints(self, q: np.ndarray, speed: float, accel: float, asynchronous: bool) -> None:
-        c = self._ctrl()
         q0 = self.joint_positions()
-        self._start("J", "moveJ", c.moveJ, q.tolist(), float(speed), float(accel), True)
+        c = self._ensure_program()
+        self._start("J", "moveJ", c, c.moveJ, q.tolist(), float(speed), float(accel), True)
         if not asynchronous:
             dist = float(np.max(np.abs(q - q0)))
             self.wait(timeout=2.0 * (dist / speed + speed / accel) + 2.0)
@@ -434,7 +726,7 @@ class URArm(Arm):
         # the joints stay within its limits along the line (it owns the IK the motion will use).
         start = self.tcp_pose()
         self.limits.check_tcp_pose(start, "linear move start (TCP)")
-        c = self._ctrl()
+        c = self._ensure_program()
         p0, p1 = start[:3, 3], T_base_tcp[:3, 3]
         for s in np.linspace(0.0, 1.0, 6)[1:]:
             T = T_base_tcp.copy()
@@ -444,7 +736,7 @@ class URArm(Arm):
                     f"linear move: the controller reports the path point {np.round(T[:3, 3], 4).tolist()} m "
                     "outside its safety limits"
                 )
-        self._start("L", "moveL", c.moveL, to_rotvec(T_base_tcp).tolist(), float(speed), float(accel), True)
+        self._start("L", "moveL", c, c.moveL, to_rotvec(T_base_tcp).tolist(), float(speed), float(accel), True)
         if not asynchronous:
             dist = float(np.linalg.norm(p1 - p0))
             self.wait(timeout=2.0 * (dist / speed + speed / accel) + 2.0)
@@ -452,8 +744,10 @@ class URArm(Arm):
     def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool, guarded: bool = False) -> None:
         """Stream servoJ at the RTDE frequency (initPeriod/waitPeriod keep the period), in a thread. Guarded: the
         TCP force (getActualTCPForce, zeroed at the start) is read every sample; past CONTACT_FORCE the stream
-        ends there (servoStop), as ur_rtde's moveUntilContact does for a speed command."""
-        c = self._ctrl()
+        ends there (servoStop), as ur_rtde's moveUntilContact does for a speed command. Unguarded, the last
+        waypoint is held until the arm is within `servo_settle_tolerance` of it (servoJ lags by about the
+        lookahead time), then servoStop."""
+        c = self._ensure_program()
         dt = 1.0 / self.frequency
         samples = resample_trajectory(times, q, dt)
         self._end_servo_thread()
@@ -465,31 +759,42 @@ class URArm(Arm):
         )
         self._servo_thread.start()
         if not asynchronous:
-            self.wait(timeout=float(times[-1]) * 2.0 + 2.0)
+            self.wait(timeout=float(times[-1]) * 2.0 + self.servo_settle_time + 2.0)
 
     def _servo_loop(self, c: Any, samples: np.ndarray, dt: float, guarded: bool = False) -> None:
         try:
             f0 = np.asarray(self._recv().getActualTCPForce()[:3], float) if guarded else None
-            for k, qk in enumerate(samples):
-                if self._servo_stop.is_set():
-                    break
+            settle_until = None
+            k = 0
+            while not self._servo_stop.is_set():
+                qk = samples[min(k, len(samples) - 1)]
                 if f0 is not None:
                     f = np.asarray(self._recv().getActualTCPForce()[:3], float)
                     if np.linalg.norm(f - f0) > self.CONTACT_FORCE:
                         self.stopped_on_contact = True
                         break
+                if k >= len(samples) - 1:  # holding the last waypoint: done once the arm is there
+                    err = float(np.max(np.abs(self.joint_positions() - samples[-1])))
+                    if err <= self.servo_settle_tolerance:
+                        break
+                    settle_until = settle_until or time.monotonic() + self.servo_settle_time
+                    if time.monotonic() > settle_until:
+                        log.warning("UR arm at %s: servoJ ended %.4f rad from the last waypoint", self.host, err)
+                        break
                 t0 = c.initPeriod()
-                if not c.servoJ(qk.tolist(), 0.0, 0.0, dt, self.servo_lookahead, self.servo_gain):
+                if not self._call("servoJ", c.servoJ, qk.tolist(), 0.0, 0.0, dt, self.servo_lookahead, self.servo_gain):
                     self._raise_for_safety()
                     raise DriverError(f"UR arm at {self.host}: servoJ refused at sample {k}")
                 if k % 25 == 0:  # a safety check every 50 ms at 500 Hz
                     self._raise_for_safety()
                 c.waitPeriod(t0)
+                k += 1
         except BaseException as e:  # noqa: BLE001 - handed to wait()
             self._servo_error = e
         finally:
             try:
-                c.servoStop(10.0)
+                with self._ctrl_lock:
+                    c.servoStop(10.0)
             except RuntimeError:
                 pass
 
@@ -504,9 +809,16 @@ class URArm(Arm):
         if self._servo_thread is not None and self._servo_thread.is_alive():
             return True
         if self._motion in ("J", "L"):
-            with self._lock:
-                progress = self._call("getAsyncOperationProgress", self._ctrl().getAsyncOperationProgress)
-            if progress >= 0:
+            running, op = self._async_op(self._ctrl())
+            if running:
+                self._started = True
+                return True
+            if not self._started and op == self._op_before:  # sent, but the script has not begun it yet
+                if time.monotonic() > self._start_deadline:
+                    self._motion = None
+                    self._raise_for_safety()
+                    raise DriverError(f"UR arm at {self.host}: the controller accepted the move but did not start it "
+                                      f"within {self.motion_start_timeout:.1f} s")
                 return True
             self._motion = None
         return False
@@ -527,38 +839,60 @@ class URArm(Arm):
             self._servo_thread = None
         if err is not None:
             raise err
-        self._raise_for_safety()  # a stop that ended the motion
+        self._fresh_safety()  # a stop that ended the motion; and state reads after wait() see the end
 
     def stop(self, decel: float = 3.0) -> None:
-        """Stop now: servoStop for a streamed trajectory, stopL for a linear move (decel in m/s^2), else stopJ
-        (rad/s^2). Allowed at any time."""
+        """Stop now: stopL for a linear move (decel in m/s^2), else stopJ (rad/s^2); a streamed trajectory ends
+        with servoStop first. Allowed at any time; needs only the control link (not the receive link, nor a
+        receive rebuild in progress)."""
         kind = self._motion
+        self._servo_stop.set()
         self._end_servo_thread()
-        c = self._ctrl()
-        if kind == "L":
-            self._call("stopL", c.stopL, float(decel))
-        elif kind != "servo":
-            self._call("stopJ", c.stopJ, float(decel))
-        self._motion = None
+        c = self._rtde_c
+        if c is None:
+            raise DeviceNotConnectedError(f"UR arm at {self.host}: not connected; nothing to stop")
+        try:
+            with self._ctrl_lock:
+                if not c.isConnected():
+                    raise DeviceNotConnectedError(
+                        f"UR arm at {self.host}: the control link is down, stop{'L' if kind == 'L' else 'J'} cannot "
+                        "be sent; use the pendant's stop")
+                if kind == "L":
+                    c.stopL(float(decel))
+                else:
+                    c.stopJ(float(decel))
+        except ValueError as e:
+            raise LimitViolation(f"UR arm at {self.host}: ur_rtde refused the stop: {e}") from None
+        except RuntimeError as e:
+            if isinstance(e, DriverError):
+                raise
+            raise DriverError(f"UR arm at {self.host}: stop failed: {e}") from None
+        finally:
+            self._motion = None
 
     def _emergency_stop_motion(self) -> None:
         """Called when the link is declared lost: stop whatever we started, best effort."""
         self._servo_stop.set()
+        c = self._rtde_c
+        if c is None or not self._motion:
+            return
         try:
-            if self._rtde_c is not None and self._motion:
-                self._rtde_c.stopJ(3.0)
+            with self._ctrl_lock:
+                c.stopJ(3.0)
         except Exception:  # noqa: BLE001
             pass
 
     # ---- protective stop ------------------------------------------------------------------------------
     def dashboard(self) -> Any:
-        """The dashboard client (connected on first use)."""
+        """The dashboard client (connected on first use, in bounded time)."""
         if self._dashboard is None:
+            if self.use_preflight:
+                preflight_dashboard(self.host, self.connect_timeout)
             try:
                 self._dashboard = self._dashboard_factory(self.host)
             except RuntimeError as e:
                 raise DeviceNotConnectedError(
-                    f"UR arm at {self.host}: cannot reach the dashboard server (TCP port 29999): {e}"
+                    f"UR arm at {self.host}: cannot reach the dashboard server (TCP port {DASHBOARD_PORT}): {e}"
                 ) from None
         return self._dashboard
 
@@ -568,25 +902,40 @@ class URArm(Arm):
             raise EmergencyStopError(f"UR arm at {self.host}: emergency stop is active; a person must release it")
         if s is not SafetyState.PROTECTIVE_STOP:
             return
-        reply = str(self.dashboard().unlockProtectiveStop())
-        if "releasing" not in reply.lower():
-            # e.g. "Cannot unlock protective stop until 5s after occurrence. Always inspect cause..."
-            raise ProtectiveStopError(f"UR arm at {self.host}: dashboard refused to unlock: {reply}")
+        d = self.dashboard()
         try:
-            self.dashboard().closeSafetyPopup()
+            d.unlockProtectiveStop()  # None on success; RuntimeError("Unlock protective stop failure: <reply>")
+        except RuntimeError as e:
+            reply = str(e).split("failure:", 1)[-1].strip()
+            # e.g. "Cannot unlock protective stop until 5s after occurrence. Always inspect cause of ..."
+            raise ProtectiveStopError(f"UR arm at {self.host}: the controller refused to unlock the protective "
+                                      f"stop: {reply}") from None
+        try:
+            d.closeSafetyPopup()
         except RuntimeError:
             pass
+        deadline = time.monotonic() + 2.0
+        while self.safety_state() is SafetyState.PROTECTIVE_STOP:
+            if time.monotonic() > deadline:
+                raise ProtectiveStopError(f"UR arm at {self.host}: the dashboard accepted the unlock but the "
+                                          "protective stop is still active after 2 s")
+            time.sleep(0.01)
         c = self._ctrl()
         if not self._call("isProgramRunning", c.isProgramRunning):
-            self._call("reuploadScript", c.reuploadScript)  # the control script stops with a protective stop
+            self._reupload(c)  # the control script stops with a protective stop; a new one needs our tool again
 
     def describe(self) -> dict:
         """Model, software version, serial and modes from the dashboard (for `kitchenbot doctor`)."""
         d = self.dashboard()
+        version = str(d.polyscopeVersion())
+        try:
+            serial = str(d.getSerialNumber())
+        except RuntimeError:
+            serial = "n/a (PolyScope < 5.6)"
         return {
             "model": str(d.getRobotModel()),
-            "polyscope": str(d.polyscopeVersion()),
-            "serial": str(d.getSerialNumber()),
+            "polyscope": version,
+            "serial": serial,
             "robot_mode": str(d.robotmode()),
             "safety": str(d.safetystatus()),
         }

@@ -92,6 +92,7 @@ def assemble(config: CellConfig, seed: int | None = None, world=None) -> RobotCe
         from kitchenbot.drivers.ur_rtde_arm import URArm
 
         arm = URArm(model, limits, d.arm.host, frequency=d.arm.frequency, receive_timeout=d.arm.receive_timeout,
+                    connect_timeout=d.arm.connect_timeout, upper_range_registers=d.arm.upper_range_registers,
                     payload_kg=config.robot.tool.payload_kg, cog=config.robot.tool.cog)
 
     if d.gripper.kind == "fake":

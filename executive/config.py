@@ -88,7 +88,10 @@ class URArmConfig(_Strict):
     kind: Literal["ur_rtde"] = "ur_rtde"
     host: str = "192.168.1.10"
     frequency: float = Field(500.0, gt=0, le=500)
-    receive_timeout: float = Field(0.1, gt=0, description="seconds without a new RTDE timestamp = stalled")
+    receive_timeout: float = Field(0.1, gt=0, description="RTDE data older than this (seconds) = stalled")
+    connect_timeout: float = Field(2.0, gt=0, le=30, description="seconds for each connection step to answer")
+    upper_range_registers: bool = Field(
+        False, description="use RTDE input registers 24-47 (when a fieldbus adapter holds 0-23)")
 
 
 class FakeGripperConfig(_Strict):

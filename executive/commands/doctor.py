@@ -34,7 +34,7 @@ def check_arm(cfg) -> DeviceReport:
     from kitchenbot.drivers.ur_rtde_arm import probe
 
     try:
-        info = probe(a.host, a.frequency)
+        info = probe(a.host, a.frequency, timeout=a.connect_timeout)  # bounded on a silent or unreachable host
     except DriverError as e:
         return DeviceReport(
             "arm", a.kind, "no", "?", str(e),
@@ -45,7 +45,7 @@ def check_arm(cfg) -> DeviceReport:
         fix.append("RTDE connected but its timestamp does not advance: restart the controller's RTDE service.")
     if info["safety"] != "normal":
         fix.append(f"Safety state is {info['safety']}: inspect the cell, then release/unlock on the pendant.")
-    if info.get("remote_control") is False:
+    if info.get("remote_control") is False:  # None: PolyScope < 5.6 has no Remote Control mode to switch to
         fix.append("Switch the pendant to Remote Control so kitchenbot may upload its control script.")
     if "dashboard" in info:
         fix.append(f"Dashboard server {info['dashboard']}: enable it on the pendant (port 29999).")

@@ -10,6 +10,7 @@ from kitchenbot.drivers.camera import Frame
 from kitchenbot.drivers.recording import CaptureRecorder
 from kitchenbot.executive.cli import main
 from kitchenbot.fakes.dynamixel_emulator import DynamixelEmulator
+from kitchenbot.fakes.ur_controller_emulator import URControllerEmulator
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -71,7 +72,7 @@ def test_doctor_on_absent_arm_and_camera(tmp_path, capsys, monkeypatch):
     cfg = _config(tmp_path, {"arm": {"kind": "ur_rtde", "host": "127.0.0.1"}, "camera": {"kind": "oakd"}})
     assert main(["doctor", "--config", cfg]) == 1
     out = capsys.readouterr().out
-    assert "UR arm at 127.0.0.1: cannot open the RTDE receive interface" in out
+    assert "UR arm at 127.0.0.1: cannot open TCP port 30004 (RTDE)" in out
     assert "OAK-D camera: no device found" in out
     assert "arm, camera need attention" in out
 
@@ -86,3 +87,34 @@ def test_doctor_on_a_replay_recording(tmp_path, capsys):
     cfg = _config(tmp_path, {"camera": {"kind": "replay", "directory": "missing"}})
     assert main(["doctor", "--config", cfg]) == 1
     assert "recording folder does not exist" in capsys.readouterr().out
+
+
+# ---- UR arm on the controller emulator ----------------------------------------------------------------------
+def test_doctor_reads_the_ur_controller(tmp_path, capsys):
+    with URControllerEmulator() as emu:
+        cfg = _config(tmp_path, {"arm": {"kind": "ur_rtde", "host": emu.host}})
+        assert main(["doctor", "--config", cfg]) == 0
+        out = capsys.readouterr().out
+        assert "UR5 5.15.0" in out and "safety normal" in out
+        assert emu.state()["program_starts"] == 0  # read-only: no control script was uploaded
+        emu.set(remote_control=False)
+        assert main(["doctor", "--config", cfg]) == 1
+        assert "Remote Control" in capsys.readouterr().out
+
+
+def test_doctor_gives_no_remote_control_hint_before_polyscope_5_6(tmp_path, capsys):
+    # ur_rtde's isInRemoteControl() answers False on PolyScope < 5.6, which has no such mode
+    with URControllerEmulator(polyscope="5.4.3") as emu:
+        cfg = _config(tmp_path, {"arm": {"kind": "ur_rtde", "host": emu.host}})
+        assert main(["doctor", "--config", cfg]) == 0
+        out = capsys.readouterr().out
+        assert "5.4.3" in out and "Remote Control" not in out
+
+
+def test_doctor_is_bounded_on_a_silent_ur_controller(tmp_path, capsys):
+    with URControllerEmulator() as emu:
+        emu.set(silent=True)  # accepts TCP, never answers: the vendor constructor alone would block for minutes
+        cfg = _config(tmp_path, {"arm": {"kind": "ur_rtde", "host": emu.host, "connect_timeout": 0.5}})
+        assert main(["doctor", "--config", cfg]) == 1
+        out = capsys.readouterr().out
+        assert "did not answer the RTDE handshake within 0.5 s" in out
