@@ -13,7 +13,7 @@ import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Placed, Task, area_spots, footprint, inverted, on_edge
+from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Holdings, Placed, Task, area_spots, footprint, inverted, on_edge
 
 VESSELS = ("cup", "glass", "bowl", "mug")
 RACK_WIRE = 0.006  # m, the racks' side wires (perception.cell)
@@ -36,7 +36,9 @@ class SinkToDishwasher(Task):
     description = ("plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack "
                    "(bowls first in the lower one; others there when the upper one is full)")
     success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in a rack slot"
-    stage_when_blocked = True  # rack poses admit few grasps: a blocked or unplaceable one is staged, see Task
+    # rack poses admit few grasps: a blocked or unplaceable one is staged too (see Task.strategies)
+    strategies = ("direct_pick", "escape_then_pick", "stage_for_regrasp", "stage_when_blocked", "slide_off_stack",
+                  "blocker_first")
 
     def wants(self, obj: ObjectPose) -> bool:
         return obj.cls == "plate" or obj.cls in VESSELS
@@ -46,7 +48,7 @@ class SinkToDishwasher(Task):
         specs = [dw.lower] if cls == "plate" else [dw.upper, dw.lower]  # vessels: the lower rack when the upper is full
         return [(np.array(s.origin_xy), np.array(s.origin_xy) + np.array(s.size_xy)) for s in specs]
 
-    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+    def targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
         if obj.cls == "bowl":
             # As people load bowls: in the lower rack, the upper one (16 cm a bowl, the room of two or three
             # cups) only if the lower one is full. A bowl not mouth-down stands on its rim between the tines,
@@ -56,15 +58,15 @@ class SinkToDishwasher(Task):
             # rails, and in a test at three spots the pads' retreat then hit it). Seed 9: two mouth-down bowls
             # in the upper rack left no room for a mug and a cup.
             if obj.T_base_obj[2, 2] > -0.5:
-                lower = self._bowl_in_lower_rack(obj, on_edge, "on its rim")
+                lower = self._bowl_in_lower_rack(obj, belief, on_edge, "on its rim")
             else:
-                lower = self._bowl_in_lower_rack(obj, inverted, "mouth-down")
-            upper = self._targets(obj, "upper")
+                lower = self._bowl_in_lower_rack(obj, belief, inverted, "mouth-down")
+            upper = self._targets(obj, belief, "upper")
             out = lower + (upper if isinstance(upper, list) else [])
             return out or NoFreeSlot("no free slot for a bowl in the lower or upper rack")
         if obj.cls == "plate":
-            return self._targets(obj, "lower")
-        upper = self._targets(obj, "upper")
+            return self._targets(obj, belief, "lower")
+        upper = self._targets(obj, belief, "upper")
         if not isinstance(upper, NoFreeSlot) and obj.T_base_obj[2, 2] <= 0.5:
             return upper
         # The upper rack is full (it takes about seven cups, glasses and mugs with the room a level grasp needs;
@@ -72,21 +74,22 @@ class SinkToDishwasher(Task):
         # beyond the near part a level grasp reaches (seed 9: a staged mug): mouth-down in the lower rack, after
         # the upper rack's spots, as people load a full dishwasher, from its far end, with room kept for the
         # plates still in the sink.
-        lower = self._bowl_in_lower_rack(obj, inverted, "mouth-down, the upper rack full")
+        lower = self._bowl_in_lower_rack(obj, belief, inverted, "mouth-down, the upper rack full")
         out = (upper if isinstance(upper, list) else []) + lower
         return out or NoFreeSlot(f"no free slot for a {obj.cls} in the upper or lower rack")
 
-    def staging_targets(self, obj: ObjectPose, targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
+    def staging_targets(self, obj: ObjectPose, belief: Holdings,
+                        targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
         """A round cup or glass is staged lying on its side first: from there a grasp from above turns it mouth-down
         anywhere in the upper rack, where from upright only a level side grasp does, which reaches the rack's near
         part only (seeds 4, 9, 21, 37: staged upright when that part was full, they stayed on the counter); that
         part stays free for what must be turned over upright (a mug, which rolls onto its handle on its side)."""
-        out = super().staging_targets(obj, targets)
+        out = super().staging_targets(obj, belief, targets)
         if isinstance(out, NoFreeSlot):
             return out
         return sorted(out, key=lambda t: abs(t.T_base_obj[2, 2]) > 0.5)  # lying first, stable
 
-    def _bowl_in_lower_rack(self, obj: ObjectPose, pose, how: str) -> list[PlaceTarget]:
+    def _bowl_in_lower_rack(self, obj: ObjectPose, belief: Holdings, pose, how: str) -> list[PlaceTarget]:
         """A bowl (or a vessel the full upper rack has no room for) in the lower rack, `pose` on_edge (on its rim,
         its axis along x, as a plate) or inverted, from
         the rack's far end in x (plates are loaded from the end nearest the robot), with room kept for the plates
@@ -95,8 +98,8 @@ class SinkToDishwasher(Task):
         spec = self.cell.spec.dishwasher.lower
         lo = np.array(spec.origin_xy)
         hi = lo + np.array(spec.size_xy)
-        taken = list(self.placed)
-        plates = [m for m in self.pending if m.cls == "plate"]
+        taken = list(belief.placed)
+        plates = [m for m in belief.pending if m.cls == "plate"]
         if plates:  # where the plates will go (the spots _plate_spots gives them, the largest plate in each)
             big = max(plates, key=lambda m: max(m.extents[:2]))
             for T in self._plate_spots(big, taken, len(plates)):
@@ -168,14 +171,14 @@ class SinkToDishwasher(Task):
         preferred = [(x, (lo[1] + hi[1]) / 2) for x in xs] + slots
         return area_spots(model, lo, hi, spec.floor_z, placed, on_edge, limit, preferred, step=0.015)
 
-    def _targets(self, obj: ObjectPose, rack: str) -> list[PlaceTarget] | NoFreeSlot:
+    def _targets(self, obj: ObjectPose, belief: Holdings, rack: str) -> list[PlaceTarget] | NoFreeSlot:
         model = self.inventory[obj.obj_id]
         spec = self.cell.spec.dishwasher.lower if rack == "lower" else self.cell.spec.dishwasher.upper
         lo = np.array(spec.origin_xy)
         hi = lo + np.array(spec.size_xy)
         slots = [s.T_base_slot[:2, 3] for s in self.cell.slots if s.rack == rack]
         if obj.cls == "plate":
-            poses = self._plate_spots(model, self.placed, 3)
+            poses = self._plate_spots(model, list(belief.placed), 3)
         else:
             # On a fine grid (the nominal slots leave gaps a bowl needs). An item not already mouth-down is turned
             # over with a near-level side grasp (after a regrasp on the counter): it is released and backed out of
@@ -191,7 +194,7 @@ class SinkToDishwasher(Task):
                 # level tool reaches only the rack's near part in x (centres up to ~0.53 m, a scan of release
                 # poses): the smallest x first, then nearest the robot in y. Six of them: the three nearest the
                 # robot were often beyond that x where the near part still had room (seed 6: a staged cup).
-                poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 6, clearance=room,
+                poses = area_spots(model, lo, hi, spec.floor_z, list(belief.placed), inverted, 6, clearance=room,
                                    order=from_the_front)
             else:
                 # Mouth-down or lying: carried from above, which reaches the whole rack. Loaded from the back, as a
@@ -199,9 +202,9 @@ class SinkToDishwasher(Task):
                 # grasp reaches, stays free for the upright items still to come, and no placed item stands between
                 # the arm and a later spot. Six spots (the back column and the next), then the three nearest the
                 # robot in case none at the back can be reached with the item's grasps.
-                back = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 6, clearance=room,
+                back = area_spots(model, lo, hi, spec.floor_z, list(belief.placed), inverted, 6, clearance=room,
                                   order=from_the_back)
-                near = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room)
+                near = area_spots(model, lo, hi, spec.floor_z, list(belief.placed), inverted, 3, clearance=room)
                 poses = back + [T for T in near if not any(np.allclose(T, B) for B in back)]
         names = {tuple(np.round(xy, 4)): s.name for xy, s in
                  zip(slots, [s for s in self.cell.slots if s.rack == rack])}
