@@ -105,7 +105,7 @@ class CupStacking(Task):
         lo = np.array(area.origin_xy)
         # A new stack of the same type after the top of the existing one (the planner takes the first it reaches),
         # as a person starts another stack when the first one's top cannot be reached with the cup's grasps (a
-        # cup flipped on the counter is held by its side, level; oracle seed 46: the fourth cup, for either grasp).
+        # cup flipped on the counter is held by its side, level, and a stack's top may be out of that grasp's reach).
         spots = area_spots(model, lo, lo + np.array(area.size_xy), area.z, list(belief.placed), upright,
                            3 if not top else 2)
         out = top + [PlaceTarget(T, "stack_base", free_yaw=True, support="stacking_area") for T in spots]

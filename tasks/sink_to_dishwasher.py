@@ -55,8 +55,8 @@ class SinkToDishwasher(Task):
             # facing the spray arm like a plate, carried by a rim pinch (it has no level side grasp to turn it
             # over: 16 cm, its foot ring faces down). A mouth-down bowl, carried from above by a foot-ring pinch,
             # goes in mouth-down as it lies (turned on its rim with that pinch it is released 5 cm up, over the
-            # rails, and in a test at three spots the pads' retreat then hit it). Seed 9: two mouth-down bowls
-            # in the upper rack left no room for a mug and a cup.
+            # rails, and in a test at three spots the pads' retreat then hit it). Two mouth-down bowls in the
+            # upper rack leave no room for a mug and a cup.
             if obj.T_base_obj[2, 2] > -0.5:
                 lower = self._bowl_in_lower_rack(obj, belief, on_edge, "on its rim")
             else:
@@ -70,8 +70,8 @@ class SinkToDishwasher(Task):
         if not isinstance(upper, NoFreeSlot) and obj.T_base_obj[2, 2] <= 0.5:
             return upper
         # The upper rack is full (it takes about seven cups, glasses and mugs with the room a level grasp needs;
-        # seed 4: six cups, two glasses and a mug), or the item stands upright and its free spots may all lie
-        # beyond the near part a level grasp reaches (seed 9: a staged mug): mouth-down in the lower rack, after
+        # e.g. six cups, two glasses and a mug), or the item stands upright and its free spots may all lie
+        # beyond the near part a level grasp reaches (a staged mug): mouth-down in the lower rack, after
         # the upper rack's spots, as people load a full dishwasher, from its far end, with room kept for the
         # plates still in the sink.
         lower = self._bowl_in_lower_rack(obj, belief, inverted, "mouth-down, the upper rack full")
@@ -82,7 +82,7 @@ class SinkToDishwasher(Task):
                         targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
         """A round cup or glass is staged lying on its side first: from there a grasp from above turns it mouth-down
         anywhere in the upper rack, where from upright only a level side grasp does, which reaches the rack's near
-        part only (seeds 4, 9, 21, 37: staged upright when that part was full, they stayed on the counter); that
+        part only (staged upright when that part was full, they stayed on the counter); that
         part stays free for what must be turned over upright (a mug, which rolls onto its handle on its side)."""
         out = super().staging_targets(obj, belief, targets)
         if isinstance(out, NoFreeSlot):
@@ -107,7 +107,7 @@ class SinkToDishwasher(Task):
         y = (lo[1] + hi[1]) / 2
         # Flush beside what is in the rack (or kept for plates), CLEARANCE + 1 mm from it, then every 5 mm from
         # the far end: on the 15 mm grid alone a second bowl missed the room left between the first one and the
-        # plates by 2 mm (seed 9).
+        # plates by 2 mm.
         r = max(model.extents[:2]) / 2 if pose is inverted else model.extents[2] / 2  # half its length along x
         in_rack = [p for p in taken if lo[0] <= (p.lo[0] + p.hi[0]) / 2 <= hi[0] and lo[1] <= (p.lo[1] + p.hi[1]) / 2 <= hi[1]]
         xs = [p.lo[0] - CLEARANCE - 0.001 - r for p in in_rack] + [p.hi[0] + CLEARANCE + 0.001 + r for p in in_rack]
@@ -132,7 +132,7 @@ class SinkToDishwasher(Task):
         first), then beside the next bowl against the other side, staggered in x by what their round rims need
         (CLEARANCE between the discs, not between their boxes), from the rack's far end in x: two bowls to a
         column, as people load bowls. On the rack's centre line each bowl took a whole column and a third bowl
-        found neither rack free (seed 15: three bowls, the upper rack full of glasses and mugs). area_spots
+        found neither rack free (three bowls, the upper rack full of glasses and mugs). area_spots
         keeps boxes apart, which leaves no room for two 16 cm bowls across this rack, hence the disc test here."""
         r = max(model.extents[:2]) / 2
         edge = RACK_WIRE + 0.002 + r  # the rim 2 mm inside the rack's side wire
@@ -193,7 +193,7 @@ class SinkToDishwasher(Task):
                 # Upright (in the sink or staged on the counter): only a level side grasp turns it over, and a
                 # level tool reaches only the rack's near part in x (centres up to ~0.53 m, a scan of release
                 # poses): the smallest x first, then nearest the robot in y. Six of them: the three nearest the
-                # robot were often beyond that x where the near part still had room (seed 6: a staged cup).
+                # robot were often beyond that x where the near part still had room (a staged cup).
                 poses = area_spots(model, lo, hi, spec.floor_z, list(belief.placed), inverted, 6, clearance=room,
                                    order=from_the_front)
             else:
