@@ -1,7 +1,8 @@
 """`kitchenbot bench tasks`: the three tasks over many simulated scenes, with slip during transport.
 
 Per run: objects the task wants in the sink at the start (simulator truth), how many ended at their target
-area (truth), collisions and refused commands counted by the fake arm, recoveries, and the compute time per
+area (truth), collisions, protective stops and refused commands counted by the fake arm, recoveries, the
+strategies tried / planned (executive/strategies.py) and the recovery actions taken, and the compute time per
 placement cycle (wall time minus time spent waiting for simulated motions). Prints a table and a summary;
 ``--json`` writes every run. Perception is the real pipeline unless ``--oracle-perception`` (then labelled).
 """
@@ -67,13 +68,32 @@ def one(args: tuple) -> dict:
         "elsewhere": rep.truth["end"]["elsewhere"],
         "elsewhere_items": rep.truth["end"].get("elsewhere_items", []), "objects_done": rep.objects_done,
         "collisions": rep.collisions, "limit_violations": rep.limit_violations, "slips": rep.slips,
-        "recoveries": rep.recoveries, "attempts": rep.attempts, "compute_per_cycle_s": cyc,
+        "recoveries": rep.recoveries, "attempts": rep.attempts, "protective_stops": rep.protective_stops,
+        "strategies": rep.strategies, "recovery_actions": rep.recovery_actions, "compute_per_cycle_s": cyc,
         "compute_s": rep.compute_time_s, "sim_s": rep.sim_time_s, "wall_s": time.perf_counter() - t0,
         "message": rep.message, "perception": rep.perception,
         "failures": [f"{f['state']}:{f['kind']}" + (f":{f['details']['planning_kind']}"
                                                     if f.get("details", {}).get("planning_kind") else "")
                      for f in rep.failures],
     }
+
+
+def _strategy_totals(runs: list[dict]) -> dict:
+    """Per strategy: how often it was tried and how often it planned, over `runs`."""
+    out: dict = {}
+    for r in runs:
+        for name, c in (r.get("strategies") or {}).items():
+            t = out.setdefault(name, {"tried": 0, "planned": 0})
+            t["tried"] += c.get("tried", 0)
+            t["planned"] += c.get("planned", 0)
+    return out
+
+
+def _sum_counts(runs: list[dict], key: str) -> dict:
+    out: Counter = Counter()
+    for r in runs:
+        out.update(r.get(key) or {})
+    return dict(out)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
                           f"{'  ' + r.get('message', '')[:70] if r['status'] != 'succeeded' else ''}")
     t = Table(title=f"kitchenbot bench tasks ({'oracle' if args.oracle_perception else 'pipeline'} perception, "
                     f"slip {args.slip:.0%} per transport)")
-    for col in ("task", "runs", "succeeded", "objects placed", "collisions", "limit violations", "slips",
-                "compute/cycle median s", "p90 s"):
+    for col in ("task", "runs", "succeeded", "objects placed", "collisions", "protective stops", "limit violations",
+                "slips", "compute/cycle median s", "p90 s"):
         t.add_column(col)
     summary = {}
     for task in args.tasks + ["all"]:
@@ -112,15 +132,24 @@ def run(args: argparse.Namespace) -> int:
              "placed": placed, "placed_pct": 100.0 * placed / wanted if wanted else float("nan"),
              "collisions": sum(r.get("collisions") or 0 for r in rs),
              "limit_violations": sum(r.get("limit_violations") or 0 for r in rs),
+             "protective_stops": sum(r.get("protective_stops") or 0 for r in rs),
+             "strategies": _strategy_totals(rs), "recovery_actions": _sum_counts(rs, "recovery_actions"),
              "slips": sum(r.get("slips") or 0 for r in rs),
              "compute_per_cycle_median_s": float(np.median(cyc)) if cyc else None,
              "compute_per_cycle_p90_s": float(np.percentile(cyc, 90)) if cyc else None}
         summary[task] = s
         t.add_row(task, str(s["runs"]), str(s["succeeded"]), f"{placed}/{wanted} ({s['placed_pct']:.1f} %)",
-                  str(s["collisions"]), str(s["limit_violations"]), str(s["slips"]),
+                  str(s["collisions"]), str(s["protective_stops"]), str(s["limit_violations"]), str(s["slips"]),
                   f"{s['compute_per_cycle_median_s']:.2f}" if cyc else "-",
                   f"{s['compute_per_cycle_p90_s']:.2f}" if cyc else "-")
     console.print(t)
+    for task, s in summary.items():
+        if s["strategies"]:
+            console.print(f"strategies ({task}; planned/tried): " + ", ".join(
+                f"{n} {c['planned']}/{c['tried']}" for n, c in s["strategies"].items()))
+    if summary.get("all", {}).get("recovery_actions"):
+        console.print("recovery actions (all runs): " + ", ".join(
+            f"{n} {c}" for n, c in sorted(summary["all"]["recovery_actions"].items(), key=lambda x: -x[1])))
     kinds = Counter(k for r in results for k in r.get("failures", []))
     if kinds:
         console.print("failures (state:kind[:planning kind], all runs): " +

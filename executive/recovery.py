@@ -1,5 +1,7 @@
 """Recovery actions of the task runner: what the arm, gripper and camera do after a fault, before the state
-machine re-scans or gives up (the rules themselves are TaskRunner._do_recover; docs/executive.md, "Recovery rules").
+machine re-scans, retries or gives up. Which actions, for which failure, is the table in
+executive/recovery_rules.py (``_do_recover`` applies its first matching rule); docs/executive.md, "Recovery rules",
+is generated from it.
 
 - devices back to a commandable state (reconnect, unlock, gripper reboot);
 - after a protective stop: mark where the motion met something, back off along it;
@@ -8,7 +10,7 @@ machine re-scans or gives up (the rules themselves are TaskRunner._do_recover; d
 - look for an item that fell outside the sink (or a placement not seen at its target) and take it on again;
 - give up safely.
 
-A mixin of TaskRunner: the methods use the runner's devices, planner, task, journal and state.
+A mixin of TaskRunner: the methods use the runner's devices, planner, task, journal and belief.
 """
 
 from __future__ import annotations
@@ -16,21 +18,98 @@ from __future__ import annotations
 import numpy as np
 
 from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutError, LimitViolation, ProtectiveStopError
-from kitchenbot.executive.failures import Failure, Stopped, StepFailed
+from kitchenbot.executive.belief import SAME_ITEM_RADIUS
+from kitchenbot.executive.failures import Failure, StepFailed, Stopped
+from kitchenbot.executive.recovery_rules import CAMERA, rule_for
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
-from kitchenbot.transforms import make_T, rot_z
 from kitchenbot.world.gripper import DROP_HEIGHT
 
 
 class RecoveryActions:
+    def _do_recover(self) -> str:
+        """Apply the first recovery rule that matches the failure (executive/recovery_rules.py)."""
+        f, c = self.failure, self.counts
+        self.report.recoveries += 1
+        if f.kind != "planning":  # planning failures are bounded per object; these count towards giving up
+            c.consecutive_recoveries += 1
+        if f.kind in CAMERA:
+            c.scan_failures += 1
+        rule = rule_for(f, c)
+        self._log("note", "recover", kind=f.kind, state=f.state, actions=list(rule.actions), then=rule.then)
+        ctx: dict = {}
+        for action in rule.actions:
+            self.report.recovery_actions[action] = self.report.recovery_actions.get(action, 0) + 1
+            if action == "make_safe":
+                self.report.message = rule.message.format(kind=f.kind, message=f.message)
+            getattr(self, f"_act_{action}")(f, ctx)
+        if rule.then == "give_up" and "make_safe" not in rule.actions:
+            self.report.message = rule.message.format(kind=f.kind, message=f.message)
+            self.report.safe = False
+        return rule.then
+
+    # ---- the rules' actions (recovery_rules.ACTIONS) --------------------------------------------------------------
+    def _act_make_safe(self, f: Failure, ctx: dict) -> None:
+        self.report.safe = self._make_safe()
+
+    def _act_restore_devices(self, f: Failure, ctx: dict) -> None:
+        self._restore_devices(f)
+
+    def _act_record_plan_failure(self, f: Failure, ctx: dict) -> None:
+        obj = self.item.obj
+        if obj is None:
+            return
+        self.belief.record_plan_failure(obj, f.details.get("planning_kind", f.kind))
+        if self.item.staged is None:
+            self.belief.unplannable.append(obj)
+
+    def _act_prefer_blocker(self, f: Failure, ctx: dict) -> None:
+        if self.item.obj is not None:
+            self.belief.record_blocked(self.item.obj, f.details.get("blocking"))
+
+    def _act_record_failure(self, f: Failure, ctx: dict) -> None:
+        obj = self.item.obj
+        if obj is None:
+            return
+        if f.state in ("plan", "select_grasp"):  # skipped until the scene changes
+            self.belief.record_plan_failure(obj, f.details.get("planning_kind", f.kind))
+        elif f.state in ("execute", "verify"):  # counted when executed
+            self.belief.record_failure(obj, f.kind)
+
+    def _act_back_off(self, f: Failure, ctx: dict) -> None:
+        tr = self.tracks
+        stopped = tr.stopped.name if f.kind in ("protective_stop", "contact") and tr.stopped else None
+        ctx["stopped"] = stopped
+        if stopped == "lift":  # put down from where it stopped, not back in the pile; marked after the put-down
+            ctx["lift_marks"] = self._contact_sliver(tr.stopped) if self.planner is not None else None
+            tr.stopped = None
+        elif stopped:
+            self._back_off()
+
+    def _act_put_down_held(self, f: Failure, ctx: dict) -> None:
+        if self._holding():  # not again where the held item was just stopped on its way down to its target
+            self._put_down_held(avoid_place_target=ctx.get("stopped") in ("transfer", "lower"))
+
+    def _act_mark_lift_contact(self, f: Failure, ctx: dict) -> None:
+        if ctx.get("lift_marks") is not None:  # the next try at this item lifts clear of what it met
+            self._add_contact_marks(ctx["lift_marks"])
+
+    def _act_back_out(self, f: Failure, ctx: dict) -> None:
+        self._back_out()
+
+    def _act_search_drop_site(self, f: Failure, ctx: dict) -> None:
+        if self.belief.drop_site is not None:  # it slipped out, or was let go over the cell: look where it fell
+            self._search_drop_site()
+
+    # ---- the actions' mechanics ----------------------------------------------------------------------------------
     def _restore_devices(self, f: Failure) -> None:
         """Bring the devices back to a commandable state (bounded reconnects, unlock, gripper reboot)."""
+        c = self.counts
         if not self.arm.is_connected:
-            if self.reconnects >= self.opt.max_reconnects:
-                raise DeviceNotConnectedError(f"arm: still disconnected after {self.reconnects} reconnects")
-            self.reconnects += 1
-            self._cmd("arm.connect", attempt=self.reconnects)
+            if c.reconnects >= self.opt.max_reconnects:
+                raise DeviceNotConnectedError(f"arm: still disconnected after {c.reconnects} reconnects")
+            c.reconnects += 1
+            self._cmd("arm.connect", attempt=c.reconnects)
             self.arm.connect()
         from kitchenbot.drivers.arm import SafetyState
 
@@ -49,7 +128,7 @@ class RecoveryActions:
         """After a protective stop (on the real arm: a contact) go back along the motion it cut short, to where
         that motion started: the one way known to be free in the world as it is. Re-planning from the stop
         point with the same world model would lead into the same contact."""
-        traj, self._stopped_traj = self._stopped_traj, None
+        traj, self.tracks.stopped = self.tracks.stopped, None
         if traj is None:
             return
         if self.planner is not None:
@@ -98,11 +177,12 @@ class RecoveryActions:
             for tb0 in boxes:
                 keep &= ~inside(P, F0 @ tb0.T_flange_box, tb0.size)
             out.append(P[keep])
-        if self.pick is not None and self._holding():  # the held item's surface where it was about to be
+        pick = self.item.pick
+        if pick is not None and self._holding():  # the held item's surface where it was about to be
             from scipy.spatial import cKDTree
 
-            m = self.robot.inventory[self.pick.grasp.obj.obj_id]
-            T_tcp_obj = self.pick.grasp.T_tcp_obj
+            m = self.robot.inventory[pick.grasp.obj.obj_id]
+            T_tcp_obj = pick.grasp.T_tcp_obj
             T0, T1 = robot.fk_tcp(q) @ T_tcp_obj, robot.fk_tcp(q_ahead) @ T_tcp_obj
             P0 = m.points @ T0[:3, :3].T + T0[:3, 3]
             P1 = m.points @ T1[:3, :3].T + T1[:3, 3]
@@ -118,36 +198,21 @@ class RecoveryActions:
         """Keep `pts` (a contact sliver) as map points no object explains, so plans keep clear of it as of any
         unknown obstacle: the same world model would otherwise plan into the same contact (a cup recorded where it
         did not settle; a neighbour in a pile perceived a few mm off, which the next scan perceives the same way).
-        Marks in the sink last until an item has been placed (the scene changed; see _with_contacts)."""
-        if pts is None or not len(pts):
-            return
-        self.contact_points = np.vstack([self.contact_points, pts])
-        self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), self.scene_epoch)])
-        self.map_points = pts if self.map_points is None else np.vstack([self.map_points, pts])
-        self._log("note", "marked where the stopped motion met something", points=len(pts),
-                  centre=pts.mean(axis=0))
-
-    def _with_contacts(self, map_points: np.ndarray | None) -> np.ndarray | None:
-        """Fresh map points plus the contact marks, less those in the sink made before the last placement (the
-        sink changed since, and the scan saw it anew)."""
-        lo, hi = self.robot.cell.sink_interior
-        c, e = self.contact_points, self.contact_epochs
-        old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
-        self.contact_points, self.contact_epochs = c[~old], e[~old]
-        c = self.contact_points
-        if not len(c):
-            return map_points
-        return c if map_points is None else np.vstack([map_points, c])
+        Marks in the sink last until the scene has changed (Belief.mark_contact)."""
+        if self.belief.mark_contact(pts):
+            self._log("note", "marked where the stopped motion met something", points=len(pts),
+                      centre=pts.mean(axis=0))
 
     def _back_out(self) -> None:
         """After a failed grasp the gripper may be around an object in the sink: open, then straight back out."""
         if self.failure is None or self.failure.state != "execute":
             return
-        if self.pick is not None:
+        pick = self.item.pick
+        if pick is not None:
             if not self._holding():
-                self._cmd("gripper.open", opening=self.pick.grasp.spec.opening)
-                self.gripper.open(self.pick.grasp.spec.opening)
-            if self._retrace(self.pick.grasp_in, "back_out"):  # it was on the grasp-in line
+                self._cmd("gripper.open", opening=pick.grasp.spec.opening)
+                self.gripper.open(pick.grasp.spec.opening)
+            if self._retrace(pick.grasp_in, "back_out"):  # it was on the grasp-in line
                 return
         # (no pick: a slide was cut short, the fingers may still press on the item: straight up)
         if self.arm.tcp_pose()[2, 3] < 0.05:  # deep in the sink elsewhere: straight up a little
@@ -165,102 +230,71 @@ class RecoveryActions:
                 if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
                     self.arm.unlock_protective_stop()
 
-    # Where the camera looks down from at a drop site or a target (m above the counter top), highest first: far
-    # enough for the OAK-D's 20 cm minimum depth and for the view to cover where a falling item may roll; lower
-    # ones where the arm does not reach that high over the far end of a rack.
-    LOOK_DOWN_HEIGHTS = (0.50, 0.40, 0.30)
     SEARCH_RADIUS = 0.25  # m around the drop site an item found there may have come to rest
 
     def _search_drop_site(self) -> None:
         """An item slipped out outside the sink (over the counter): the sink scans never look there. Look straight
         down at where it fell; an item of its class found there (and not one placed earlier) is picked up again
         from there, as an item staged on the counter is."""
-        site, self.drop_site = self.drop_site, None
-        unseen_rec, self._unseen_placement = self._unseen_placement, None  # (it stands where it was not seen)
-        if site is None or self.current is None or self.planner is None:
+        b = self.belief
+        site, b.drop_site = b.drop_site, None
+        unseen_rec, b.unseen_placement = b.unseen_placement, None  # (it stands where it was not seen)
+        if site is None or self.item.obj is None or self.planner is None:
             return
         lo, hi = self.robot.cell.sink_interior
         if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
             return  # it fell back into the sink: the re-scan finds it
-        cls = self.current.cls
+        cls = self.item.obj.cls
         keep_out = self._keep_out(site, cls)
-        map_points = self.map_points
-        if keep_out is not None:
-            self.map_points = keep_out if map_points is None else np.vstack([map_points, keep_out])
-        self._searching = True
+        self.tracks.searching = True
         unseen = True
         try:
-            why = self._look_down_at(site)
-            if why:
-                self._log("note", "no way to look at the drop site", at=site, reason=why)
-                return
-            view = self._capture_view(f"drop{self.dropped}", "drop", spot=True)
+            with b.keeping_out(keep_out):
+                why = self._look_down_at(site)
+                if why:
+                    self._log("note", "no way to look at the drop site", at=site, reason=why)
+                    return
+                view = self._capture_view(f"drop{b.dropped}", "drop", spot=True)
             unseen = False
         except (StepFailed, DriverTimeoutError, ProtectiveStopError) as e:
             self._log("note", "drop site not seen", reason=str(e))
             self._restore_devices(self.failure)
             return
         finally:
-            self.map_points, self._searching = map_points, False
+            self.tracks.searching = False
             if unseen and keep_out is not None:
                 # the item lies somewhere under there, unseen: plans keep clear of it for the rest of the run
                 # (what is in the sink is dropped once an item has been placed: the scans see the sink)
                 self._add_contact_marks(keep_out)
         res = self._drop_perceiver().perceive([view])
-        placed = [o for o in self.task.obstacles() if unseen_rec is None or o.instance_id != unseen_rec.instance_id]
+        placed = [o for o in b.obstacles() if unseen_rec is None or o.instance_id != unseen_rec.instance_id]
         found = [p for p in res.poses if p.cls == cls
                  and np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]) < self.SEARCH_RADIUS
                  and not self.task.in_sink(p)
-                 and not any(np.linalg.norm(p.T_base_obj[:2, 3] - o.T_base_obj[:2, 3]) < 0.04 for o in placed)]
+                 and not any(np.linalg.norm(p.T_base_obj[:2, 3] - o.T_base_obj[:2, 3]) < SAME_ITEM_RADIUS
+                             for o in placed)]  # (where something was placed, whatever perception calls it)
         self._log("result", "drop site", at=site, found=[p.T_base_obj[:3, 3] for p in found])
         if not found:
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
         if unseen_rec is not None and unseen_rec.cls == cls:  # nothing stands at its target; handled again from here
-            self.task.unplace(unseen_rec.instance_id)
-            if cls in self.unverified:
-                self.unverified.remove(cls)
+            b.unplace(unseen_rec)
+            if cls in b.unverified:
+                b.unverified.remove(cls)
             self._log("note", "the item not seen at its target lies near it", cls=cls, xyz=obj.T_base_obj[:3, 3],
                       target=unseen_rec.T_base_obj[:3, 3])
         T_release = np.array(obj.T_base_obj, float)
         T_release[2, 3] += DROP_HEIGHT  # as if released there (place targets are release poses)
         where = PlaceTarget(T_release, "drop", support="counter (it fell there)")
-        placed = self.task.record_placed(obj, where, obj.T_base_obj)
+        placed = b.record_placed(self.task, obj, where, obj.T_base_obj)
         self.report.recovered_drops += 1
         if self.task.accepts_as_it_lies(obj):  # it fell where the task wants it (the drop zone takes it as it is)
             self.report.objects_done += int(self.task.wants(obj))
-            self.scene_epoch += 1
+            b.scene_changed()
             self._log("note", "the dropped item lies at its target", cls=cls, xyz=obj.T_base_obj[:3, 3])
             return
-        self.staged.append(placed)
+        b.staged.append(placed)
         self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
-
-    def _look_down_at(self, site: np.ndarray) -> str:
-        """Put the camera straight above `site`, looking down, by a planned collision-free motion. Returns "" when
-        there, else why not."""
-        planner = self.planner
-        home = np.asarray(self.robot.config.robot.home, float)
-        R_down = planner.robot.fk_tcp(home)[:3, :3]  # home points the tool down
-        d_cam = (np.linalg.inv(planner.robot.T_flange_tcp) @ self.robot.T_flange_cam)[:3, 3]  # camera in tcp frame
-        scene = planner.scene(self._scene_objects(), self.map_points)
-        why = "no collision-free camera pose above it"
-        tries = 0
-        for height in self.LOOK_DOWN_HEIGHTS:
-            p_cam = np.array([site[0], site[1], height])
-            for yaw in np.radians([0.0, 90.0, -90.0, 180.0]):
-                R = rot_z(yaw)[:3, :3] @ R_down
-                for q in planner.robot.ik_all(make_T(R, p_cam - R @ d_cam), self.arm.joint_positions()):
-                    if not scene.valid(q):
-                        continue
-                    try:
-                        self._move_joints(q, "look down")
-                        return ""
-                    except StepFailed as e:
-                        why = str(e)
-                        tries += 1
-                        if tries >= 3:  # each is up to three RRT-Connect queries
-                            return why
-        return why
 
     KEEP_OUT_DEPTH = 0.45  # m below the drop site a fallen item may have come to rest (a rack under the counter)
 
@@ -294,9 +328,9 @@ class RecoveryActions:
         p = self.perceiver
         if not isinstance(p, Perceiver):
             return p
-        if self._table_perceiver is None:
-            self._table_perceiver = Perceiver(p.settings, p.inventory, database=p.database, use_cell=False)
-        return self._table_perceiver
+        if self.table_perceiver is None:
+            self.table_perceiver = Perceiver(p.settings, p.inventory, database=p.database, use_cell=False)
+        return self.table_perceiver
 
     PUT_DOWN_AVOID_RADIUS = 0.10  # m: no second put-down try this close to a target where the held item hit something
 
@@ -305,23 +339,24 @@ class RecoveryActions:
         plan fails or is stopped by the arm, open where it is when that is over the cell (sink, counter, racks:
         it drops a few centimetres onto them and the scan will find it). True if it was placed.
         `avoid_place_target`: the way to the planned target was just stopped; no target near it is tried."""
-        grasp = self.pick.grasp if self.pick is not None else None
+        it = self.item
+        grasp = it.pick.grasp if it.pick is not None else None
         targets = []
-        if self.place is not None:
-            targets.append(self.place.target)
-        if self.current is not None:
-            fb = self.task.fallback_target(self.current)
+        if it.place is not None:
+            targets.append(it.place.target)
+        if it.obj is not None:
+            fb = self.task.fallback_target(it.obj, self.belief)
             if not isinstance(fb, NoFreeSlot):
                 targets.append(fb)
         hit: list[np.ndarray] = []  # where a put-down was stopped: the world there is not as modelled
-        if avoid_place_target and self.place is not None:
-            hit.append(self.place.target.T_base_obj[:3, 3])
+        if avoid_place_target and it.place is not None:
+            hit.append(it.place.target.T_base_obj[:3, 3])
         if grasp is not None:
             for tgt in targets:
                 if any(np.linalg.norm(tgt.T_base_obj[:2, 3] - h[:2]) < self.PUT_DOWN_AVOID_RADIUS for h in hit):
                     continue
                 q = self.arm.joint_positions()
-                plan = self.planner.plan_place(q, grasp, tgt, objects=self._scene_objects())
+                plan = self.planner.plan_place(q, grasp, tgt, objects=self.belief.scene_objects())
                 if not plan.ok:
                     continue
                 self._log("note", "putting down the held object", target=tgt.T_base_obj[:3, 3])
@@ -338,10 +373,10 @@ class RecoveryActions:
                     # at the fallback spot, staged to be picked up again (unless the task takes it there).
                     T_rest = np.array(plan.T_base_obj, float)
                     T_rest[2, 3] = min(T_rest[2, 3], float(tgt.T_base_obj[2, 3]))
-                    own = self.place is not None and tgt is self.place.target
-                    if self.current is not None:
-                        there = ObjectPose(self.current.obj_id, self.current.cls, T_rest, 1.0)
-                        self._expect_placed(tgt, T_rest, staging=self.staging if own
+                    own = it.place is not None and tgt is it.place.target
+                    if it.obj is not None:
+                        there = ObjectPose(it.obj.obj_id, it.obj.cls, T_rest, 1.0)
+                        self._expect_placed(tgt, T_rest, staging=it.staging if own
                                             else not self.task.accepts_as_it_lies(there))
                     return True
                 except ProtectiveStopError as e:
@@ -356,8 +391,8 @@ class RecoveryActions:
         (x0, y0), (x1, y1) = self.robot.cell.spec.counter_extent_xy
         if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
             self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
-            self.dropped += 1
-            self.drop_site = tcp.copy()
+            self.belief.dropped += 1
+            self.belief.drop_site = tcp.copy()
             self._cmd("gripper.open", release=True)
             self.gripper.open()
             return False

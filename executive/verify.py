@@ -41,8 +41,8 @@ def target_presence(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol:
 
     The depth often cannot tell offsets a centimetre apart (a plate on edge seen from above: its rim agrees at
     -1 and -2 cm alike). The settled pose becomes the record later motions plan around, and one recorded too low
-    lets the gripper come down onto its top edge (sink-to-dishwasher seed 42: a side plate in the rack 1 cm
-    higher than recorded, the palm hit it). So `dz` is the highest offset whose agreement is within `dz_tie` of
+    lets the gripper come down onto its top edge (a side plate on edge in the rack, 1 cm higher than recorded:
+    the palm of the next placement hit it). So `dz` is the highest offset whose agreement is within `dz_tie` of
     the best: recorded no lower than the depth shows it can be."""
     rows: list[Presence] = []
     for dz in np.arange(dz_range[0], dz_range[1] + 1e-9, dz_step):

@@ -448,8 +448,7 @@ class Perceiver:
             h.score *= best.score / max(scorer(best.T_base_obj)[0], 1e-9)  # the same colour weight
             tol = SURFACE_TOL * self.settings.voxel_size
             # clearly better only: with the handle hidden or among neighbours both turns score alike, and a
-            # 0.5 % margin turned a mug lying on two others half round (its frame 3 cm off, its lift blocked:
-            # sink-pick seed 9)
+            # 0.5 % margin turned a mug lying on two others half round (its frame 3 cm off, its lift blocked)
             if h.score > best.score + self.YAW_SWEEP_MARGIN and \
                     surface_fit(query.points, query.normals, entry, h.T_base_obj, tol) >= \
                     surface_fit(query.points, query.normals, entry, best.T_base_obj, tol) - 0.02:

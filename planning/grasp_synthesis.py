@@ -156,8 +156,8 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
             T_foot = _tcp_frame(np.array([0, 0, 1.0]), radial, p_foot)
             grasps.append(("foot", k, T_foot))
             # A bowl lying on its side across a pile offers its foot ring tilted: the pinch along the bowl's
-            # axis then comes in nearly level and puts the palm into a basin wall (sink seed 31: a bowl at
-            # 129 degrees). So the pinch also leans in from outside the ring, pitched about the ring's tangent
+            # axis then comes in nearly level and puts the palm into a basin wall (a bowl lying at about 130
+            # degrees). So the pinch also leans in from outside the ring, pitched about the ring's tangent
             # (the pad width axis) about the middle of the gripped length: the pads close across the ring
             # wall at a slant. Pitched further the outer pad's tip cuts into the body's underside; candidates
             # backed off along the approach (1 mm steps, see below) until the open pads clear the item.
@@ -175,7 +175,7 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
             grasps.append(("base", k, T))
     if vessel:
         # 10 % (cups, mugs, glasses): across the base end, the pads' edge at the base. A glass lying on its side
-        # with a neighbour along its body (sink-pick seed 47: a glass on a mug's handle, the mug 5 mm beside it)
+        # with a neighbour along its body (a glass on a mug's handle, the mug 5 mm beside it)
         # leaves no room for a pad beside the body; tilted towards the base, this grasp comes in past the base
         # end, its pads above and below the body. It holds less of the body: ranked after the others
         # (planning.grasps.FALLBACK_GRASPS).

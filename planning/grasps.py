@@ -125,7 +125,7 @@ FALLBACK_PENALTY = 1.0
 # Observed points inside the tool at a grasp that count as a real surface there (a few are depth noise).
 OBSERVED_HITS = 20
 # An item seen with at least this many points shows some of the surface a grasp closes on (a grasp whose grip
-# zone holds none of them closes on nothing where the item really is: sink-pick seed 9, a bowl's foot ring).
+# zone holds none of them closes on nothing where the item really is: a bowl's unseen foot ring).
 WELL_OBSERVED = 200
 
 # +-5 deg: nearly level, but the wrist rides ~2 cm higher (clears a counter the item stands on) and the approach

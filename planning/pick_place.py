@@ -400,7 +400,7 @@ class Planner:
         at_grasp = lift_scene.colliding_pairs(q_grasp)
         # ... but not with an item lying on it (leaning on its rim): lifted, the item drags that one along, and
         # where the estimated poses are a millimetre off they are apart at the start in the world and meet on
-        # the way up (sink-pick seed 5, pipeline: a plate lifted along a glass leaning on it, protective stop)
+        # the way up (a plate lifted along a glass leaning on it, with perceived poses: a protective stop)
         by_name = {f"obj:{object_name(o, j)}": o for j, o in enumerate(objects)}
         on_it = {x for p in at_grasp if "held" in p for x in p if x in by_name and self._lies_on(by_name[x], g.obj)}
         start_contacts = [p for p in at_grasp if "held" in p and not on_it.intersection(p)]
@@ -590,7 +590,7 @@ class Planner:
         its pre-place pose (straight above it by the approach distance, reached from it without changing the IK
         branch) is free too: plan_place comes down from there. Without this check the grasp filter kept grasps
         whose only release poses had the wrist in the gripper's palm 10 cm higher up (a cup turned over with a
-        level side grasp, dishwasher seeds 1 and 4: staged items never picked again).
+        level side grasp: staged items were never picked again).
 
         Free-yaw targets are turned about the object's own axis in 30 degree steps. When `release_scene` is
         given, a release pose whose gripper/held object collides is raised in 1 cm steps up to
@@ -602,7 +602,7 @@ class Planner:
         another branch is free. The answer then does not depend on `q_ref` either: the grasp filter (which asks
         from the arm's configuration before the pick) and plan_place (from the lifted configuration) agree; with
         one numerically found branch per pose they did not (a grasp chosen for its reachable release, then
-        ``no_feasible_placement`` in plan_place: dishwasher seeds 5 and 6)."""
+        ``no_feasible_placement`` in plan_place)."""
         T_obj = np.asarray(target.T_base_obj, float)
         if obj_id is not None:
             turns = self._place_turns(target, obj_id)

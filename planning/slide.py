@@ -184,7 +184,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     on_it = planner._resting_on(target, objects)
     if on_it:
         # the fingers would press on (and through) what lies on it, and a loaded item is not pushed (the
-        # simulator stops the arm): the item on top goes first (dishwasher seed 7: the middle plate of a stack)
+        # simulator stops the arm): the item on top goes first (the middle plate of a stack is slid after the top one)
         f = CartesianPathFailed(f"slide: the {on_it[0].cls} lies on the item", {"segment": "slide"})
         planner._report_blocking(f, target, objects, on_it)
         return f

@@ -12,6 +12,7 @@ stacking area or the drop zone already holds), because the scan only looks into 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -84,23 +85,38 @@ def _overlaps(lo, hi, placed: list[Placed], clearance: float | np.ndarray = CLEA
     return any(np.all(lo < p.hi + clearance) and np.all(hi > p.lo - clearance) for p in placed)
 
 
+class Holdings(Protocol):
+    """What a task reads of the robot's belief (executive/belief.py): what it has put down, and the models it
+    still has to move (from the latest perception). Tasks never change it."""
+
+    placed: list[Placed]
+    pending: list[ObjectModel]
+
+
+@dataclass
+class NoHoldings:
+    """A belief as plain lists (nothing placed, nothing pending by default): for tasks used on their own."""
+
+    placed: list = field(default_factory=list)
+    pending: list = field(default_factory=list)
+
+
 @dataclass
 class Task:
-    """Base class: subclasses set `name`, `description`, `wants()` and `targets()`."""
+    """Base class: subclasses set `name`, `description`, `wants()` and `targets()`. A task is a pure function of
+    the perception results and the belief it is given: it holds no state of the run."""
 
     inventory: Inventory
     cell: Cell
-    placed: list[Placed] = field(default_factory=list)
-    pending: list[ObjectModel] = field(default_factory=list)  # models still in the sink (last remaining())
-    _next_id: int = 0
 
     name = "task"
     description = ""
     success_criteria = ""
-    # Whether the executive also stages an item for a regrasp (staging_targets) when the grasps that reach its
-    # targets are blocked on their way out of the sink, or the full place plan finds no release for them: worth
-    # it where the targets admit few grasps (rack poses), not where the counter is the target anyway.
-    stage_when_blocked = False
+    # The executive's strategies for getting an item out, tried in this order (executive/strategies.py; the
+    # names are its STRATEGIES). "stage_when_blocked" (stage an item for a regrasp also when the grasps that
+    # reach its targets are blocked on their way out of the sink, or the full place plan finds no release for
+    # them) is worth it where the targets admit few grasps (rack poses), not where the counter is the target.
+    strategies = ("direct_pick", "escape_then_pick", "stage_for_regrasp", "slide_off_stack", "blocker_first")
 
     # ---- what to pick ------------------------------------------------------------------------------------------
     def wants(self, obj: ObjectPose) -> bool:
@@ -113,7 +129,6 @@ class Task:
         """Objects still to do, in pick order: uncovered ones first (stacked/nested items come off the top), plates
         before other items (they need the most room at the target), then from the top down."""
         todo = [p for p in poses if self.in_sink(p) and self.wants(p)]
-        self.pending = [self.inventory[p.obj_id] for p in todo]
         return sorted(todo, key=lambda p: (self._covered(p, poses), p.cls != "plate", -p.T_base_obj[2, 3]))
 
     def _covered(self, p: ObjectPose, poses: list[ObjectPose]) -> bool:
@@ -123,18 +138,25 @@ class Task:
         return any(o is not p and o.T_base_obj[2, 3] > c[2] + 0.01 and np.linalg.norm(o.T_base_obj[:2, 3] - c[:2]) < r
                    for o in poses)
 
+    def pending_models(self, poses: list[ObjectPose]) -> list[ObjectModel]:
+        """The models of what is still to do (the belief's `pending`: room is kept for them at the targets)."""
+        return [self.inventory[p.obj_id] for p in self.remaining(poses)]
+
     # ---- where it goes --------------------------------------------------------------------------------------------
-    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
-        """Candidate place targets for `obj`, best first (the executive plans them in order)."""
+    def targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
+        """Candidate place targets for `obj`, best first (the executive plans them in order), given what the
+        belief says is placed and still pending."""
         raise NotImplementedError
 
-    def fallback_target(self, obj: ObjectPose) -> PlaceTarget | NoFreeSlot:
+    def fallback_target(self, obj: ObjectPose, belief: Holdings) -> PlaceTarget | NoFreeSlot:
         """Where to put a held object down when giving up: the counter drop zone."""
-        spots = _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, self.placed, 1)
+        spots = _drop_zone_targets(self.inventory[obj.obj_id], self.cell.spec.drop_zone, list(belief.placed), 1)
         return spots[0] if spots else NoFreeSlot("drop zone is full")
 
-    # ---- bookkeeping --------------------------------------------------------------------------------------------
-    def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> Placed:
+    # ---- records ------------------------------------------------------------------------------------------------
+    def placed_record(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray,
+                      instance_id: int = -1) -> Placed:
+        """The record of `obj` resting at T_base_obj at `target` (footprint, top), for the belief to keep."""
         model = self.inventory[obj.obj_id]
         lo, hi, top = footprint(model, T_base_obj)
         if model.is_rotationally_symmetric and is_level(T_base_obj):
@@ -142,21 +164,7 @@ class Task:
             # of its turned bounding box is up to 41 % wider and would waste rack/counter room)
             r = max(model.extents[:2]) / 2
             lo, hi = T_base_obj[:2, 3] - r, T_base_obj[:2, 3] + r
-        p = Placed(obj.obj_id, obj.cls, np.array(T_base_obj), lo, hi, top, target, 10_000 + self._next_id)
-        self._next_id += 1
-        self.placed.append(p)
-        return p
-
-    def unplace(self, instance_id: int) -> None:
-        """It left that place (a staged object picked up again)."""
-        self.placed = [p for p in self.placed if p.instance_id != instance_id]
-
-    def as_pose(self, p: Placed) -> ObjectPose:
-        return ObjectPose(p.obj_id, p.cls, p.T_base_obj, 1.0, instance_id=p.instance_id)
-
-    def obstacles(self) -> list[ObjectPose]:
-        """Placed items as object poses (for the planner's collision world)."""
-        return [self.as_pose(p) for p in self.placed]
+        return Placed(obj.obj_id, obj.cls, np.array(T_base_obj), lo, hi, top, target, instance_id)
 
     def needs_regrasp(self, targets: list[PlaceTarget], obj: ObjectPose | None = None) -> bool:
         """Whether the object may need a different grasp than the one it offers where it lies: the targets turn it
@@ -170,7 +178,8 @@ class Task:
         z = obj.T_base_obj[:3, 2]
         return any(float(t.T_base_obj[:3, 2] @ z) < -0.5 for t in targets)
 
-    def staging_targets(self, obj: ObjectPose, targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
+    def staging_targets(self, obj: ObjectPose, belief: Holdings,
+                        targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
         """Spots in the counter drop zone to set an object down and grasp it again, in poses from which `targets`
         may be reached with another grasp, the most likely first (the executive keeps those from which the next
         pick can reach them).
@@ -192,17 +201,18 @@ class Task:
         flip = (targets is not None and len(targets) > 0 and faces_down(obj.T_base_obj)
                 and all(is_upright(t.T_base_obj) for t in targets))
         if flip:
-            spots = area_spots(model, lo, hi, zone.z, self.placed, inverted, 2, centre_inside=True, clearance=PAD_ROOM)
+            spots = area_spots(model, lo, hi, zone.z, list(belief.placed), inverted, 2, centre_inside=True,
+                               clearance=PAD_ROOM)
             out = [PlaceTarget(T, "stage", free_yaw=True, support="counter (upside down, to flip it)") for T in spots]
         else:
-            out = _drop_zone_targets(model, zone, self.placed, 2)
+            out = _drop_zone_targets(model, zone, list(belief.placed), 2)
             for t in out:
                 t.kind, t.support = "stage", "counter (regrasp)"
         if targets is not None:
-            out += self.lying_spots(model)
+            out += self.lying_spots(model, belief)
         return out or NoFreeSlot("drop zone has no free spot to stage a regrasp")
 
-    def lying_spots(self, model: ObjectModel) -> list[PlaceTarget]:
+    def lying_spots(self, model: ObjectModel, belief: Holdings) -> list[PlaceTarget]:
         """A round cup or glass lying on its side in the drop zone (its mouth towards +y, then -x), PAD_ROOM from its
         neighbours; none for other items (a mug rolls onto its handle, a bowl or plate does not rest on its side)."""
         if model.cls not in ("cup", "glass") or not model.is_rotationally_symmetric:
@@ -212,7 +222,7 @@ class Task:
         out = []
         for yaw in (np.pi / 2, np.pi):
             R = rot_z(yaw)[:3, :3] @ rot_y(np.pi / 2)[:3, :3]  # the object's axis along base x turned by yaw
-            for T in area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, self.placed, as_is(R), 1,
+            for T in area_spots(model, lo, lo + np.array(zone.size_xy), zone.z, list(belief.placed), as_is(R), 1,
                                 centre_inside=True, clearance=PAD_ROOM):
                 out.append(PlaceTarget(T, "stage", free_yaw=False, support="counter (on its side, to turn it)"))
         return out

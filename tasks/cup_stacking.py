@@ -15,7 +15,7 @@ import numpy as np
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import Task, _drop_zone_targets, area_spots, as_is, footprint, on_top_of_same, upright
+from kitchenbot.tasks.base import Holdings, Task, _drop_zone_targets, area_spots, as_is, footprint, on_top_of_same, upright
 from kitchenbot.world.attitude import is_upright
 from kitchenbot.world.inventory import ObjectModel
 
@@ -67,26 +67,26 @@ class CupStacking(Task):
         down), then the cups in Task.remaining's order."""
         cups = super().remaining(poses)
         blocking = self.blockers(poses)
-        self.pending = [self.inventory[p.obj_id] for p in cups + blocking]
         return sorted(blocking, key=lambda p: (self._covered(p, poses), -p.T_base_obj[2, 3])) + cups
 
-    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+    def targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
         if not self.wants(obj):
-            return self._out_of_the_way(obj)
-        return self._stack_targets(obj)
+            return self._out_of_the_way(obj, belief)
+        return self._stack_targets(obj, belief)
 
-    def _out_of_the_way(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+    def _out_of_the_way(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
         """A blocker goes to the counter drop zone: upright, or (not upright in the sink, where no grasp may
         reach upright) set down the way it lies."""
         model = self.inventory[obj.obj_id]
-        out = _drop_zone_targets(model, self.cell.spec.drop_zone, self.placed, 3)
+        out = _drop_zone_targets(model, self.cell.spec.drop_zone, list(belief.placed), 3)
         for t in out:
             t.support = "counter (out of a cup's way)"
         R = obj.T_base_obj[:3, :3]
         if not is_upright(obj.T_base_obj):
             z = self.cell.spec.drop_zone
             lo = np.array(z.origin_xy)
-            for T in area_spots(model, lo, lo + np.array(z.size_xy), z.z, self.placed, as_is(R), 2, centre_inside="any"):
+            for T in area_spots(model, lo, lo + np.array(z.size_xy), z.z, list(belief.placed), as_is(R), 2,
+                                centre_inside="any"):
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support="counter (out of a cup's way, as it lay)"))
         return out or NoFreeSlot(f"drop zone has no free spot to move the {obj.cls} off a cup")
 
@@ -94,9 +94,9 @@ class CupStacking(Task):
         a = self.cell.spec.stacking_area
         return [(np.array(a.origin_xy), np.array(a.origin_xy) + np.array(a.size_xy))]
 
-    def _stack_targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+    def _stack_targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
         model = self.inventory[obj.obj_id]
-        stacked = [p for p in self.placed if p.obj_id == obj.obj_id and p.target.kind in ("stack", "stack_base")]
+        stacked = [p for p in belief.placed if p.obj_id == obj.obj_id and p.target.kind in ("stack", "stack_base")]
         top: list[PlaceTarget] = []
         if stacked and len(stacked) < MAX_STACK:
             T = on_top_of_same(model, stacked, nest_offset_of(model))
@@ -106,7 +106,8 @@ class CupStacking(Task):
         lo = np.array(area.origin_xy)
         # A new stack of the same type after the top of the existing one (the planner takes the first it reaches),
         # as a person starts another stack when the first one's top cannot be reached with the cup's grasps (a
-        # cup flipped on the counter is held by its side, level; oracle seed 46: the fourth cup, for either grasp).
-        spots = area_spots(model, lo, lo + np.array(area.size_xy), area.z, self.placed, upright, 3 if not top else 2)
+        # cup flipped on the counter is held by its side, level, and a stack's top may be out of that grasp's reach).
+        spots = area_spots(model, lo, lo + np.array(area.size_xy), area.z, list(belief.placed), upright,
+                           3 if not top else 2)
         out = top + [PlaceTarget(T, "stack_base", free_yaw=True, support="stacking_area") for T in spots]
         return out or NoFreeSlot(f"stacking area has no free spot for a new {model.name} stack")

@@ -26,6 +26,7 @@ from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.tasks.base import (
     CLEARANCE,
+    Holdings,
     Placed,
     Task,
     area_spots,
@@ -78,15 +79,16 @@ class SinkPick(Task):
     description = "pick each object out of the sink and set it down in the counter drop zone"
     success_criteria = "sink empty; every object verified in the drop zone"
 
-    def record_placed(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray) -> Placed:
-        """As Task.record_placed, at its resting height; an upright round item's footprint is its disc's square
+    def placed_record(self, obj: ObjectPose, target: PlaceTarget, T_base_obj: np.ndarray,
+                      instance_id: int = -1) -> Placed:
+        """As Task.placed_record, at its resting height; an upright round item's footprint is its disc's square
         whatever yaw the planner turned it to (the bounding box of a turned plate is up to 41 % wider)."""
         T_base_obj = np.array(T_base_obj, float)
         if abs(T_base_obj[2, 3] - float(target.T_base_obj[2, 3])) < 1e-6:
             # not measured (the executive had no view of it): it came to rest DROP_HEIGHT below the release
             # target; a pile's height is built on this, so the drop height must not pile up with it
             T_base_obj[2, 3] -= DROP_HEIGHT
-        p = super().record_placed(obj, target, T_base_obj)
+        p = super().placed_record(obj, target, T_base_obj, instance_id)
         model = self.inventory[obj.obj_id]
         if model.is_rotationally_symmetric and is_upright(T_base_obj):
             r = max(model.extents[:2]) / 2
@@ -107,9 +109,9 @@ class SinkPick(Task):
         c = p.T_base_obj[:2, 3]
         return bool(np.all(c >= lo - 0.05) and np.all(c <= hi + 0.05))
 
-    def _pile_targets(self, model: ObjectModel, kinds) -> list[np.ndarray]:
+    def _pile_targets(self, model: ObjectModel, kinds, belief: Holdings) -> list[np.ndarray]:
         """Poses on the piles whose top item passes `kinds(top) -> rank` (lower first; None: not this pile)."""
-        zone_items = [p for p in self.placed if self._in_zone(p)]
+        zone_items = [p for p in belief.placed if self._in_zone(p)]
         out = []
         for pile in _piles(zone_items):
             rank = kinds(pile[-1])
@@ -125,13 +127,13 @@ class SinkPick(Task):
             out.append((rank, T[2, 3], T))
         return [T for _, _, T in sorted(out, key=lambda r: (r[0], r[1]))]
 
-    def _same_way_piles(self, model: ObjectModel, R: np.ndarray) -> list[np.ndarray]:
+    def _same_way_piles(self, model: ObjectModel, R: np.ndarray, belief: Holdings) -> list[np.ndarray]:
         """Poses nested onto piles topped by the same model lying the way R does (its axis within ~10 degrees):
         two copies turned alike nest by the same height as upright ones (the pair is only turned as a whole)."""
         if model.cls not in PILE_CLASSES:
             return []
         out = []
-        for pile in _piles([p for p in self.placed if self._in_zone(p)]):
+        for pile in _piles([p for p in belief.placed if self._in_zone(p)]):
             top = pile[-1]
             if top.obj_id != model.obj_id or float(top.T_base_obj[:3, 2] @ R[:, 2]) < 0.98:
                 continue
@@ -141,17 +143,17 @@ class SinkPick(Task):
                 out.append(T)
         return sorted(out, key=lambda T: T[2, 3])
 
-    def _reserved(self, model: ObjectModel) -> tuple[list[Placed], list[Placed]]:
+    def _reserved(self, model: ObjectModel, belief: Holdings) -> tuple[list[Placed], list[Placed]]:
         """Placeholders (growth, new): around each pile, the footprint of the largest item of its class still to
         come; for each pile class with items still to come but no pile yet (and that `model` cannot start),
         a spot for its largest item."""
         lo, hi, z = self._zone()
-        zone_items = [p for p in self.placed if self._in_zone(p)]
+        zone_items = [p for p in belief.placed if self._in_zone(p)]
         taken = list(zone_items)
         extra: list[Placed] = []
         growth: list[Placed] = []
         for cls in PILE_CLASSES:
-            pend = [m for m in self.pending if m.cls == cls]
+            pend = [m for m in belief.pending if m.cls == cls]
             if not pend:
                 continue
             big = max(pend, key=lambda m: max(m.extents[:2]))
@@ -173,16 +175,17 @@ class SinkPick(Task):
                 extra.append(ph)
         return growth, extra
 
-    def _floor(self, model: ObjectModel, limit: int, pose=upright, centre_inside=True) -> list[np.ndarray]:
+    def _floor(self, model: ObjectModel, belief: Holdings, limit: int, pose=upright,
+               centre_inside=True) -> list[np.ndarray]:
         lo, hi, z = self._zone()
-        zone_items = [p for p in self.placed if self._in_zone(p)]
+        zone_items = [p for p in belief.placed if self._in_zone(p)]
         # a new pile is started with room for the largest item of its class still to come (a dinner plate
         # onto a side plate's pile must not overhang the neighbours)
         probe = model
         if model.cls in PILE_CLASSES and pose is upright:
-            probe = max([model, *(m for m in self.pending if m.cls == model.cls)], key=lambda m: max(m.extents[:2]))
+            probe = max([model, *(m for m in belief.pending if m.cls == model.cls)], key=lambda m: max(m.extents[:2]))
         pref = self._lattice(probe, lo, hi) if pose is upright else None
-        growth, new = self._reserved(model)
+        growth, new = self._reserved(model, belief)
         spots: list[np.ndarray] = []
         # the reservations leave no room: first a new pile's spot, then a pile's growth gives way to a placement now
         for keep in (growth + new, growth, []):
@@ -207,7 +210,7 @@ class SinkPick(Task):
             ys = [*np.arange(lo[1] + r, hi[1] - r + 1e-9, pitch), *np.arange(hi[1] - r, lo[1] + r - 1e-9, -pitch)]
         return [(float(x), float(y)) for x in xs for y in ys]
 
-    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+    def targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
         model = self.inventory[obj.obj_id]
         out: list[PlaceTarget] = []
 
@@ -226,33 +229,33 @@ class SinkPick(Task):
                     return 0
                 return 1 if max(self.inventory[top.obj_id].extents[:2]) >= size else 3
 
-            add(self._pile_targets(model, lambda top: p if (p := plate_rank(top)) in (0, 1) else None)[:2],
+            add(self._pile_targets(model, lambda top: p if (p := plate_rank(top)) in (0, 1) else None, belief)[:2],
                 "a plate pile")
             if not out:
-                add(self._floor(model, 2), "counter")
+                add(self._floor(model, belief, 2), "counter")
             if not out:  # a bigger plate on a smaller one's pile still rests flat on its rim
-                add(self._pile_targets(model, plate_rank)[:2], "a plate pile")
+                add(self._pile_targets(model, plate_rank, belief)[:2], "a plate pile")
         elif model.cls in ("bowl", "cup"):
-            add(self._pile_targets(model, lambda top: 0 if top.obj_id == model.obj_id else None)[:2],
+            add(self._pile_targets(model, lambda top: 0 if top.obj_id == model.obj_id else None, belief)[:2],
                 f"a {model.cls} pile")
             if not out:
-                add(self._floor(model, 3), "counter")
+                add(self._floor(model, belief, 3), "counter")
         else:
-            add(self._floor(model, 3), "counter")
+            add(self._floor(model, belief, 3), "counter")
         if not out:
             # the counter is full: overhang the zone's edge (centre inside), then stand on a plate pile once
             # no plate is left to come
-            add(self._floor(model, 2, centre_inside="any"), "counter (overhanging)")
-        if not out and not any(m.cls == "plate" for m in self.pending if m is not model):
-            add(self._pile_targets(model, lambda top: 0 if top.cls == "plate" else None)[:2], "a plate pile")
+            add(self._floor(model, belief, 2, centre_inside="any"), "counter (overhanging)")
+        if not out and not any(m.cls == "plate" for m in belief.pending if m is not model):
+            add(self._pile_targets(model, lambda top: 0 if top.cls == "plate" else None, belief)[:2], "a plate pile")
         R = obj.T_base_obj[:3, :3]
         if not is_upright(obj.T_base_obj):
             # Not upright in the sink (a glass on its side): no grasp may reach "upright", so also offer the
             # drop zone as it lies now (set down the way it is held): nested onto a pile of the same model
             # lying the same way (upside-down bowls onto an upside-down bowl), else a free spot.
-            for T in self._same_way_piles(model, R)[:1]:
+            for T in self._same_way_piles(model, R, belief)[:1]:
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support=f"a {model.cls} pile (as it lay)",
                                        clearance=PILE_CLEARANCE))
-            for T in self._floor(model, 2, as_is(R), centre_inside="any"):
+            for T in self._floor(model, belief, 2, as_is(R), centre_inside="any"):
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support="counter (as it lay)"))
         return out or NoFreeSlot(f"drop zone has no free spot for a {obj.cls}")

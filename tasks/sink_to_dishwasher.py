@@ -13,7 +13,7 @@ import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Placed, Task, area_spots, footprint, inverted, on_edge
+from kitchenbot.tasks.base import CLEARANCE, PAD_ROOM, Holdings, Placed, Task, area_spots, footprint, inverted, on_edge
 from kitchenbot.world.attitude import faces_down, faces_up, is_level, is_lying
 
 VESSELS = ("cup", "glass", "bowl", "mug")
@@ -37,7 +37,9 @@ class SinkToDishwasher(Task):
     description = ("plates upright in the lower rack; cups, glasses, bowls and mugs inverted in the upper rack "
                    "(bowls first in the lower one; others there when the upper one is full)")
     success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in a rack slot"
-    stage_when_blocked = True  # rack poses admit few grasps: a blocked or unplaceable one is staged, see Task
+    # rack poses admit few grasps: a blocked or unplaceable one is staged too (see Task.strategies)
+    strategies = ("direct_pick", "escape_then_pick", "stage_for_regrasp", "stage_when_blocked", "slide_off_stack",
+                  "blocker_first")
 
     def wants(self, obj: ObjectPose) -> bool:
         return obj.cls == "plate" or obj.cls in VESSELS
@@ -47,47 +49,48 @@ class SinkToDishwasher(Task):
         specs = [dw.lower] if cls == "plate" else [dw.upper, dw.lower]  # vessels: the lower rack when the upper is full
         return [(np.array(s.origin_xy), np.array(s.origin_xy) + np.array(s.size_xy)) for s in specs]
 
-    def targets(self, obj: ObjectPose) -> list[PlaceTarget] | NoFreeSlot:
+    def targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
         if obj.cls == "bowl":
             # As people load bowls: in the lower rack, the upper one (16 cm a bowl, the room of two or three
             # cups) only if the lower one is full. A bowl not mouth-down stands on its rim between the tines,
             # facing the spray arm like a plate, carried by a rim pinch (it has no level side grasp to turn it
             # over: 16 cm, its foot ring faces down). A mouth-down bowl, carried from above by a foot-ring pinch,
             # goes in mouth-down as it lies (turned on its rim with that pinch it is released 5 cm up, over the
-            # rails, and in a test at three spots the pads' retreat then hit it). Seed 9: two mouth-down bowls
-            # in the upper rack left no room for a mug and a cup.
+            # rails, and in a test at three spots the pads' retreat then hit it). Two mouth-down bowls in the
+            # upper rack leave no room for a mug and a cup.
             if not faces_down(obj.T_base_obj):
-                lower = self._bowl_in_lower_rack(obj, on_edge, "on its rim")
+                lower = self._bowl_in_lower_rack(obj, belief, on_edge, "on its rim")
             else:
-                lower = self._bowl_in_lower_rack(obj, inverted, "mouth-down")
-            upper = self._targets(obj, "upper")
+                lower = self._bowl_in_lower_rack(obj, belief, inverted, "mouth-down")
+            upper = self._targets(obj, belief, "upper")
             out = lower + (upper if isinstance(upper, list) else [])
             return out or NoFreeSlot("no free slot for a bowl in the lower or upper rack")
         if obj.cls == "plate":
-            return self._targets(obj, "lower")
-        upper = self._targets(obj, "upper")
+            return self._targets(obj, belief, "lower")
+        upper = self._targets(obj, belief, "upper")
         if not isinstance(upper, NoFreeSlot) and not faces_up(obj.T_base_obj):
             return upper
         # The upper rack is full (it takes about seven cups, glasses and mugs with the room a level grasp needs;
-        # seed 4: six cups, two glasses and a mug), or the item stands upright and its free spots may all lie
-        # beyond the near part a level grasp reaches (seed 9: a staged mug): mouth-down in the lower rack, after
+        # e.g. six cups, two glasses and a mug), or the item stands upright and its free spots may all lie
+        # beyond the near part a level grasp reaches (a staged mug): mouth-down in the lower rack, after
         # the upper rack's spots, as people load a full dishwasher, from its far end, with room kept for the
         # plates still in the sink.
-        lower = self._bowl_in_lower_rack(obj, inverted, "mouth-down, the upper rack full")
+        lower = self._bowl_in_lower_rack(obj, belief, inverted, "mouth-down, the upper rack full")
         out = (upper if isinstance(upper, list) else []) + lower
         return out or NoFreeSlot(f"no free slot for a {obj.cls} in the upper or lower rack")
 
-    def staging_targets(self, obj: ObjectPose, targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
+    def staging_targets(self, obj: ObjectPose, belief: Holdings,
+                        targets: list[PlaceTarget] | None = None) -> list[PlaceTarget] | NoFreeSlot:
         """A round cup or glass is staged lying on its side first: from there a grasp from above turns it mouth-down
         anywhere in the upper rack, where from upright only a level side grasp does, which reaches the rack's near
-        part only (seeds 4, 9, 21, 37: staged upright when that part was full, they stayed on the counter); that
+        part only (staged upright when that part was full, they stayed on the counter); that
         part stays free for what must be turned over upright (a mug, which rolls onto its handle on its side)."""
-        out = super().staging_targets(obj, targets)
+        out = super().staging_targets(obj, belief, targets)
         if isinstance(out, NoFreeSlot):
             return out
         return sorted(out, key=lambda t: not is_lying(t.T_base_obj))  # lying first, stable
 
-    def _bowl_in_lower_rack(self, obj: ObjectPose, pose, how: str) -> list[PlaceTarget]:
+    def _bowl_in_lower_rack(self, obj: ObjectPose, belief: Holdings, pose, how: str) -> list[PlaceTarget]:
         """A bowl (or a vessel the full upper rack has no room for) in the lower rack, `pose` on_edge (on its rim,
         its axis along x, as a plate) or inverted, from
         the rack's far end in x (plates are loaded from the end nearest the robot), with room kept for the plates
@@ -96,8 +99,8 @@ class SinkToDishwasher(Task):
         spec = self.cell.spec.dishwasher.lower
         lo = np.array(spec.origin_xy)
         hi = lo + np.array(spec.size_xy)
-        taken = list(self.placed)
-        plates = [m for m in self.pending if m.cls == "plate"]
+        taken = list(belief.placed)
+        plates = [m for m in belief.pending if m.cls == "plate"]
         if plates:  # where the plates will go (the spots _plate_spots gives them, the largest plate in each)
             big = max(plates, key=lambda m: max(m.extents[:2]))
             for T in self._plate_spots(big, taken, len(plates)):
@@ -105,7 +108,7 @@ class SinkToDishwasher(Task):
         y = (lo[1] + hi[1]) / 2
         # Flush beside what is in the rack (or kept for plates), CLEARANCE + 1 mm from it, then every 5 mm from
         # the far end: on the 15 mm grid alone a second bowl missed the room left between the first one and the
-        # plates by 2 mm (seed 9).
+        # plates by 2 mm.
         r = max(model.extents[:2]) / 2 if pose is inverted else model.extents[2] / 2  # half its length along x
         in_rack = [p for p in taken if lo[0] <= (p.lo[0] + p.hi[0]) / 2 <= hi[0] and lo[1] <= (p.lo[1] + p.hi[1]) / 2 <= hi[1]]
         xs = [p.lo[0] - CLEARANCE - 0.001 - r for p in in_rack] + [p.hi[0] + CLEARANCE + 0.001 + r for p in in_rack]
@@ -130,7 +133,7 @@ class SinkToDishwasher(Task):
         first), then beside the next bowl against the other side, staggered in x by what their round rims need
         (CLEARANCE between the discs, not between their boxes), from the rack's far end in x: two bowls to a
         column, as people load bowls. On the rack's centre line each bowl took a whole column and a third bowl
-        found neither rack free (seed 15: three bowls, the upper rack full of glasses and mugs). area_spots
+        found neither rack free (three bowls, the upper rack full of glasses and mugs). area_spots
         keeps boxes apart, which leaves no room for two 16 cm bowls across this rack, hence the disc test here."""
         r = max(model.extents[:2]) / 2
         edge = RACK_WIRE + 0.002 + r  # the rim 2 mm inside the rack's side wire
@@ -169,14 +172,14 @@ class SinkToDishwasher(Task):
         preferred = [(x, (lo[1] + hi[1]) / 2) for x in xs] + slots
         return area_spots(model, lo, hi, spec.floor_z, placed, on_edge, limit, preferred, step=0.015)
 
-    def _targets(self, obj: ObjectPose, rack: str) -> list[PlaceTarget] | NoFreeSlot:
+    def _targets(self, obj: ObjectPose, belief: Holdings, rack: str) -> list[PlaceTarget] | NoFreeSlot:
         model = self.inventory[obj.obj_id]
         spec = self.cell.spec.dishwasher.lower if rack == "lower" else self.cell.spec.dishwasher.upper
         lo = np.array(spec.origin_xy)
         hi = lo + np.array(spec.size_xy)
         slots = [s.T_base_slot[:2, 3] for s in self.cell.slots if s.rack == rack]
         if obj.cls == "plate":
-            poses = self._plate_spots(model, self.placed, 3)
+            poses = self._plate_spots(model, list(belief.placed), 3)
         else:
             # On a fine grid (the nominal slots leave gaps a bowl needs). An item not already mouth-down is turned
             # over with a near-level side grasp (after a regrasp on the counter): it is released and backed out of
@@ -191,8 +194,8 @@ class SinkToDishwasher(Task):
                 # Upright (in the sink or staged on the counter): only a level side grasp turns it over, and a
                 # level tool reaches only the rack's near part in x (centres up to ~0.53 m, a scan of release
                 # poses): the smallest x first, then nearest the robot in y. Six of them: the three nearest the
-                # robot were often beyond that x where the near part still had room (seed 6: a staged cup).
-                poses = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 6, clearance=room,
+                # robot were often beyond that x where the near part still had room (a staged cup).
+                poses = area_spots(model, lo, hi, spec.floor_z, list(belief.placed), inverted, 6, clearance=room,
                                    order=from_the_front)
             else:
                 # Mouth-down or lying: carried from above, which reaches the whole rack. Loaded from the back, as a
@@ -200,9 +203,9 @@ class SinkToDishwasher(Task):
                 # grasp reaches, stays free for the upright items still to come, and no placed item stands between
                 # the arm and a later spot. Six spots (the back column and the next), then the three nearest the
                 # robot in case none at the back can be reached with the item's grasps.
-                back = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 6, clearance=room,
+                back = area_spots(model, lo, hi, spec.floor_z, list(belief.placed), inverted, 6, clearance=room,
                                   order=from_the_back)
-                near = area_spots(model, lo, hi, spec.floor_z, self.placed, inverted, 3, clearance=room)
+                near = area_spots(model, lo, hi, spec.floor_z, list(belief.placed), inverted, 3, clearance=room)
                 poses = back + [T for T in near if not any(np.allclose(T, B) for B in back)]
         names = {tuple(np.round(xy, 4)): s.name for xy, s in
                  zip(slots, [s for s in self.cell.slots if s.rack == rack])}

@@ -4,11 +4,11 @@ come back."""
 import numpy as np
 
 from kitchenbot.executive import machine as M
-from kitchenbot.executive.runner import _Tried
+from kitchenbot.executive.belief import Attempts
 
 
 def test_planning_failures_are_forgotten_when_the_scene_changes():
-    t = _Tried("plate", np.zeros(3))
+    t = Attempts("plate", np.zeros(3))
     for _ in range(M.MAX_PLAN_FAILURES_PER_SCENE):
         assert not t.exhausted(0)
         t.plan_failed(0)
@@ -19,6 +19,6 @@ def test_planning_failures_are_forgotten_when_the_scene_changes():
 
 
 def test_executed_attempts_are_never_forgotten():
-    t = _Tried("cup", np.zeros(3))
+    t = Attempts("cup", np.zeros(3))
     t.count = M.MAX_ATTEMPTS_PER_OBJECT
     assert t.exhausted(0) and t.exhausted(5)

@@ -9,7 +9,7 @@ from kitchenbot.executive.cli import main
 
 def test_bench_tasks_writes_summary(tmp_path, state_dir, capsys):
     out = tmp_path / "bench.json"
-    assert main(["bench", "tasks", "--tasks", "cup-stacking", "--seeds", "1", "--start", "2", "--objects", "1",
+    assert main(["bench", "tasks", "--tasks", "cup-stacking", "--seeds", "1", "--start", "0", "--objects", "1",
                  "--oracle-perception", "--json", str(out)]) == 0
     d = json.loads(out.read_text())
     run = d["runs"][0]
@@ -17,4 +17,9 @@ def test_bench_tasks_writes_summary(tmp_path, state_dir, capsys):
     s = d["summary"]["cup-stacking"]
     assert s["runs"] == 1 and s["wanted"] == run["wanted"] and s["placed"] == run["delivered"]
     assert s["collisions"] == (run["collisions"] or 0)
-    assert "objects placed" in capsys.readouterr().out
+    assert s["protective_stops"] == (run["protective_stops"] or 0)
+    # (scene 0 with one object: one cup) the strategies of the run, summed: every attempt was planned by one
+    assert s["strategies"] == run["strategies"] and "direct_pick" in s["strategies"]
+    assert sum(c["planned"] for c in s["strategies"].values()) >= run["attempts"]
+    out = capsys.readouterr().out
+    assert "objects placed" in out and "strategies (cup-stacking; planned/tried): direct_pick" in out

@@ -24,10 +24,11 @@ def test_a_stop_marks_the_space_the_pads_were_about_to_enter(make_runner):
     traj = Trajectory(np.linspace(0.0, 4.0, n), np.linspace(q0, q1, n), "move")
     k = 80
     world.set_joints(traj.q[k])  # "stopped" here
-    runner.map_points = None
+    b = runner.belief
+    b.set_map_base(None)
     runner._mark_contact(traj)
-    P = runner.contact_points
-    assert len(P) > 10 and runner.map_points is not None and len(runner.map_points) == len(P)
+    P = b.contact_points
+    assert len(P) > 10 and b.map_points is not None and len(b.map_points) == len(P)
     opening = runner.gripper.opening()
     F = robot.fk_tcp(traj.q[k]) @ np.linalg.inv(robot.T_flange_tcp)
     for tb in g.pads(robot.T_flange_tcp, opening):  # not where the pads are now...
@@ -41,7 +42,9 @@ def test_a_stop_marks_the_space_the_pads_were_about_to_enter(make_runner):
     in_sink = np.array([[(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, -0.1]])
     runner._add_contact_marks(in_sink)
     fresh = np.zeros((5, 3))
-    assert len(runner._with_contacts(fresh)) == 5 + len(P) + 1  # nothing placed since: every mark is kept
-    runner.scene_epoch += 1  # an item was placed: the sink changed, its marks go; the others stay
+    b.perceived([], fresh, [], (lo, hi))
+    assert len(b.map_points) == 5 + len(P) + 1  # nothing placed since: every mark is kept
+    b.scene_changed()  # an item was placed: the sink changed, its marks go with the next perception; the others stay
+    b.perceived([], fresh, [], (lo, hi))
     sink_pts = np.all(P[:, :2] >= lo[:2], axis=1) & np.all(P[:, :2] <= hi[:2], axis=1)
-    assert len(runner._with_contacts(fresh)) == 5 + int((~sink_pts).sum())
+    assert len(b.map_points) == 5 + int((~sink_pts).sum())

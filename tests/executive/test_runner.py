@@ -36,14 +36,17 @@ def test_oracle_cup_stacking_succeeds_with_full_report(make_runner, safe_end, tm
     # recordings: a rerun file and one BOP scene per scan
     assert (tmp_path / "run.rrd").stat().st_size > 10_000
     scenes = sorted((tmp_path / "ds" / "scans").iterdir())
-    assert len(scenes) == runner.scan_count >= 2
+    assert len(scenes) == runner.counts.scan_count >= 2
     cam = json.loads((scenes[0] / "scene_camera.json").read_text())
     assert len(cam["0"]["cam_K"]) == 9 and (scenes[0] / "depth" / "000000.png").exists()
     report.save(tmp_path / "r.json")
     d = json.loads((tmp_path / "r.json").read_text())
     for k in ("task", "status", "objects_total", "objects_done", "attempts", "recoveries", "state_time_s",
-              "transitions", "collisions", "limit_violations"):
+              "transitions", "collisions", "limit_violations", "strategies", "recovery_actions"):
         assert k in d
+    # every placement was planned by a strategy, and the report counts it
+    assert sum(c["planned"] for c in d["strategies"].values()) >= report.objects_done >= 1
+    assert d["strategies"]["direct_pick"]["tried"] >= 1
 
 
 def test_stop_acts_at_once_mid_motion(make_runner, safe_end):
@@ -314,7 +317,7 @@ def test_an_item_staged_where_another_was_starts_with_no_attempts(make_runner):
     """Grasp attempts are kept per class and place: a cup staged on the counter spot an earlier cup (now in the
     rack) was picked up from three times must not inherit those attempts (dishwasher seed 4: the fourth cup
     staged on that spot was never picked up again)."""
-    from kitchenbot.executive.runner import _Pending, _Tried
+    from kitchenbot.executive.belief import Attempts, Released, as_pose
     from kitchenbot.perception.types import ObjectPose
     from kitchenbot.planning.types import PlaceTarget
     from kitchenbot.transforms import make_T
@@ -322,12 +325,13 @@ def test_an_item_staged_where_another_was_starts_with_no_attempts(make_runner):
     runner, _ = make_runner(task="sink-to-dishwasher")
     cup = runner.robot.inventory.by_name("cup")
     spot = make_T(np.eye(3), (0.0, 0.45, cup.extents[2] / 2 + 0.01))
-    runner.poses = []
-    runner.tried = [_Tried("cup", spot[:3, 3].copy(), count=3)]  # the earlier cup's attempts from that spot
+    b = runner.belief
+    b.poses = []
+    b.attempts = [Attempts("cup", spot[:3, 3].copy(), count=3)]  # the earlier cup's attempts from that spot
     in_sink = ObjectPose(cup.obj_id, "cup", make_T(np.eye(3), (0.5, 0.0, -0.15)), 1.0, instance_id=3)
-    runner.pending = _Pending(in_sink, PlaceTarget(spot, "stage", free_yaw=True, support="counter (regrasp)"),
-                              spot, None, staging=True)
+    b.released = Released(in_sink, PlaceTarget(spot, "stage", free_yaw=True, support="counter (regrasp)"),
+                          spot, None, staging=True)
     runner._verify_pending()
-    assert len(runner.staged) == 1
-    t = runner._tried_for(runner.task.as_pose(runner.staged[0]))
-    assert t is None or not t.exhausted(runner.scene_epoch)
+    assert len(b.staged) == 1
+    t = b.attempts_for(as_pose(b.staged[0]))
+    assert t is None or not t.exhausted(b.scene_epoch)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.executive.runner import _spot_measured
+from kitchenbot.executive.motion import spot_measured as _spot_measured
 from kitchenbot.perception.types import View
 
 K = np.array([[400.0, 0, 320], [0, 400.0, 240], [0, 0, 1]])

@@ -8,6 +8,7 @@ import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot
+from kitchenbot.executive.belief import Belief
 from kitchenbot.tasks import make_task
 from kitchenbot.transforms import make_T
 from kitchenbot.world.cell import Cell
@@ -23,40 +24,42 @@ def in_sink(inv, name, R=np.eye(3), k=0):
 def test_upright_bowls_stand_on_their_rim_in_the_lower_rack(inv):
     cell = Cell()
     task = make_task("sink-to-dishwasher", inv, cell)
+    belief = Belief()
     sink = [in_sink(inv, "bowl", k=0), in_sink(inv, "bowl", k=1), in_sink(inv, "dinner_plate", k=2),
             in_sink(inv, "dinner_plate", k=3)]
-    task.remaining(sink)
+    belief.pending = task.pending_models(sink)
     low = cell.spec.dishwasher.lower
     lo, hi = np.array(low.origin_xy), np.array(low.origin_xy) + np.array(low.size_xy)
     r = max(inv.by_name("bowl").extents[:2]) / 2
     for b in sink[:2]:
-        ts = task.targets(b)
+        ts = task.targets(b, belief)
         assert not isinstance(ts, NoFreeSlot)
         t = ts[0]
         T = t.T_base_obj
         assert abs(T[0, 2]) > 0.99  # axis along x: on its rim between the tines
         assert low.floor_z <= T[2, 3] - r <= low.floor_z + 0.02
-        p = task.record_placed(b, t, T)
+        p = belief.record_placed(task, b, t, T)
         assert np.all(p.lo >= lo - 1e-6) and np.all(p.hi <= hi + 1e-6)
         assert task.at_target("bowl", T)
     # the plates still to come keep their end of the rack
     for pl in sink[2:]:
-        ts = task.targets(pl)
+        ts = task.targets(pl, belief)
         assert not isinstance(ts, NoFreeSlot), ts
-        task.record_placed(pl, ts[0], ts[0].T_base_obj)
-    assert len(task.placed) == 4
+        belief.record_placed(task, pl, ts[0], ts[0].T_base_obj)
+    assert len(belief.placed) == 4
 
 
 def test_a_mouth_down_bowl_goes_mouth_down_into_the_lower_rack_then_the_upper(inv):
     cell = Cell()
     task = make_task("sink-to-dishwasher", inv, cell)
+    belief = Belief()
     bowl = in_sink(inv, "bowl", MOUTH_DOWN)
     low, up = cell.spec.dishwasher.lower, cell.spec.dishwasher.upper
 
     def in_rack(rack, T):
         return all(rack.origin_xy[i] <= T[i, 3] <= rack.origin_xy[i] + rack.size_xy[i] for i in (0, 1))
 
-    ts = task.targets(bowl)
+    ts = task.targets(bowl, belief)
     assert ts and all(t.T_base_obj[2, 2] < -0.99 for t in ts)  # mouth-down everywhere
     racks = ["lower" if in_rack(low, t.T_base_obj) else "upper" if in_rack(up, t.T_base_obj) else "?" for t in ts]
     assert "?" not in racks and racks[0] == "lower" and "upper" in racks
@@ -66,8 +69,8 @@ def test_a_mouth_down_bowl_goes_mouth_down_into_the_lower_rack_then_the_upper(in
     assert xs == sorted(xs, reverse=True)  # from the rack's far end (plates fill it from the robot's end)
     assert min(t.T_base_obj[2, 3] for t in lower) - inv.by_name("bowl").extents[2] / 2 <= low.floor_z + 0.02
     # with the lower rack kept for plates still in the sink, the bowl goes to the upper rack
-    task.remaining([bowl] + [in_sink(inv, "dinner_plate", k=k) for k in range(1, 12)])
-    ts = task.targets(bowl)
+    belief.pending = task.pending_models([bowl] + [in_sink(inv, "dinner_plate", k=k) for k in range(1, 12)])
+    ts = task.targets(bowl, belief)
     assert ts and all(in_rack(up, t.T_base_obj) for t in ts)
 
 
@@ -80,14 +83,15 @@ def test_mouth_down_bowls_go_two_across_the_lower_rack(inv):
 
     cell = Cell()
     task = make_task("sink-to-dishwasher", inv, cell)
+    belief = Belief()
     low = cell.spec.dishwasher.lower
     lo, hi = np.array(low.origin_xy), np.array(low.origin_xy) + np.array(low.size_xy)
     r = max(inv.by_name("bowl").extents[:2]) / 2
     bowls = [in_sink(inv, "bowl", MOUTH_DOWN, k=k) for k in range(5)]
-    task.remaining(bowls)
+    belief.pending = task.pending_models(bowls)
     centres = []
     for b in bowls[:4]:
-        ts = task.targets(b)
+        ts = task.targets(b, belief)
         assert not isinstance(ts, NoFreeSlot), ts
         T = ts[0].T_base_obj
         assert ts[0].support.startswith("rack_lower") and T[2, 2] < -0.99
@@ -95,9 +99,9 @@ def test_mouth_down_bowls_go_two_across_the_lower_rack(inv):
         assert np.all(c - r >= lo + 0.006) and np.all(c + r <= hi - 0.006)  # inside the 6 mm side wires
         assert all(np.hypot(*(c - o)) >= 2 * r + CLEARANCE - 1e-9 for o in centres)
         centres.append(c)
-        task.record_placed(b, ts[0], T)
+        belief.record_placed(task, b, ts[0], T)
     assert len({round(float(c[1]), 3) for c in centres}) == 2  # both sides of the rack
-    ts = task.targets(bowls[4])  # the lower rack is full: the upper one
+    ts = task.targets(bowls[4], belief)  # the lower rack is full: the upper one
     assert not isinstance(ts, NoFreeSlot) and all(t.support == "rack_upper" for t in ts)
 
 
@@ -107,13 +111,14 @@ def test_cups_go_mouth_down_into_the_lower_rack_when_the_upper_one_is_full(inv):
     with room kept for the plate still in the sink, and counts as delivered there."""
     cell = Cell()
     task = make_task("sink-to-dishwasher", inv, cell)
+    belief = Belief()
     up, low = cell.spec.dishwasher.upper, cell.spec.dishwasher.lower
     cups = [in_sink(inv, "cup", k=k) for k in range(14)]
     plate = in_sink(inv, "dinner_plate", k=20)
-    task.remaining(cups + [plate])
+    belief.pending = task.pending_models(cups + [plate])
     racks = []
     for c in cups:
-        ts = task.targets(c)
+        ts = task.targets(c, belief)
         assert not isinstance(ts, NoFreeSlot), (len(racks), ts)
         racks.append(ts[0].support.split()[0])
         if racks[-1] == "rack_lower":
@@ -121,8 +126,8 @@ def test_cups_go_mouth_down_into_the_lower_rack_when_the_upper_one_is_full(inv):
             assert T[2, 2] < -0.99 and all(t.support.startswith("rack_lower") for t in ts)
             assert all(low.origin_xy[i] <= T[i, 3] <= low.origin_xy[i] + low.size_xy[i] for i in (0, 1))
             assert task.at_target("cup", T)
-        task.record_placed(c, ts[0], ts[0].T_base_obj)
+        belief.record_placed(task, c, ts[0], ts[0].T_base_obj)
     n_up = racks.index("rack_lower")
     assert n_up >= 7 and set(racks[:n_up]) == {"rack_upper"} and set(racks[n_up:]) == {"rack_lower"}
-    ts = task.targets(plate)  # the plate still has its place in the lower rack
+    ts = task.targets(plate, belief)  # the plate still has its place in the lower rack
     assert not isinstance(ts, NoFreeSlot) and abs(ts[0].T_base_obj[0, 2]) > 0.99

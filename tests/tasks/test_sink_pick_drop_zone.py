@@ -9,6 +9,7 @@ import pytest
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot
+from kitchenbot.executive.belief import Belief
 from kitchenbot.tasks import make_task
 from kitchenbot.transforms import make_T
 from kitchenbot.world.cell import Cell
@@ -21,16 +22,17 @@ def in_sink(inv, name, k):
     return ObjectPose(m.obj_id, m.cls, make_T(np.eye(3), (0.45 + 0.01 * k, 0.0, -0.15)), 1.0, instance_id=k)
 
 
-def clear_sink(task, inv, names):
+def clear_sink(task, belief, inv, names):
     """Place every item at its first target, in the task's pick order; returns the (pose, target) pairs."""
     left = [in_sink(inv, n, k) for k, n in enumerate(names)]
     out = []
     while left:
+        belief.pending = task.pending_models(left)
         o = task.remaining(left)[0]
         left = [p for p in left if p is not o]
-        ts = task.targets(o)
-        assert not isinstance(ts, NoFreeSlot), (inv[o.obj_id].name, [p.cls for p in task.placed])
-        task.record_placed(o, ts[0], ts[0].T_base_obj)
+        ts = task.targets(o, belief)
+        assert not isinstance(ts, NoFreeSlot), (inv[o.obj_id].name, [p.cls for p in belief.placed])
+        belief.record_placed(task, o, ts[0], ts[0].T_base_obj)
         out.append((o, ts[0]))
     return out
 
@@ -48,24 +50,25 @@ def _overlap(a, b):
 def test_a_ten_item_sink_fits_in_the_drop_zone(inv, names):
     cell = Cell()
     task = make_task("sink-pick", inv, cell)
-    placed = clear_sink(task, inv, names)
-    assert len(task.placed) == len(names)
+    belief = Belief()
+    placed = clear_sink(task, belief, inv, names)
+    assert len(belief.placed) == len(names)
     z = cell.spec.drop_zone
     lo, hi = np.array(z.origin_xy), np.array(z.origin_xy) + np.array(z.size_xy)
-    for p in task.placed:
+    for p in belief.placed:
         c = p.T_base_obj[:2, 3]
         assert np.all(c >= lo - 1e-6) and np.all(c <= hi + 1e-6), (p.cls, c)
         assert p.T_base_obj[2, 2] > 0.99  # upright
     # items that overlap in xy are one pile (each on top of the one below); items of different piles do not touch
-    for a in task.placed:
-        for b in task.placed:
+    for a in belief.placed:
+        for b in belief.placed:
             if a is b or not _overlap(a, b):
                 continue
             assert np.allclose(a.T_base_obj[:2, 3], b.T_base_obj[:2, 3], atol=1e-9), (a.cls, b.cls)
     # plates only go onto plates, bowls onto bowls, cups onto cups; anything else only onto a plate pile once
     # every plate is placed (it would block the pile)
     for k, (o, t) in enumerate(placed):
-        below = [p for j, p in enumerate(task.placed) if j != k and p.T_base_obj[2, 3] < t.T_base_obj[2, 3] - 1e-6
+        below = [p for j, p in enumerate(belief.placed) if j != k and p.T_base_obj[2, 3] < t.T_base_obj[2, 3] - 1e-6
                  and np.allclose(p.T_base_obj[:2, 3], t.T_base_obj[:2, 3])]
         if not below or all(p.cls == o.cls for p in below) and o.cls in ("plate", "bowl", "cup"):
             continue
@@ -75,7 +78,8 @@ def test_a_ten_item_sink_fits_in_the_drop_zone(inv, names):
 
 def test_a_plate_goes_on_top_of_the_plate_pile_with_its_height_tracked(inv):
     task = make_task("sink-pick", inv, Cell())
-    placed = clear_sink(task, inv, ["dinner_plate"] * 3 + ["side_plate"])
+    belief = Belief()
+    placed = clear_sink(task, belief, inv, ["dinner_plate"] * 3 + ["side_plate"])
     T = [t.T_base_obj for _, t in placed]
     dinner = inv.by_name("dinner_plate")
     for k in (1, 2):  # each dinner plate nests into the one below
@@ -85,35 +89,38 @@ def test_a_plate_goes_on_top_of_the_plate_pile_with_its_height_tracked(inv):
     # the side plate rests on top of the pile: its underside at the top dinner plate's top
     side = inv.by_name("side_plate")
     np.testing.assert_allclose(T[3][:2, 3], T[0][:2, 3], atol=1e-9)
-    assert T[3][2, 3] - side.extents[2] / 2 == pytest.approx(task.placed[2].top_z + DROP_HEIGHT)
+    assert T[3][2, 3] - side.extents[2] / 2 == pytest.approx(belief.placed[2].top_z + DROP_HEIGHT)
 
 
 def test_a_glass_keeps_a_plate_pile_free_and_piles_stop_at_a_safe_height(inv):
     from kitchenbot.tasks.sink_pick import PILE_MAX_TOP
 
     task = make_task("sink-pick", inv, Cell())
+
+    belief = Belief()
     plate = in_sink(inv, "side_plate", 0)
     big = in_sink(inv, "dinner_plate", 1)
-    task.remaining([plate, big])
-    t = task.targets(plate)[0]
-    task.record_placed(plate, t, t.T_base_obj)
+    belief.pending = task.pending_models([plate, big])
+    t = task.targets(plate, belief)[0]
+    belief.record_placed(task, plate, t, t.T_base_obj)
     glasses = [in_sink(inv, "glass", 2 + k) for k in range(12)]
     for k, glass in enumerate(glasses):  # glasses fill the counter while the dinner plate is still in the sink
-        task.remaining([big, *glasses[k:]])
-        g = task.targets(glass)
+        belief.pending = task.pending_models([big, *glasses[k:]])
+        g = task.targets(glass, belief)
         if isinstance(g, NoFreeSlot):
             break
-        task.record_placed(glass, g[0], g[0].T_base_obj)
+        belief.record_placed(task, glass, g[0], g[0].T_base_obj)
     # ... but none takes the room around the side plate's pile that the dinner plate needs on top of it
     dinner = inv.by_name("dinner_plate")
-    on_pile = [nt for nt in task.targets(big) if np.allclose(nt.T_base_obj[:2, 3], t.T_base_obj[:2, 3])]
+    on_pile = [nt for nt in task.targets(big, belief) if np.allclose(nt.T_base_obj[:2, 3], t.T_base_obj[:2, 3])]
     assert on_pile and on_pile[0].T_base_obj[2, 3] - dinner.extents[2] / 2 == pytest.approx(
-        task.placed[0].top_z + DROP_HEIGHT)
-    assert len(task.placed) >= 6  # and the counter still took a row of glasses
+        belief.placed[0].top_z + DROP_HEIGHT)
+    assert len(belief.placed) >= 6  # and the counter still took a row of glasses
     # a pile is never built past PILE_MAX_TOP
     task = make_task("sink-pick", inv, Cell())
-    clear_sink(task, inv, ["bowl"] * 14)
-    assert max(p.top_z for p in task.placed) <= PILE_MAX_TOP + DROP_HEIGHT + 1e-6
+    belief = Belief()
+    clear_sink(task, belief, inv, ["bowl"] * 14)
+    assert max(p.top_z for p in belief.placed) <= PILE_MAX_TOP + DROP_HEIGHT + 1e-6
 
 
 def test_every_drop_zone_spot_is_reachable_tool_down():
@@ -138,13 +145,15 @@ def test_upside_down_bowls_set_down_as_they_lay_nest_onto_each_other(inv):
     from kitchenbot.transforms import rot_x
 
     task = make_task("sink-pick", inv, Cell())
+
+    belief = Belief()
     m = inv.by_name("bowl")
     bowls = [ObjectPose(m.obj_id, "bowl", make_T(rot_x(np.pi)[:3, :3], (0.5 + 0.01 * k, 0.0, -0.15)), 1.0,
                         instance_id=k) for k in range(2)]
-    task.remaining(bowls)
-    first = next(t for t in task.targets(bowls[0]) if t.support == "counter (as it lay)")
-    task.record_placed(bowls[0], first, first.T_base_obj)
-    ts = task.targets(bowls[1])
+    belief.pending = task.pending_models(bowls)
+    first = next(t for t in task.targets(bowls[0], belief) if t.support == "counter (as it lay)")
+    belief.record_placed(task, bowls[0], first, first.T_base_obj)
+    ts = task.targets(bowls[1], belief)
     on_it = [t for t in ts if "pile" in t.support]
     assert on_it, [t.support for t in ts]
     T = on_it[0].T_base_obj
@@ -162,6 +171,7 @@ def test_an_item_that_fell_into_the_drop_zone_is_done_where_it_lies_elsewhere_no
     lying = make_T(np.eye(3), (z.origin_xy[0] + 0.1, z.origin_xy[1] + 0.1, 0.04))
     beside = make_T(np.eye(3), (0.5, 0.30, 0.04))  # the counter between the sink and the stacking area
     task = make_task("sink-pick", inv, cell)
+    belief = Belief()
     assert task.accepts_as_it_lies(ObjectPose(cup.obj_id, "cup", lying, 1.0))
     assert not task.accepts_as_it_lies(ObjectPose(cup.obj_id, "cup", beside, 1.0))
     for name in ("sink-to-dishwasher", "cup-stacking"):

@@ -1,0 +1,260 @@
+"""What the robot believes during a task run, in one place, changed only through the named operations below.
+
+- **poses**: the latest perception (provenance: "perceived"); what the robot put down is kept as **placed**
+  records (provenance: "placed", or "staged" for items set down on the counter to be grasped again);
+- **the map**: the latest perception's map points, plus **contact marks** (where a stopped motion met something
+  no model shows) and **keep-outs** (where a fallen item may lie unseen), which plans keep clear of;
+- **pending**: the models the task still has to move (from the latest perception);
+- **released**: the placement executed but not verified yet;
+- **attempts** per item (executed grasps, planning failures since the scene last changed, slides), and what
+  blocked what (the item tried next);
+- the **scene epoch**: how often the scene changed (placements, slides); planning failures and contact marks in
+  the sink are per epoch.
+
+"The same item" is defined once (:func:`same_item`): the same class within SAME_ITEM_RADIUS.
+
+The tasks read a belief (``Task.targets(obj, belief)``: ``placed``, ``pending``) and never change it; the runner
+and its recovery change it through these operations only.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from kitchenbot.executive import machine as M
+from kitchenbot.perception.types import ObjectPose, View
+from kitchenbot.tasks.base import Placed
+
+#: m: two poses of one class this close are taken for the same item (a perceived pose against an item the robot
+#: put there; attempts kept per class and place; a found item against one placed earlier). Perception puts an
+#: item within ~2 cm of where it is; different items of one class are at least a rim apart.
+SAME_ITEM_RADIUS = 0.04
+
+
+def same_item(cls_a: str, p_a: np.ndarray, cls_b: str, p_b: np.ndarray, radius: float = SAME_ITEM_RADIUS,
+              dims: int = 3) -> bool:
+    """Whether items of class `cls_a` at `p_a` and `cls_b` at `p_b` (base frame, m) are one item: the same class
+    and within `radius` (in the first `dims` coordinates: 2 compares xy only)."""
+    if cls_a != cls_b:
+        return False
+    d = np.asarray(p_a, float)[:dims] - np.asarray(p_b, float)[:dims]
+    return bool(np.linalg.norm(d) < radius)
+
+
+@dataclass
+class Attempts:
+    """What happened to one item: executed grasp attempts, and planning failures since the scene last changed
+    (an item under or behind others is unplannable until they are gone, so those failures are forgotten after
+    each change of the scene)."""
+    cls: str
+    pos: np.ndarray
+    count: int = 0
+    reasons: list = field(default_factory=list)
+    plan_failures: int = 0
+    plan_epoch: int = -1
+    slides: int = 0
+
+    def plan_failed(self, epoch: int) -> None:
+        if self.plan_epoch != epoch:
+            self.plan_epoch, self.plan_failures = epoch, 0
+        self.plan_failures += 1
+
+    def exhausted(self, epoch: int) -> bool:
+        return self.count >= M.MAX_ATTEMPTS_PER_OBJECT or (
+            self.plan_epoch == epoch and self.plan_failures >= M.MAX_PLAN_FAILURES_PER_SCENE)
+
+
+@dataclass
+class Released:
+    """A placement executed but not yet verified."""
+
+    obj: ObjectPose
+    target: Any
+    T_base_obj: np.ndarray
+    target_view: View | None
+    staging: bool = False  # set down upright on the counter to be grasped again (regrasp)
+    staged: Placed | None = None  # the record this item was picked up from (a staged item)
+    near_before: int = 1  # same-class items within gone_radius of it in the scan it was picked from
+
+
+@dataclass
+class Belief:
+    poses: list[ObjectPose] = field(default_factory=list)
+    map_base: np.ndarray | None = None  # the latest perception's map points
+    contact_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    contact_epochs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    scene_epoch: int = 0
+    placed: list[Placed] = field(default_factory=list)  # what the robot put down (staged items included)
+    staged: list[Placed] = field(default_factory=list)  # of those, set down on the counter for a regrasp
+    pending: list = field(default_factory=list)  # ObjectModels the task still has to move
+    released: Released | None = None
+    attempts: list[Attempts] = field(default_factory=list)
+    unverified: list[str] = field(default_factory=list)  # classes gone from the sink but not seen at their target
+    unplannable: list[ObjectPose] = field(default_factory=list)  # failed to plan with the current poses
+    blocked_by: dict = field(default_factory=dict)  # instance id -> the instance id the planner said blocks it
+    prefer_instance: int | None = None  # the item to try next (it blocks the last one tried)
+    drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
+    unseen_placement: Placed | None = None  # the record of a placement its check did not see
+    dropped: int = 0  # items that left the gripper on the way
+    first_total: int | None = None  # the task's items in the first perception
+    _next_id: int = 0
+    _keep_out: np.ndarray | None = None
+    _map_cache: tuple | None = None
+
+    # ---- perception and the map ------------------------------------------------------------------------------
+    def perceived(self, poses: list[ObjectPose], map_points: np.ndarray | None, pending: list, sink_lo_hi) -> None:
+        """A new perception: its poses and map; contact marks in the sink made before the last change of the
+        scene go (the scan saw the sink anew); `pending` = the models the task still has to move."""
+        self.poses = list(poses)
+        self.unplannable = []
+        self.map_base = map_points
+        self.pending = list(pending)
+        lo, hi = sink_lo_hi
+        c, e = self.contact_points, self.contact_epochs
+        old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
+        self.contact_points, self.contact_epochs = c[~old], e[~old]
+        self._map_cache = None
+
+    @property
+    def map_points(self) -> np.ndarray | None:
+        """The map plans keep clear of: perceived points, contact marks, a temporary keep-out (one array object
+        while nothing changes: the planner caches by identity)."""
+        if self._map_cache is None:
+            parts = [p for p in (self.map_base, self.contact_points, self._keep_out) if p is not None and len(p)]
+            self._map_cache = (np.vstack(parts) if len(parts) > 1 else parts[0] if parts else self.map_base,)
+        return self._map_cache[0]
+
+    def set_map_base(self, points: np.ndarray | None) -> None:
+        """Replace the perceived map points (e.g. less those an item picked away explained)."""
+        self.map_base = points
+        self._map_cache = None
+
+    def mark_contact(self, pts: np.ndarray | None) -> int:
+        """Keep `pts` as map points no object explains (a contact sliver, a keep-out under a drop site); marks in
+        the sink last until the scene has changed and the sink been perceived again. Returns how many."""
+        if pts is None or not len(pts):
+            return 0
+        self.contact_points = np.vstack([self.contact_points, pts])
+        self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), self.scene_epoch)])
+        self._map_cache = None
+        return len(pts)
+
+    def drop_contacts(self) -> None:
+        """Forget every contact mark (they block a move the arm must make)."""
+        self.contact_points, self.contact_epochs = np.zeros((0, 3)), np.zeros(0, int)
+        self._map_cache = None
+
+    @contextlib.contextmanager
+    def keeping_out(self, pts: np.ndarray | None):
+        """Within the block, `pts` are part of the map too."""
+        self._keep_out, self._map_cache = pts, None
+        try:
+            yield
+        finally:
+            self._keep_out, self._map_cache = None, None
+
+    # ---- items -------------------------------------------------------------------------------------------------
+    def attempts_for(self, obj: ObjectPose, create: bool = False) -> Attempts | None:
+        """The attempts on the item at `obj` (the same item: same_item), created when asked."""
+        for t in self.attempts:
+            if same_item(t.cls, t.pos, obj.cls, obj.T_base_obj[:3, 3]):
+                return t
+        if create:
+            t = Attempts(obj.cls, obj.T_base_obj[:3, 3].copy())
+            self.attempts.append(t)
+            return t
+        return None
+
+    def exhausted(self, obj: ObjectPose) -> bool:
+        t = self.attempts_for(obj)
+        return t is not None and t.exhausted(self.scene_epoch)
+
+    def record_attempt(self, obj: ObjectPose) -> None:
+        """A grasp of `obj` is executed."""
+        self.attempts_for(obj, create=True).count += 1
+
+    def record_plan_failure(self, obj: ObjectPose, reason: str) -> None:
+        """No plan for `obj` with the current scene: skipped until the scene changes."""
+        t = self.attempts_for(obj, create=True)
+        t.plan_failed(self.scene_epoch)
+        t.reasons.append(reason)
+
+    def record_failure(self, obj: ObjectPose, reason: str) -> None:
+        """An executed attempt on `obj` failed (it is counted when executed)."""
+        self.attempts_for(obj, create=True).reasons.append(reason)
+
+    def give_up_on(self, obj: ObjectPose, reason: str | None = None) -> None:
+        """No attempts left for `obj` (e.g. its task has no target for it)."""
+        t = self.attempts_for(obj, create=True)
+        t.count = M.MAX_ATTEMPTS_PER_OBJECT
+        if reason:
+            t.reasons.append(reason)
+
+    def record_slide(self, obj: ObjectPose, T_after: np.ndarray) -> None:
+        """`obj` was slid to T_after: the same item over there (bounded slides); the scene changed."""
+        t = self.attempts_for(obj, create=True)
+        t.slides += 1
+        t.pos = T_after[:3, 3].copy()
+        self.scene_changed()
+
+    def record_blocked(self, obj: ObjectPose, blocker: int | None) -> None:
+        """The planner named `blocker` (an instance id) as lying on `obj` or in its way: that one is tried next."""
+        if blocker is not None:
+            self.blocked_by[obj.instance_id] = blocker
+        self.prefer_instance = blocker
+
+    def take_preferred(self) -> int | None:
+        """The item to try next (once)."""
+        p, self.prefer_instance = self.prefer_instance, None
+        return p
+
+    def scene_changed(self) -> None:
+        self.scene_epoch += 1
+
+    # ---- what the robot put down ----------------------------------------------------------------------------
+    def record_placed(self, task, obj: ObjectPose, target, T_base_obj: np.ndarray) -> Placed:
+        """`obj` rests at T_base_obj at `target` (the task's record of it: footprint, height)."""
+        p = task.placed_record(obj, target, T_base_obj, 10_000 + self._next_id)
+        self._next_id += 1
+        self.placed.append(p)
+        return p
+
+    def record_staged(self, p: Placed) -> None:
+        """The placed record `p` is an item set down on the counter to be grasped again; an earlier item's
+        attempts at that spot are not this one's."""
+        self.attempts = [t for t in self.attempts
+                         if not same_item(t.cls, t.pos, p.cls, p.T_base_obj[:3, 3])]
+        self.staged.append(p)
+
+    def unplace(self, p: Placed) -> None:
+        """It left its place (a staged item picked up again, a placement found elsewhere)."""
+        self.placed = [q for q in self.placed if q.instance_id != p.instance_id]
+        self.staged = [q for q in self.staged if q.instance_id != p.instance_id]
+
+    def obstacles(self) -> list[ObjectPose]:
+        """Placed items as object poses (for the planner's collision world)."""
+        return [as_pose(p) for p in self.placed]
+
+    def scene_objects(self) -> list[ObjectPose]:
+        """Perceived items plus what the robot put down; a perceived item where one was put down is that one;
+        an item released but not verified yet is at its target, no longer where it was seen."""
+        placed = self.obstacles()
+        rel = self.released
+        if rel is not None:
+            placed.append(ObjectPose(rel.obj.obj_id, rel.obj.cls, rel.T_base_obj, 1.0, instance_id=99_999))
+        seen = [p for p in self.poses if not (rel is not None and p is rel.obj)
+                and not any(same_item(p.cls, p.T_base_obj[:3, 3], o.cls, o.T_base_obj[:3, 3]) for o in placed)]
+        return seen + placed
+
+    def staged_waiting(self) -> list[Placed]:
+        """Staged items with attempts left."""
+        return [st for st in self.staged if not self.exhausted(as_pose(st))]
+
+
+def as_pose(p: Placed) -> ObjectPose:
+    """A placed record as the object pose the planner and the tasks take."""
+    return ObjectPose(p.obj_id, p.cls, p.T_base_obj, 1.0, instance_id=p.instance_id)

@@ -1,0 +1,269 @@
+"""Motion and capture primitives of the task runner: asynchronous moves polled to their end (stop requests, time
+budgets, a held item slipping out), planned joint moves, retracing a stopped motion, escaping the collision
+margin, captures with bounded retries, and looking straight down at a spot.
+
+A mixin of TaskRunner (executive/runner.py): it uses the runner's devices, planner, belief and journal; what it
+remembers of the motions lives in ``self.tracks`` (:class:`MotionTracks`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from kitchenbot.drivers.errors import DriverError, DriverTimeoutError, ProtectiveStopError
+from kitchenbot.executive.failures import StateTimeout, StepFailed, Stopped
+from kitchenbot.perception.types import View
+from kitchenbot.planning.types import Trajectory
+from kitchenbot.transforms import make_T, rot_z
+
+
+@dataclass
+class MotionTracks:
+    last: Trajectory | None = None  # the last motion commanded (to retrace it after a stop)
+    stopped: Trajectory | None = None  # the motion the last protective stop cut short
+    searching: bool = False  # looking for a fallen item (see RecoveryActions._search_drop_site)
+    wall: float = 0.0  # wall seconds spent waiting for motions
+
+
+def spot_measured(view: View, p_base: np.ndarray, half: int = 20) -> float:
+    """Fraction of pixels with depth in a (2 half + 1)^2 window around where `p_base` projects (0 when it does
+    not project into the image, or lies nearer than 5 cm)."""
+    p = (np.linalg.inv(view.T_base_cam) @ np.append(p_base, 1.0))[:3]
+    if p[2] < 0.05:
+        return 0.0
+    u, v = (view.K @ p)[:2] / p[2]
+    h, w = view.depth.shape
+    u0, u1 = int(max(u - half, 0)), int(min(u + half + 1, w))
+    v0, v1 = int(max(v - half, 0)), int(min(v + half + 1, h))
+    if u0 >= u1 or v0 >= v1:
+        return 0.0
+    d = view.depth[v0:v1, u0:u1]
+    return float(np.mean(np.isfinite(d) & (d > 0)))
+
+
+class Motions:
+    def _wait_motion(self, what: str, expected_s: float, carrying: bool = False) -> None:
+        """Poll a running motion until it ends (stop requests, time budget; `carrying`: the gripper too, so that an
+        object slipping out stops the arm right above where it fell)."""
+        t0 = time.perf_counter()
+        s0 = self._sim_now()
+        limit = 2.0 * expected_s + 5.0  # driver seconds
+        while True:
+            if self._stop.is_set():
+                raise Stopped()
+            with self._arm_lock:
+                moving = self.arm.is_moving()
+            if not moving:
+                break
+            if carrying and not self._holding():
+                slipped = self._slipped(what)  # the tool is about above where it fell now, not after stopping
+                self._cmd("arm.stop", reason=f"the held object slipped out during {what}")
+                with self._arm_lock:
+                    self.arm.stop()
+                self.tracks.wall += time.perf_counter() - t0
+                raise slipped
+            if self.advance is time.sleep:
+                time.sleep(self.opt.poll_period)
+            else:
+                with self._arm_lock:  # the simulated controller's tick must not interleave with a stop()
+                    self.advance(self.opt.poll_period)
+            el = (self._sim_now() - s0) if s0 is not None else (time.perf_counter() - t0)
+            if el > limit:
+                self._cmd("arm.stop", reason=f"{what} overran its time budget")
+                with self._arm_lock:
+                    self.arm.stop()
+                raise StateTimeout(f"{what}: still moving after {el:.1f} s (expected {expected_s:.1f} s)")
+        with self._arm_lock:
+            self.arm.wait(0.0)  # raises ProtectiveStopError / DeviceNotConnectedError if it ended badly
+        self.tracks.wall += time.perf_counter() - t0
+        self._check_deadline()
+
+    def _run_trajectory(self, traj: Trajectory, carrying: bool = False, guarded: bool = False) -> None:
+        """Execute a planned trajectory and wait for it. `guarded` (set-down moves): a contact of the held item
+        or a pad ends it early (`arm.stopped_on_contact`) instead of in a protective stop."""
+        self._check_deadline()
+        self.tracks.last = traj
+        self._cmd("arm.execute_trajectory", name=traj.name, n=len(traj), duration=traj.duration,
+                  q_start=traj.q[0], q_end=traj.q[-1], **({"guarded": True} if guarded else {}))
+        t0 = time.perf_counter()
+        with self._arm_lock:
+            self.arm.execute_trajectory(traj.times, traj.q, asynchronous=True, guarded=guarded)
+        self.tracks.wall += time.perf_counter() - t0  # the (simulated) controller's work, not ours
+        try:
+            self._wait_motion(f"trajectory {traj.name}", traj.duration, carrying)
+        except ProtectiveStopError:
+            self.tracks.stopped = traj
+            raise
+        if carrying and not self._holding():  # it slipped out in the last poll period
+            raise self._slipped(traj.name)
+        self._log("result", "arm.execute_trajectory", name=traj.name, q=self.arm.joint_positions())
+
+    def _move_joints(self, q: np.ndarray, what: str) -> None:
+        """A collision-free planned joint motion (two tries: RRT-Connect is randomised). Without one the arm does
+        not move: StepFailed("no_path"). Only a runner built without a planner moves directly."""
+        q_now = self.arm.joint_positions()
+        if np.max(np.abs(q_now - q)) < 1e-3:
+            return
+        b = self.belief
+        if self.planner is not None:
+            plan, escaped = None, False
+            for _ in range(3):
+                plan = self.planner.plan_move(q_now, q, objects=b.scene_objects(), map_points=b.map_points)
+                if plan.ok:
+                    self._run_trajectory(plan.trajectory)
+                    return
+                if plan.kind in ("start_in_collision", "goal_in_collision") and len(b.contact_points):
+                    # the marks of a stop (RecoveryActions._mark_contact) block where the arm is or must go: they
+                    # have done their part (the arm backed off); a move they make impossible is planned without them
+                    self._log("note", "contact marks dropped: they block the move", what=what, reason=str(plan))
+                    b.drop_contacts()
+                    continue
+                if plan.kind == "start_in_collision" and not escaped:
+                    escaped = True  # stopped within the margin of something (a protective stop): jog out first
+                    if self._escape():
+                        q_now = self.arm.joint_positions()
+            self._log("note", "no collision-free path; not moving", what=what, reason=str(plan))
+            raise StepFailed("no_path", f"no collision-free path to {what}: {plan}")
+        self._cmd("arm.move_joints", q=q, speed=self.opt.scan_speed, what=what)
+        with self._arm_lock:
+            self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
+        dist = float(np.max(np.abs(q - q_now)))
+        self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
+
+    def _index_on(self, traj: Trajectory | None) -> int | None:
+        """The sample of `traj` the arm stands at (within 0.01 rad per joint), or None if it is not on it."""
+        if traj is None:
+            return None
+        d = np.max(np.abs(traj.q - self.arm.joint_positions()), axis=1)
+        k = int(np.argmin(d))
+        return k if d[k] < 0.01 else None
+
+    def _retrace(self, traj: Trajectory | None, name: str) -> bool:
+        """If the arm stands on `traj` (it was stopped along it), go back along it to its start: the way it came
+        is free in the world as it is, whatever the perceived poses say. False if the arm is not on it."""
+        k = self._index_on(traj)
+        if k is None or k == 0:
+            return False
+        self._run_trajectory(Trajectory(traj.times[k] - traj.times[k::-1], traj.q[k::-1].copy(), name))
+        return True
+
+    def _slipped(self, what: str) -> StepFailed:
+        """The held object slipped out: it fell straight down from about where the tool is now."""
+        where = self.arm.tcp_pose()[:3, 3].copy()
+        self.belief.dropped += 1
+        self.belief.drop_site = where
+        obj = self.item.obj
+        return StepFailed("slip", f"the {obj.cls if obj is not None else 'object'} slipped out during {what}",
+                          at=where)
+
+    def _escape(self) -> bool:
+        """The arm is within the collision margin of something (it stopped there): move the tool straight out
+        (planning.escape), so that planned motions can start again. False if no safe straight way out exists."""
+        pick = self.item.pick
+        held = pick.grasp if (pick is not None and self._holding()) else None
+        b = self.belief
+        plan = self.planner.plan_escape(self.arm.joint_positions(), b.scene_objects(), map_points=b.map_points,
+                                        held=held)
+        if not plan.ok:
+            # Inside something as perceived (a pose error: the arm was stopped before real contact): back along
+            # the motion that brought it here (not when looking for a fallen item: it may lie on that way now).
+            last = self.tracks.last
+            if not self.tracks.searching and self._retrace(last, "retrace"):
+                self._log("note", "retraced the stopped motion out of the collision margin", reason=str(plan),
+                          motion=last.name)
+                self.report.escapes += 1
+                return True
+            self._log("note", "no way out of the collision margin", reason=str(plan))
+            return False
+        self._log("note", "escaping the collision margin", **plan.timings_ms)
+        self._run_trajectory(plan.trajectory)
+        self.report.escapes += 1
+        return True
+
+    def _holding(self) -> bool:
+        try:
+            return bool(self.gripper.is_holding())
+        except DriverError:
+            return False
+
+    def _capture_view(self, where: str, key: str | None = None, spot: bool = False) -> View:
+        """Capture with bounded retries on dropped frames and unusable depth; View with its camera pose. `spot`:
+        a view aimed at one spot, usable with less of the image measured (RunOptions.min_valid_depth_spot)."""
+        min_valid = self.opt.min_valid_depth_spot if spot else self.opt.min_valid_depth
+        last: Exception | None = None
+        for k in range(1 + self.opt.capture_retries):
+            self._check_deadline()
+            self._cmd("camera.capture", where=where, attempt=k)
+            try:
+                f = self.camera.capture()
+            except DriverTimeoutError as e:
+                last = e
+                self._log("fault", "camera_timeout", where=where, message=str(e))
+                continue
+            valid = np.isfinite(f.depth) & (f.depth > 0)
+            if valid.mean() < min_valid:
+                last = StepFailed("bad_depth", f"{where}: only {valid.mean():.0%} of the depth image is valid")
+                self._log("fault", "bad_depth", where=where, valid=float(valid.mean()))
+                continue
+            T_base_cam = self.arm.flange_pose() @ self.robot.T_flange_cam
+            self.latest_images[key or where] = f.rgb  # the latest per waypoint / target view
+            return View(f.rgb, f.depth, f.K, T_base_cam, f.stamp)
+        assert last is not None
+        raise last
+
+    # Where the camera looks down from at a drop site or a target (m above the counter top), highest first: far
+    # enough for the OAK-D's 20 cm minimum depth and for the view to cover where a falling item may roll; lower
+    # ones where the arm does not reach that high over the far end of a rack.
+    LOOK_DOWN_HEIGHTS = (0.50, 0.40, 0.30)
+
+    def _look_down_at(self, site: np.ndarray) -> str:
+        """Put the camera straight above `site`, looking down, by a planned collision-free motion. Returns "" when
+        there, else why not."""
+        planner = self.planner
+        home = np.asarray(self.robot.config.robot.home, float)
+        R_down = planner.robot.fk_tcp(home)[:3, :3]  # home points the tool down
+        d_cam = (np.linalg.inv(planner.robot.T_flange_tcp) @ self.robot.T_flange_cam)[:3, 3]  # camera in tcp frame
+        scene = planner.scene(self.belief.scene_objects(), self.belief.map_points)
+        why = "no collision-free camera pose above it"
+        tries = 0
+        for height in self.LOOK_DOWN_HEIGHTS:
+            p_cam = np.array([site[0], site[1], height])
+            for yaw in np.radians([0.0, 90.0, -90.0, 180.0]):
+                R = rot_z(yaw)[:3, :3] @ R_down
+                for q in planner.robot.ik_all(make_T(R, p_cam - R @ d_cam), self.arm.joint_positions()):
+                    if not scene.valid(q):
+                        continue
+                    try:
+                        self._move_joints(q, "look down")
+                        return ""
+                    except StepFailed as e:
+                        why = str(e)
+                        tries += 1
+                        if tries >= 3:  # each is up to three RRT-Connect queries
+                            return why
+        return why
+
+    def _target_view(self, where: np.ndarray) -> View | None:
+        """A view of the item just placed at `where`: from the retreat pose, else from straight above it (a rack
+        below the counter is closer to the retreating camera than the depth camera's 20 cm minimum). None when
+        neither gives one: the re-scan still verifies the sink side."""
+        key = f"target{self.report.attempts}"
+        try:
+            view = self._capture_view(key, "target", spot=True)
+            seen = spot_measured(view, where)
+            if seen >= 0.5:
+                return view
+            self._log("note", "no target view from the retreat pose", reason=f"{seen:.0%} of the spot has depth")
+        except (DriverTimeoutError, StepFailed) as e:
+            self._log("note", "no target view from the retreat pose", reason=str(e))
+        try:
+            why = self._look_down_at(where)
+            if not why:
+                return self._capture_view(key + "_above", "target", spot=True)
+            self._log("note", "no target view", reason=why)
+        except (DriverTimeoutError, StepFailed) as e:
+            self._log("note", "no target view", reason=str(e))
+        return None

@@ -1,0 +1,70 @@
+"""The report of one task run (what ``run_task`` returns and ``--report`` writes): outcome, counts, per-state
+times, failures, the strategies and recovery actions used, and (simulation) the truth audit."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class RunReport:
+    task: str
+    status: str = "running"  # succeeded | failed | stopped
+    objects_total: int = 0
+    objects_done: int = 0
+    attempts: int = 0
+    recoveries: int = 0
+    slides: int = 0  # items slid sideways to free them (the top plate of a nested stack)
+    escapes: int = 0  # straight moves out of a stop within the collision margin (planning.escape)
+    recovered_drops: int = 0  # items that slipped out over the counter, found there and picked up again
+    strategies: dict = field(default_factory=dict)  # per strategy (executive/strategies.py): tried, planned
+    recovery_actions: dict = field(default_factory=dict)  # per recovery action (executive/recovery_rules.py): count
+    state_time_s: dict = field(default_factory=dict)  # wall seconds per state
+    state_sim_time_s: dict = field(default_factory=dict)  # simulated seconds per state (simulation only)
+    transitions: list = field(default_factory=list)
+    failures: list = field(default_factory=list)
+    collisions: int | None = None  # counted by the fake arm
+    limit_violations: int | None = None  # commands the safety limits refused
+    protective_stops: int | None = None
+    slips: int | None = None
+    cycles: list = field(default_factory=list)  # per placement: compute_s, motion_s, object
+    compute_time_s: float = 0.0  # wall seconds of everything but waiting for motions
+    wall_time_s: float = 0.0
+    sim_time_s: float | None = None
+    seed: int | None = None
+    run_id: int | None = None
+    perception: str = "pipeline"  # pipeline | oracle (ground truth from the simulator)
+    truth: dict | None = None  # simulation: what really happened
+    message: str = ""
+    safe: bool = True  # ended with the arm at a known safe pose
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    def to_dict(self) -> dict:
+        """Plain JSON types only (what the report file holds)."""
+        return json.loads(json.dumps(self.as_dict(), default=_jsonable))
+
+    def save(self, path: str | Path) -> None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2))
+
+
+def _jsonable(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    return str(o)
+
+
+def _jsonable(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    return str(o)

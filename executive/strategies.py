@@ -1,0 +1,263 @@
+"""Strategies for getting an item out, tried in order like MoveIt Task Constructor's ``Fallbacks`` stage.
+
+Each strategy says when it applies (``applies(failure, obj, belief)``: the failure of the direct attempt so far,
+None before any) and plans its motions (``plan(req)``): an :class:`ItemPlan`, a :class:`PlanFailure` (it was
+tried and failed; the newest failure is what the run reports), or None (not possible here; nothing changes).
+A task lists the strategies it uses by name (``Task.strategies``); :func:`plan_item` runs them; the run
+report counts each (``RunReport.strategies``: tried / planned).
+
+What each strategy does and which tasks use it: docs/executive.md, "Strategies" (generated from the ``when``
+and ``does`` of the classes below by ``kitchenbot docs``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from kitchenbot.executive import machine as M
+from kitchenbot.executive.belief import Belief
+from kitchenbot.executive.failures import StepFailed
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.types import NoFreeSlot
+
+SLIDABLE = ("plate",)  # classes that nest flat in stacks and are slid sideways to free them
+
+
+@dataclass
+class PlanFailure:
+    kind: str  # the planner's failure kind (planning.types)
+    message: str
+    stage: str  # pick | place
+    strategy: str
+    blocking: int | None = None  # the instance the planner named as lying on the item or in its lift's way
+
+
+@dataclass
+class ItemPlan:
+    strategy: str
+    pick: Any = None  # planning.types.PickPlan
+    place: Any = None  # planning.types.PlacePlan
+    slide: Any = None  # planning.types.SlidePlan (instead of a pick and place)
+    staging: bool = False  # the place sets it down on the counter for a regrasp
+
+
+@dataclass
+class PlanRequest:
+    """What a strategy plans with: the item, its targets, the task, the belief and the planner."""
+
+    obj: ObjectPose
+    targets: list
+    staged: Any  # the Placed record it is picked up from when it was staged, else None
+    task: Any
+    belief: Belief
+    planner: Any
+    joints: Callable[[], np.ndarray]  # the arm's joint positions now
+    escape: Callable[[], bool]  # move the tool out of the collision margin; False if no way out
+    note: Callable[..., None]  # journal a command / note: note(kind, name, **payload)
+    check_deadline: Callable[[], None]
+    scene_objs: list = field(default_factory=list)
+
+
+def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) -> ItemPlan | PlanFailure:
+    """Pick (only grasps that can also reach one of `targets`) then place (the first feasible target)."""
+    targets = req.targets if targets is None else targets
+    obj, b = req.obj, req.belief
+    q = req.joints()
+    req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
+             **({"staging": True} if staging else {}))
+    pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets)
+    req.check_deadline()
+    if not pick.ok:
+        return PlanFailure(pick.kind, f"no pick plan for the {obj.cls}: {pick}", "pick", name,
+                           pick.details.get("blocking"))
+    others = [p for p in req.scene_objs
+              if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
+    req.note("command", "plan_place", grasp=pick.grasp.spec.name, staging=staging)
+    place = req.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=b.map_points)
+    if not place.ok:
+        return PlanFailure(place.kind, f"no place plan for the {obj.cls}: {place}", "place", name)
+    return ItemPlan(name, pick=pick, place=place, staging=staging)
+
+
+class Strategy:
+    name = "strategy"
+    when = ""  # when it applies, in words (docs)
+    does = ""  # what it plans, in words (docs)
+
+    def applies(self, failure: PlanFailure | None, obj: ObjectPose, belief: Belief, req: PlanRequest) -> bool:
+        raise NotImplementedError
+
+    def plan(self, req: PlanRequest) -> ItemPlan | PlanFailure | None:
+        raise NotImplementedError
+
+
+class DirectPick(Strategy):
+    name = "direct_pick"
+    when = "first, always"
+    does = "a pick whose grasp also reaches one of the targets (the grasp filter), then the place at the first " \
+           "target that plans"
+
+    def applies(self, failure, obj, belief, req):
+        return failure is None
+
+    def plan(self, req):
+        return _direct(req, self.name)
+
+
+class EscapeThenPick(Strategy):
+    name = "escape_then_pick"
+    when = "the pick's start is within the collision margin (`start_in_collision`: the arm was stopped there)"
+    does = "a straight move out of the margin (`Planner.plan_escape`; else back along the last motion), then " \
+           "the direct pick again"
+
+    def applies(self, failure, obj, belief, req):
+        return failure is not None and failure.stage == "pick" and failure.kind == "start_in_collision"
+
+    def plan(self, req):
+        if not req.escape():
+            return None
+        return _direct(req, self.name)
+
+
+class StageForRegrasp(Strategy):
+    """Set the item down on the counter (in a pose the task chooses for its targets) and grasp it again from
+    there, where its next pick offers other grasps. Not for an item already staged, nor one its targets do not
+    turn (Task.needs_regrasp)."""
+
+    name = "stage_for_regrasp"
+    when = "no grasp of the item as it lies reaches a target (`no_feasible_placement` in the pick), the targets " \
+           "turn it over (`Task.needs_regrasp`) and it is not already staged"
+    does = "a pick and a place onto the counter (`Task.staging_targets`: upright, upside down or on its side), " \
+           "from where the next pick offers other grasps; verified there and picked again first"
+
+    def applies(self, failure, obj, belief, req):
+        return failure is not None and failure.stage == "pick" and failure.kind == "no_feasible_placement"
+
+    def plan(self, req):
+        if req.staged is not None or not req.task.needs_regrasp(req.targets, req.obj):
+            return None
+        stage = req.task.staging_targets(req.obj, req.belief, req.targets)
+        if isinstance(stage, NoFreeSlot):
+            return None
+        r = _direct(req, self.name, stage, staging=True)
+        return None if isinstance(r, PlanFailure) and r.stage == "pick" else r
+
+
+class StageWhenBlocked(StageForRegrasp):
+    """For tasks whose targets admit few grasps (rack poses): stage also when every grasp that reaches a target
+    has its lift blocked a second time (the first time the blocker is tried first), or when the full place plan
+    finds no release for a grasp the grasp filter accepted."""
+
+    name = "stage_when_blocked"
+    when = "as stage_for_regrasp, also when every grasp that reaches a target has its lift blocked a second " \
+           "time (`cartesian_path_failed` again), or the place finds no release (`no_feasible_placement`)"
+    does = "as stage_for_regrasp"
+
+    def applies(self, failure, obj, belief, req):
+        if failure is None:
+            return False
+        if failure.stage == "place":
+            return failure.kind == "no_feasible_placement"
+        t = belief.attempts_for(obj)
+        return failure.kind == "cartesian_path_failed" and t is not None and failure.kind in t.reasons
+
+
+class SlideOffStack(Strategy):
+    """Nested in a stack (the top plate): no pinch fits under its lip. Slide it sideways with the closed fingers;
+    the next scan sees it overhanging the one below, where a lip pinch fits. At most MAX_SLIDES_PER_OBJECT."""
+
+    name = "slide_off_stack"
+    when = "a plate with no collision-free grasp (`no_collision_free_grasp`: nested in a stack), not staged, " \
+           f"slid fewer than {M.MAX_SLIDES_PER_OBJECT} times"
+    does = "press on its well with the closed fingers and slide it 6 cm sideways (`Planner.plan_slide`); the " \
+           "next scan sees it overhanging the one below, where a lip pinch fits"
+
+    def applies(self, failure, obj, belief, req):
+        if failure is None or failure.stage != "pick" or failure.kind != "no_collision_free_grasp":
+            return False
+        t = belief.attempts_for(obj)
+        return obj.cls in SLIDABLE and req.staged is None and (t is None or t.slides < M.MAX_SLIDES_PER_OBJECT)
+
+    def plan(self, req):
+        req.note("command", "plan_slide", cls=req.obj.cls)
+        slide = req.planner.plan_slide(req.joints(), req.scene_objs, req.obj, map_points=req.belief.map_points)
+        req.check_deadline()
+        if not slide.ok:
+            req.note("note", "no slide", reason=str(slide))
+            return None
+        req.note("result", "planned slide", direction=slide.direction, distance=slide.distance,
+                 to=slide.T_base_obj_after[:3, 3])
+        return ItemPlan(self.name, slide=slide)
+
+
+class BlockerFirst(Strategy):
+    """The planner named the item lying on this one or in the way of its lift: that one is selected next (an
+    item the task does not want is moved out of the way by the task's targets for it); this one waits."""
+
+    name = "blocker_first"
+    when = "the newest failure names an item lying on this one or in its lift's way (`details.blocking`)"
+    does = "no motion: that item is selected next (moved out of the way by the task's targets for it, even one " \
+           "the task does not want); this one waits"
+
+    def applies(self, failure, obj, belief, req):
+        return failure is not None and failure.blocking is not None and failure.blocking >= 0
+
+    def plan(self, req):
+        return None  # a decision, not a motion: plan_item passes the blocker on with the failure, and the
+        #              recovery records it in the belief (Belief.record_blocked)
+
+
+STRATEGIES: dict[str, type[Strategy]] = {s.name: s for s in (
+    DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, BlockerFirst)}
+
+
+def strategies_for(task) -> list[Strategy]:
+    """The task's strategies, in its order (Task.strategies names them)."""
+    try:
+        return [STRATEGIES[n]() for n in task.strategies]
+    except KeyError as e:
+        raise ValueError(f"task {task.name!r}: unknown strategy {e.args[0]!r}; expected one of "
+                         f"{sorted(STRATEGIES)}") from None
+
+
+def plan_item(req: PlanRequest, strategies: list[Strategy], counts: dict) -> ItemPlan:
+    """Fallbacks: the first strategy that applies and plans wins. A strategy applies to the failure of the direct
+    attempt (direct_pick, escape_then_pick); with none planned, the newest failure is raised as a planning
+    StepFailed, naming the blocking item when blocker_first applies to it."""
+    direct: PlanFailure | None = None
+    last: PlanFailure | None = None
+    for s in strategies:
+        if isinstance(s, BlockerFirst) or not s.applies(direct, req.obj, req.belief, req):
+            continue
+        c = counts.setdefault(s.name, {"tried": 0, "planned": 0})
+        c["tried"] += 1
+        r = s.plan(req)
+        if isinstance(r, ItemPlan):
+            c["planned"] += 1
+            return r
+        if isinstance(r, PlanFailure):
+            last = r
+            if s.name in ("direct_pick", "escape_then_pick"):
+                direct = r
+    f = last or PlanFailure("no_strategy", f"no strategy applies to the {req.obj.cls}", "pick", "none")
+    blocking = None
+    for s in strategies:
+        if isinstance(s, BlockerFirst) and s.applies(f, req.obj, req.belief, req):
+            c = counts.setdefault(s.name, {"tried": 0, "planned": 0})
+            c["tried"] += 1
+            c["planned"] += 1
+            blocking = f.blocking
+    raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking)
+
+
+def strategies_markdown(tasks: dict) -> str:
+    """The strategies and the tasks that use them, as a markdown table (docs/executive.md)."""
+    lines = ["| strategy | applies when | plans | tasks |", "|---|---|---|---|"]
+    for name, cls in STRATEGIES.items():
+        users = ", ".join(f"`{t}`" for t, c in tasks.items() if name in c.strategies) or "-"
+        lines.append(f"| `{name}` | {cls.when} | {cls.does} | {users} |")
+    return "\n".join(lines)

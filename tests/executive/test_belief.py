@@ -1,0 +1,107 @@
+"""The belief (executive/belief.py): one definition of "the same item", attempts kept per item, staged items
+starting afresh, the map's contact marks per scene epoch, and tasks reading it without changing it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kitchenbot.executive.belief import SAME_ITEM_RADIUS, Belief, as_pose, same_item
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.tasks import make_task
+from kitchenbot.transforms import make_T
+
+
+def _pose(inv, name, xyz, k=-1):
+    m = inv.by_name(name)
+    return ObjectPose(m.obj_id, m.cls, make_T(np.eye(3), xyz), 1.0, instance_id=k)
+
+
+def test_the_same_item_is_the_same_class_within_the_radius():
+    p = np.array([0.5, 0.0, -0.1])
+    assert same_item("cup", p, "cup", p + [SAME_ITEM_RADIUS * 0.9, 0, 0])
+    assert not same_item("cup", p, "cup", p + [SAME_ITEM_RADIUS * 1.1, 0, 0])
+    assert not same_item("cup", p, "glass", p)
+    assert same_item("cup", p, "cup", p + [0, 0, 0.5], dims=2)  # xy only
+
+
+def test_attempts_follow_the_item_and_a_slide_moves_them():
+    inv, b = Inventory.builtin(), Belief()
+    cup = _pose(inv, "cup", (0.5, 0.0, -0.15))
+    b.record_attempt(cup)
+    b.record_attempt(_pose(inv, "cup", (0.51, 0.01, -0.15)))  # perceived 1.4 cm off: the same cup
+    assert b.attempts_for(cup).count == 2 and len(b.attempts) == 1
+    assert b.attempts_for(_pose(inv, "cup", (0.7, 0.0, -0.15))) is None
+    plate = _pose(inv, "dinner_plate", (0.5, 0.1, -0.15))
+    b.record_plan_failure(plate, "no_collision_free_grasp")
+    b.record_slide(plate, make_T(np.eye(3), (0.56, 0.1, -0.15)))
+    assert b.scene_epoch == 1 and b.attempts_for(_pose(inv, "dinner_plate", (0.56, 0.1, -0.15))).slides == 1
+
+
+def test_an_item_staged_on_a_spot_does_not_inherit_the_attempts_made_there():
+    inv, b = Inventory.builtin(), Belief()
+    task = make_task("cup-stacking", inv, Cell())
+    spot = (0.0, 0.45, 0.05)
+    old = _pose(inv, "cup", spot)
+    for _ in range(3):
+        b.record_attempt(old)
+    assert b.exhausted(old)
+    tgt = task.fallback_target(old, b)
+    rec = b.record_placed(task, _pose(inv, "cup", (0.5, 0.0, -0.15)), tgt, make_T(np.eye(3), spot))
+    b.record_staged(rec)
+    assert not b.exhausted(as_pose(rec)) and b.staged_waiting() == [rec]
+    b.unplace(rec)
+    assert b.staged == [] and b.placed == []
+
+
+def test_contact_marks_in_the_sink_go_after_the_scene_changed_and_the_sink_was_seen_again():
+    cell = Cell()
+    lo, hi = cell.sink_interior
+    mid = (np.asarray(lo) + np.asarray(hi)) / 2
+    b = Belief()
+    base = np.zeros((4, 3)) + [0.0, 0.6, 0.2]
+    b.perceived([], base, [], (lo, hi))
+    b.mark_contact(np.array([[mid[0], mid[1], -0.1]]))  # in the sink
+    b.mark_contact(np.array([[0.0, 0.6, 0.1]]))  # on the counter
+    m = b.map_points
+    assert len(m) == 6 and b.map_points is m  # one array while nothing changes (the planner caches by identity)
+    b.scene_changed()
+    assert len(b.map_points) == 6  # until the sink is perceived again
+    b.perceived([], base, [], (lo, hi))
+    assert len(b.map_points) == 5
+    with b.keeping_out(np.zeros((3, 3))):
+        assert len(b.map_points) == 8
+    assert len(b.map_points) == 5
+    b.drop_contacts()
+    assert len(b.map_points) == 4
+
+
+def test_a_perceived_item_where_one_was_placed_is_that_one():
+    inv, b = Inventory.builtin(), Belief()
+    task = make_task("sink-pick", inv, Cell())
+    cup = _pose(inv, "cup", (0.5, 0.0, -0.15), k=1)
+    tgt = task.targets(cup, b)[0]
+    b.record_placed(task, cup, tgt, tgt.T_base_obj)
+    seen_there = _pose(inv, "cup", tuple(tgt.T_base_obj[:3, 3] + [0.01, 0, 0]), k=2)
+    glass = _pose(inv, "glass", (0.6, 0.0, -0.15), k=3)
+    b.perceived([seen_there, glass], None, task.pending_models([glass]), Cell().sink_interior)
+    objs = b.scene_objects()
+    assert [o.instance_id for o in objs] == [3, b.placed[0].instance_id]
+
+
+def test_tasks_read_the_belief_and_do_not_change_it():
+    inv, b = Inventory.builtin(), Belief()
+    for name in ("sink-pick", "sink-to-dishwasher", "cup-stacking"):
+        task = make_task(name, inv, Cell())
+        cup = _pose(inv, "cup", (0.5, 0.0, -0.15))
+        plate = _pose(inv, "dinner_plate", (0.45, 0.0, -0.18))
+        b.pending = task.pending_models([cup, plate])
+        before = (list(b.placed), list(b.pending))
+        t1 = task.targets(cup, b)
+        task.remaining([cup, plate])
+        task.staging_targets(cup, b, t1)
+        t2 = task.targets(cup, b)
+        assert (b.placed, b.pending) == before
+        assert [np.allclose(a.T_base_obj, c.T_base_obj) for a, c in zip(t1, t2)] == [True] * len(t1)
+        assert not [k for k in vars(task) if k not in ("inventory", "cell")]  # no run state on the task

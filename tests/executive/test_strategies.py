@@ -1,0 +1,203 @@
+"""The strategies for getting an item out (executive/strategies.py), on hand-made situations: a planner that
+answers each request as a real one would in that situation (the failure kinds of planning.types), and the real
+tasks, belief and Fallbacks order. What is checked: which strategy plans, in which order they are tried, what is
+counted, and what the failure names when none plans."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from kitchenbot.executive.belief import Belief
+from kitchenbot.executive.failures import StepFailed
+from kitchenbot.executive.strategies import (
+    STRATEGIES,
+    PlanRequest,
+    plan_item,
+    strategies_for,
+)
+from kitchenbot.world.cell import Cell
+from kitchenbot.world.inventory import Inventory
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.types import (
+    CartesianPathFailed,
+    NoCollisionFreeGrasp,
+    NoFeasiblePlacement,
+    StartInCollision,
+)
+from kitchenbot.tasks import make_task
+from kitchenbot.transforms import make_T
+
+MOUTH_DOWN = np.diag([1.0, -1.0, -1.0])
+
+
+@pytest.fixture(scope="module")
+def inv():
+    return Inventory.builtin()
+
+
+def item(inv, name, R=np.eye(3), k=1):
+    m = inv.by_name(name)
+    return ObjectPose(m.obj_id, m.cls, make_T(R, (0.5, 0.0, -0.15)), 1.0, instance_id=k)
+
+
+@dataclass
+class _Spec:
+    name: str = "g"
+
+
+@dataclass
+class _Grasp:
+    spec: _Spec = field(default_factory=_Spec)
+
+
+@dataclass
+class _Ok:
+    end: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    grasp: _Grasp = field(default_factory=_Grasp)
+    T_base_obj: np.ndarray = field(default_factory=lambda: np.eye(4))
+    details: dict = field(default_factory=dict)
+    direction: tuple = (1.0, 0.0)
+    distance: float = 0.06
+    T_base_obj_after: np.ndarray = field(default_factory=lambda: np.eye(4))
+    trajectories: tuple = ()
+    ok = True
+
+
+class Situation:
+    """A planner for one situation: `pick(targets, n)` answers the n-th pick request for those targets (staging
+    targets have kind "stage"); place and slide answer ok unless told otherwise."""
+
+    def __init__(self, pick, place=None, slide_ok=True):
+        self.pick, self.place, self.slide_ok = pick, place, slide_ok
+        self.calls: list[str] = []
+
+    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None):
+        staging = all(t.kind == "stage" for t in place_target)
+        self.calls.append("pick:stage" if staging else "pick")
+        return self.pick(staging, self.calls.count("pick"))
+
+    def plan_place(self, q, grasp, targets, *, objects=None, map_points=None):
+        self.calls.append("place")
+        return self.place(targets) if self.place else _Ok()
+
+    def plan_slide(self, q, objects, obj, *, map_points=None):
+        self.calls.append("slide")
+        return _Ok() if self.slide_ok else NoCollisionFreeGrasp("test: no room to slide")
+
+
+def request(task, belief, obj, planner, escape=lambda: False, staged=None):
+    return PlanRequest(obj, task.targets(obj, belief), staged, task, belief, planner, lambda: np.zeros(6), escape,
+                       lambda *a, **k: None, lambda: None)
+
+
+def test_every_task_lists_known_strategies_direct_pick_first():
+    from kitchenbot.tasks import TASKS
+
+    for cls in TASKS.values():
+        assert cls.strategies[0] == "direct_pick" and set(cls.strategies) <= set(STRATEGIES)
+    assert "stage_when_blocked" in TASKS["sink-to-dishwasher"].strategies
+    assert "stage_when_blocked" not in TASKS["sink-pick"].strategies
+
+
+def test_an_unknown_strategy_is_a_clear_error(inv):
+    task = make_task("sink-pick", inv, Cell())
+    task.strategies = ("direct_pick", "juggle")
+    with pytest.raises(ValueError, match="unknown strategy 'juggle'"):
+        strategies_for(task)
+
+
+def test_direct_pick_plans_when_it_can(inv):
+    task, b = make_task("sink-pick", inv, Cell()), Belief()
+    planner = Situation(lambda staging, n: _Ok())
+    counts: dict = {}
+    plan = plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), counts)
+    assert plan.strategy == "direct_pick" and not plan.staging
+    assert counts == {"direct_pick": {"tried": 1, "planned": 1}} and planner.calls == ["pick", "place"]
+
+
+def test_an_upside_down_cup_for_a_stack_is_staged_for_a_regrasp(inv):
+    """No grasp of it as it lies reaches upright: the pick for its targets finds no feasible placement; the
+    staging targets (on the counter) are reachable."""
+    task, b = make_task("cup-stacking", inv, Cell()), Belief()
+    planner = Situation(lambda staging, n: _Ok() if staging else NoFeasiblePlacement("test: none reaches upright"))
+    counts: dict = {}
+    plan = plan_item(request(task, b, item(inv, "cup", MOUTH_DOWN), planner), strategies_for(task), counts)
+    assert plan.strategy == "stage_for_regrasp" and plan.staging
+    assert counts["stage_for_regrasp"] == {"tried": 1, "planned": 1} and counts["direct_pick"]["planned"] == 0
+    assert planner.calls == ["pick", "pick:stage", "place"]
+
+
+def test_an_item_already_staged_is_not_staged_again(inv):
+    task, b = make_task("cup-stacking", inv, Cell()), Belief()
+    planner = Situation(lambda staging, n: _Ok() if staging else NoFeasiblePlacement("test"))
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(task, b, item(inv, "cup", MOUTH_DOWN), planner, staged=object()), strategies_for(task), {})
+    assert e.value.details["planning_kind"] == "no_feasible_placement" and "pick:stage" not in planner.calls
+
+
+def test_a_stop_within_the_margin_is_escaped_then_the_pick_planned_again(inv):
+    task, b = make_task("sink-pick", inv, Cell()), Belief()
+    planner = Situation(lambda staging, n: StartInCollision("test: stopped there") if n == 1 else _Ok())
+    escaped = []
+    plan = plan_item(request(task, b, item(inv, "cup"), planner, escape=lambda: escaped.append(1) or True),
+                     strategies_for(task), counts := {})
+    assert plan.strategy == "escape_then_pick" and escaped == [1] and counts["direct_pick"]["planned"] == 0
+
+
+def test_a_nested_plate_with_no_grasp_is_slid_off_its_stack_a_cup_is_not(inv):
+    task, b = make_task("sink-pick", inv, Cell()), Belief()
+    planner = Situation(lambda staging, n: NoCollisionFreeGrasp("test: no pinch under its lip"))
+    plan = plan_item(request(task, b, item(inv, "dinner_plate"), planner), strategies_for(task), counts := {})
+    assert plan.strategy == "slide_off_stack" and plan.slide is not None and counts["slide_off_stack"]["planned"] == 1
+    with pytest.raises(StepFailed):
+        plan_item(request(task, b, item(inv, "cup"), Situation(lambda s, n: NoCollisionFreeGrasp("t"))),
+                  strategies_for(task), {})
+    # slid as often as allowed: no more
+    from kitchenbot.executive import machine as M
+
+    plate = item(inv, "dinner_plate")
+    b.attempts_for(plate, create=True).slides = M.MAX_SLIDES_PER_OBJECT
+    with pytest.raises(StepFailed):
+        plan_item(request(task, b, plate, planner), strategies_for(task), {})
+
+
+def test_a_named_blocker_is_passed_on_and_counted(inv):
+    task, b = make_task("sink-pick", inv, Cell()), Belief()
+    planner = Situation(lambda staging, n: CartesianPathFailed("test: the lift hits a glass", {"blocking": 7}))
+    counts: dict = {}
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), counts)
+    assert e.value.details["blocking"] == 7 and counts["blocker_first"] == {"tried": 1, "planned": 1}
+    task.strategies = tuple(s for s in task.strategies if s != "blocker_first")  # a task without it: no blocker
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), {})
+    assert e.value.details["blocking"] is None
+
+
+def test_stage_when_blocked_only_after_the_lift_was_blocked_before(inv):
+    """sink-to-dishwasher: a cup whose rack-reaching grasps have their lift blocked. The first time it waits
+    (the blocker may be picked first); when blocked again, it is staged."""
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    cup = item(inv, "cup")
+    planner = Situation(lambda staging, n: _Ok() if staging else CartesianPathFailed("test: lift blocked"))
+    with pytest.raises(StepFailed):
+        plan_item(request(task, b, cup, planner), strategies_for(task), {})
+    assert "pick:stage" not in planner.calls
+    b.record_plan_failure(cup, "cartesian_path_failed")
+    plan = plan_item(request(task, b, cup, planner), strategies_for(task), counts := {})
+    assert plan.strategy == "stage_when_blocked" and plan.staging and counts["stage_when_blocked"]["planned"] == 1
+    # sink-pick does not list it
+    sp = make_task("sink-pick", inv, Cell())
+    with pytest.raises(StepFailed):
+        plan_item(request(sp, b, cup, Situation(planner.pick)), strategies_for(sp), {})
+
+
+def test_an_unplaceable_grasp_is_staged_in_the_dishwasher_task(inv):
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    planner = Situation(lambda staging, n: _Ok(),
+                        place=lambda targets: _Ok() if targets[0].kind == "stage" else NoFeasiblePlacement("t"))
+    plan = plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), counts := {})
+    assert plan.strategy == "stage_when_blocked" and counts["direct_pick"] == {"tried": 1, "planned": 0}
