@@ -112,3 +112,29 @@ def test_objects_option_makes_the_rest_distractors(dataset, monkeypatch):
     assert set(r["per_object"]) == {str(k) for k in keep}
     with pytest.raises(ValueError, match="--objects"):
         ev.evaluate(dataset, progress=False, object_ids=[999])
+
+
+def test_cell_dataset_uses_each_scenes_own_cell(tmp_path, monkeypatch):
+    """A wide scene's basin differs from the config's; --cell dataset hands the scene's own cell to perception."""
+    cfg = load_config()
+    kw = {"T_flange_tcp": cfg.robot.tool.T_flange_tcp.matrix(), "T_flange_cam": cfg.T_flange_cam()}
+    generate_dataset(tmp_path, 1, 5, [np.asarray(cfg.scan_waypoints[1])], kw, 640, 480, variety="wide")
+    meta = json.loads((tmp_path / "test" / "000000" / "scene_sim.json").read_text())
+    assert tuple(meta["cell"]["sink"]["inner_size_xy"]) != tuple(cfg.cell.sink.inner_size_xy)
+    cells = []
+
+    class Recording:
+        def __init__(self, settings, inventory, cell, database=None, use_cell=True):
+            self.database = None
+            cells.append(cell)
+
+        def perceive(self, views):
+            return _Result([], list(views), [], {})
+
+    monkeypatch.setattr(ev, "Perceiver", Recording)
+    ev.evaluate(tmp_path, progress=False, use_cell="dataset")
+    assert tuple(cells[-1].spec.sink.inner_size_xy) == tuple(meta["cell"]["sink"]["inner_size_xy"])
+    ev.evaluate(tmp_path, progress=False, use_cell="always")
+    assert cells[-1].spec.sink.inner_size_xy == (0.50, 0.40)
+    with pytest.raises(ValueError, match="--cell"):
+        ev.evaluate(tmp_path, progress=False, use_cell="sometimes")
