@@ -103,6 +103,14 @@ class SimCollision:
         for b in world.cell.boxes:
             o = fcl.CollisionObject(fcl.Box(*b.size), fcl.Transform(np.eye(3), b.centre))
             self._cell.append(_Env(b.name, o, b.lower.copy(), b.upper.copy(), None))
+        for name, fx in getattr(world, "fixtures", {}).items():  # faucet, drain, rack: fixed like the cell
+            V = np.asarray(fx.mesh.vertices, float)
+            bvh = fcl.BVHModel()
+            bvh.beginModel(len(V), len(fx.mesh.triangles))
+            bvh.addSubModel(V, np.asarray(fx.mesh.triangles, np.int32))
+            bvh.endModel()
+            o = fcl.CollisionObject(bvh, fcl.Transform(np.eye(3), np.zeros(3)))
+            self._cell.append(_Env(f"fixture:{name}", o, V.min(0), V.max(0), None))
 
     # ---- geometry ----------------------------------------------------------------------------------
     def _mesh_bvh(self, model) -> fcl.BVHModel:

@@ -27,7 +27,8 @@ def plane_mesh(T_base_plane: np.ndarray, width: float, height: float) -> o3d.geo
 
 @dataclass
 class Labelled:
-    """What each geometry id of a RaycastingScene is: ('cell', box index) | ('obj', uid) | ('plane', name)."""
+    """What each geometry id of a RaycastingScene is: ('cell', box index) | ('obj', uid) | ('plane', name)
+    | ('fixture', name)."""
 
     kinds: list[tuple[str, object]]
 
@@ -51,6 +52,9 @@ def build_scene(world, exclude: tuple[int, ...] = (), include_cell: bool = True)
         add(world.object_mesh(uid), ("obj", uid))
     for name, p in world.planes.items():
         add(plane_mesh(p.T_base_plane, p.width, p.height), ("plane", name))
+    if include_cell:
+        for name, fx in getattr(world, "fixtures", {}).items():
+            add(fx.mesh, ("fixture", name))
     return scene, Labelled(kinds)
 
 

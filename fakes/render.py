@@ -39,7 +39,21 @@ class RenderResult:
 _LIGHT = np.array([0.25, -0.35, 1.0]) / np.linalg.norm([0.25, -0.35, 1.0])
 
 
-def render(world, K: np.ndarray, T_base_cam: np.ndarray, width: int, height: int) -> RenderResult:
+@dataclass(frozen=True)
+class Lighting:
+    """One directional light (base frame, pointing from the scene towards the light) plus ambient, a colour
+    tint of the light and an exposure gain. The defaults are the renderer's original fixed light."""
+
+    direction: tuple[float, float, float] = tuple(_LIGHT)
+    ambient: float = 0.45
+    diffuse: float = 0.55
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    exposure: float = 1.0
+
+
+def render(world, K: np.ndarray, T_base_cam: np.ndarray, width: int, height: int,
+           lighting: Lighting | None = None) -> RenderResult:
+    lighting = lighting or Lighting()
     scene, labelled = build_scene(world)
     T_cam_base = inv(T_base_cam)
     rays = pinhole_rays(K, T_cam_base, width, height)  # OpenCV pixel centres (see perception/raycast.py)
@@ -70,6 +84,10 @@ def render(world, K: np.ndarray, T_base_cam: np.ndarray, width: int, height: int
             albedo[g] = world.objects[key].model.colour
             labels_of[g] = key
             shiny[g] = 0.35
+        elif kind == "fixture":
+            fx = world.fixtures[key]
+            albedo[g] = fx.colour
+            shiny[g] = fx.shiny
         else:
             albedo[g] = (1.0, 1.0, 1.0)
     albedo[n_geo] = (0.92, 0.92, 0.90)  # background (far wall)
@@ -94,14 +112,17 @@ def render(world, K: np.ndarray, T_base_cam: np.ndarray, width: int, height: int
         col[sel] = p.image[v, u] / 255.0
 
     # Lambert + ambient + a little specular (headlight) for shiny surfaces.
-    light = _LIGHT.astype(np.float32)
+    light = np.asarray(lighting.direction, float)
+    light = (light / np.linalg.norm(light)).astype(np.float32)
     lam = np.clip(n @ light, 0, 1)
     half = light - dn
     half /= np.sqrt(np.einsum("...i,...i->...", half, half))[..., None]
     spec = np.clip(np.einsum("...i,...i->...", n, half), 0, 1) ** 40 * shiny[gidx].astype(np.float32)
-    shade = 0.45 + 0.55 * lam
+    shade = lighting.ambient + lighting.diffuse * lam
     img = col * shade[..., None] + spec[..., None] * 0.8
     img = np.where(hit[..., None], img, albedo[n_geo] * 0.9)
+    if lighting.tint != (1.0, 1.0, 1.0) or lighting.exposure != 1.0:
+        img = img * (np.asarray(lighting.tint, np.float32) * lighting.exposure)
     rgb = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
     depth = np.where(hit, t, 0.0).astype(np.float32)
     labels = np.where(hit, labels_of[gidx], 0).astype(np.int32)
@@ -117,16 +138,19 @@ def stereo_noise(
     edge_jump: float = 0.02,
     grazing_cos: float = 0.12,
     dropout: float = 0.003,
+    baseline: float = OAKD_BASELINE,
+    min_depth: float = OAKD_MIN_DEPTH,
+    max_depth: float = OAKD_MAX_DEPTH,
 ) -> np.ndarray:
     """Depth as a stereo camera measures it (metres, 0 = no data).
 
     sigma_z = z^2 * sigma_d / (f * B): the standard stereo error model; depth is also quantised to 1 mm
-    (the OAK-D streams uint16 millimetres).
+    (the OAK-D streams uint16 millimetres). The defaults are the OAK-D's (fakes/cameras.py has others).
     """
     f = K[0, 0]
     z = depth.astype(np.float64)
-    valid = (z >= OAKD_MIN_DEPTH) & (z <= OAKD_MAX_DEPTH)
-    sigma = z**2 * disparity_sigma_px / (f * OAKD_BASELINE)
+    valid = (z >= min_depth) & (z <= max_depth)
+    sigma = z**2 * disparity_sigma_px / (f * baseline)
     noisy = z + rng.standard_normal(z.shape) * sigma
     # Holes at depth discontinuities (the stereo matcher fails across occlusion boundaries), 1-2 px wide.
     zp = np.pad(z, 1, mode="edge")
@@ -144,4 +168,4 @@ def rgb_noise(rgb: np.ndarray, rng: np.random.Generator, sigma: float = 2.0) -> 
     return np.clip(rgb.astype(np.float32) + rng.normal(0, sigma, rgb.shape), 0, 255).astype(np.uint8)
 
 
-__all__ = ["RenderResult", "oakd_intrinsics", "render", "rgb_noise", "stereo_noise", "STYLE_COLOURS"]
+__all__ = ["Lighting", "RenderResult", "oakd_intrinsics", "render", "rgb_noise", "stereo_noise", "STYLE_COLOURS"]

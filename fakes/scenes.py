@@ -7,7 +7,7 @@ is already there and tipped over their support until stable (fakes/placement.py)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,6 +28,12 @@ class SceneOptions:
     style: str = "random"  # stainless | ceramic | random
     stack_probability: float = 0.35
     lean_probability: float = 0.3
+    # The wide variety (kitchenbot scenes generate --variety wide / --distractors N). Drawn from a second
+    # random stream of the seed, so the defaults give exactly the scenes they always gave.
+    distractors: int = 0  # non-inventory objects added per scene, drawn from `distractor_models`
+    distractor_models: list[ObjectModel] = field(default_factory=list)
+    fixtures: bool = False  # rounded corners, drain, faucet, floor grid (fakes/sink_fixtures.py)
+    vary_sink: bool = False  # basin size and depth drawn per scene (the cell spec is then the scene's own)
 
 
 _ORDER = {"plate": 0, "bowl": 1, "mug": 2, "cup": 2, "glass": 3}
@@ -93,12 +99,22 @@ def generate_scene(
 ) -> SimWorld:
     """A SimWorld with a random sink scene. Same seed, same scene."""
     rng = np.random.default_rng(seed)
+    wide_rng = np.random.default_rng([seed, 1])  # the wide variety's own stream
     options = options or SceneOptions()
     inventory = inventory or Inventory.builtin()
     spec = cell_spec or CellSpec()
     style = options.style if options.style != "random" else str(rng.choice(["stainless", "ceramic"]))
-    spec = spec.model_copy(update={"sink": spec.sink.model_copy(update={"style": style})})
+    sink_update = {"style": style}
+    if options.vary_sink:
+        sink_update.update(inner_size_xy=(float(wide_rng.uniform(0.40, 0.56)), float(wide_rng.uniform(0.34, 0.44))),
+                           depth=float(wide_rng.uniform(0.16, 0.22)))
+    spec = spec.model_copy(update={"sink": spec.sink.model_copy(update=sink_update)})
     world = SimWorld(Cell(spec), inventory, seed=seed, **(world_kwargs or {}))
+    if options.fixtures:
+        from kitchenbot.fakes.sink_fixtures import random_fixtures
+
+        for fx in random_fixtures(world.cell, wide_rng):
+            world.add_fixture(fx)
 
     n = int(rng.integers(options.min_objects, options.max_objects + 1))
     models = list(inventory)
@@ -147,7 +163,34 @@ def generate_scene(
             world.set_pose(uid, T_rest)
             prev = (model, T_rest, mode)
             break
+    if options.distractors > 0:
+        if not options.distractor_models:
+            raise ValueError("SceneOptions.distractors > 0 needs distractor_models to draw from")
+        _add_distractors(world, options, wide_rng)
     return world
+
+
+def _add_distractors(world: SimWorld, options: SceneOptions, rng: np.random.Generator) -> None:
+    """Drop `options.distractors` non-inventory objects into the basin, among and onto the dishware."""
+    from kitchenbot.fakes.distractors import resting_rotation
+
+    lo, hi = world.cell.sink_interior
+    for _ in range(options.distractors):
+        model = options.distractor_models[int(rng.integers(len(options.distractor_models)))]
+        for _attempt in range(8):
+            R = resting_rotation(model, rng)
+            xy = _sample_xy(world.cell, _footprint_radius(model, R), rng)
+            if xy is None:
+                continue
+            uid = world.add_object(model, make_T(R[:3, :3], (xy[0], xy[1], 0.3)))
+            T_rest = settle(world, uid, world.objects[uid].T_base_obj, keep_inside=world.cell.sink_interior)
+            V = np.asarray(model.mesh.vertices) @ T_rest[:3, :3].T + T_rest[:3, 3]
+            inside = np.all(V[:, :2] >= lo[:2] - 1e-3) and np.all(V[:, :2] <= hi[:2] + 1e-3)
+            if V[:, 2].max() > MAX_TOP_Z + 0.05 or not inside or V[:, 2].min() < lo[2] - 0.002:
+                world.remove_object(uid)
+                continue
+            world.set_pose(uid, T_rest)
+            break
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:

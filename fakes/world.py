@@ -74,6 +74,18 @@ class TexturedPlane:
 
 
 @dataclass
+class Fixture:
+    """Fixed geometry beyond the cell's boxes (a faucet, a drain, rounded basin corners, a draining rack):
+    a triangle mesh in the base frame that is rendered, collided with and rested on like the cell."""
+
+    name: str
+    kind: str  # faucet | drain | fillet | rack | ...
+    mesh: o3d.geometry.TriangleMesh  # base frame, metres
+    colour: tuple[float, float, float]
+    shiny: float = 0.1
+
+
+@dataclass
 class SimWorld:
     cell: Cell
     inventory: Inventory
@@ -86,6 +98,7 @@ class SimWorld:
     seed: int = 0
     objects: dict[int, SimObject] = field(default_factory=dict)
     planes: dict[str, TexturedPlane] = field(default_factory=dict)
+    fixtures: dict[str, Fixture] = field(default_factory=dict)
     held_uid: int | None = None
     T_tcp_held: np.ndarray | None = None
     slip_in_motions: int | None = None  # the held object slips in the motion this many motions from now
@@ -121,6 +134,12 @@ class SimWorld:
         if img.dtype != np.uint8 or img.shape[2] != 3:
             raise ValueError(f"add_textured_plane {name!r}: expected an (H, W, 3) or (H, W) uint8 image")
         self.planes[name] = TexturedPlane(name, np.array(T_base_plane, float), float(width_m), float(height_m), img)
+        self.version += 1
+
+    def add_fixture(self, fixture: Fixture) -> None:
+        if len(fixture.mesh.triangles) == 0:
+            raise ValueError(f"add_fixture {fixture.name!r}: the mesh has no triangles")
+        self.fixtures[fixture.name] = fixture
         self.version += 1
 
     # ---- the arm's truth -------------------------------------------------------------------------------

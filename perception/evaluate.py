@@ -21,8 +21,8 @@ from kitchenbot.perception.pipeline import Perceiver
 from kitchenbot.perception.rgbd import project_pixels
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.transforms import inv
-from kitchenbot.world.cell import Cell
-from kitchenbot.world.inventory import Inventory
+from kitchenbot.world.cell import Cell, CellSpec
+from kitchenbot.world.inventory import Inventory, ObjectModel
 
 
 @dataclass
@@ -49,27 +49,87 @@ def _visible_in(view, T_base_obj: np.ndarray, pts_obj: np.ndarray) -> bool:
     return bool(inside.mean() > 0.1)
 
 
+def _load_models(md: Path) -> Inventory:
+    return Inventory.load(md, md / "grasps.json" if (md / "grasps.json").is_file() else None)
+
+
+def load_inventory(root: Path, inventory: Inventory | str | Path | None = None,
+                   object_ids: list[int] | None = None) -> tuple[Inventory, dict[int, np.ndarray], dict[int, str]]:
+    """The inventory to find, and the points (object frame, metres) and names of every other model the
+    dataset has (its distractors: anything in its ground truth that is not in the inventory).
+
+    `inventory`: an Inventory, a BOP models folder, or None for the dataset's models/. `object_ids`: keep only
+    these ids of it (e.g. the bowl and the mug of YCB-Video; the boxes and cans become distractors)."""
+    if inventory is None or isinstance(inventory, (str, Path)):
+        inventory = _load_models(Path(inventory) if inventory is not None else bop.models_dir(root))
+    others: dict[int, ObjectModel] = {}
+    if object_ids:
+        missing = sorted(set(object_ids) - set(inventory.models))
+        if missing:
+            raise ValueError(f"--objects: ids {missing} are not in the inventory ({sorted(inventory.models)})")
+        others = {m.obj_id: m for m in inventory if m.obj_id not in object_ids}
+        inventory = Inventory([inventory[i] for i in object_ids], f"{inventory.source} ids {sorted(object_ids)}")
+    try:
+        for m in _load_models(bop.models_dir(root)):
+            if m.obj_id not in inventory.models:
+                others.setdefault(m.obj_id, m)
+    except bop.BopError:
+        pass
+    if (root / "models_distractors" / "models_info.json").is_file():
+        for m in _load_models(root / "models_distractors"):
+            others.setdefault(m.obj_id, m)
+    return inventory, {o: m.points for o, m in others.items()}, {o: m.name for o, m in others.items()}
+
+
+def _scene_cell(scene_dir: Path) -> Cell | None:
+    """The cell a generated scene was made in (scene_sim.json's "cell"), or None."""
+    f = scene_dir / "scene_sim.json"
+    if not f.is_file():
+        return None
+    spec = json.loads(f.read_text()).get("cell")
+    return Cell(CellSpec.model_validate(spec)) if spec else None
+
+
+def _on_distractor(T_cam_est: np.ndarray, est_pts: np.ndarray, distractors: list[tuple[np.ndarray, np.ndarray]],
+                   tol: float = 0.015, share: float = 0.2) -> int:
+    """Index of the distractor (posed points in the camera frame) that an estimate lies on: at least `share`
+    of the estimate's posed model points within `tol` of that distractor's surface; -1 if none."""
+    from scipy.spatial import cKDTree
+
+    P = est_pts[:: max(1, len(est_pts) // 256)] @ T_cam_est[:3, :3].T + T_cam_est[:3, 3]
+    for k, (_, Q) in enumerate(distractors):
+        d, _ = cKDTree(Q).query(P, distance_upper_bound=tol)
+        if np.mean(np.isfinite(d)) >= share:
+            return k
+    return -1
+
+
 def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, cell: Cell | None = None,
              use_cell: str = "auto", split: str | None = None, scenes: list[int] | None = None,
-             min_visib: float = 0.1, progress: bool = True, inventory: Inventory | None = None) -> EvalResult:
+             min_visib: float = 0.1, progress: bool = True, inventory: Inventory | str | Path | None = None,
+             object_ids: list[int] | None = None) -> EvalResult:
+    """`use_cell`: auto (the cell when images have world poses), always, never, or dataset (each generated
+    scene's own cell from its scene_sim.json, else `cell`). Objects of the ground truth that are not in the
+    inventory are distractors: estimates on them are counted as `false_positives_on_distractors`."""
     root = Path(dataset)
     settings = settings or PerceptionSettings()
-    if inventory is None:
-        md = bop.models_dir(root)
-        inventory = Inventory.load(md, md / "grasps.json" if (md / "grasps.json").is_file() else None)
+    if use_cell not in ("auto", "always", "never", "dataset"):
+        raise ValueError(f"--cell: expected auto, always, never or dataset, got {use_cell!r}")
+    inventory, distractor_pts, distractor_names = load_inventory(root, inventory, object_ids)
     dirs = bop.scene_dirs(root, split)
     if scenes:
         dirs = [d for d in dirs if d.name.isdigit() and int(d.name) in scenes]
         if not dirs:
             raise ValueError(f"--scenes: none of {scenes} is in {root}")
-    perceivers: dict[bool, Perceiver] = {}
+    perceivers: dict[object, Perceiver] = {}
 
-    def perceiver(with_cell: bool) -> Perceiver:
-        if with_cell not in perceivers:
-            c = (cell or Cell()) if with_cell else None
+    def perceiver(with_cell: bool, scene_cell: Cell | None = None) -> Perceiver:
+        c = (scene_cell or cell or Cell()) if with_cell else None
+        key = c.spec.model_dump_json() if c is not None else None
+        if key not in perceivers:
             db = next(iter(perceivers.values())).database if perceivers else None
-            perceivers[with_cell] = Perceiver(settings, inventory, c, database=db, use_cell=with_cell)
-        return perceivers[with_cell]
+            perceivers[key] = Perceiver(settings, inventory, c, database=db, use_cell=with_cell)
+        return perceivers[key]
 
     estimates: list[Estimate] = []
     errors: list[float] = []
@@ -88,11 +148,14 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
         from tqdm import tqdm
 
         bar = tqdm(total=len(dirs), desc="scenes", unit="scene", dynamic_ncols=True)
+    dfp: dict[str, int] = {}  # distractor name -> estimates on it
+    distractors_seen = 0
     for sd in dirs:
         images = bop.read_scene(sd)
+        scene_cell = _scene_cell(sd) if use_cell == "dataset" else None
         for group in bop.view_groups(images):
-            with_cell = use_cell == "always" or (use_cell == "auto" and group[0].has_world_pose)
-            p = perceiver(with_cell)
+            with_cell = use_cell == "always" or (use_cell in ("auto", "dataset") and group[0].has_world_pose)
+            p = perceiver(with_cell, scene_cell)
             t0 = time.perf_counter()
             res = p.perceive([im.view for im in group])
             dt = time.perf_counter() - t0
@@ -126,11 +189,22 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
                 # An unmatched estimate that is right about an object seen too little to be a target in this
                 # image (BOP: visib_fract < min_visib; multi-view scans see it from the other views) is ignored.
                 low = [(g.obj_id, g.T_cam_obj) for g in im.gt if g.visib_fract < min_visib and g.obj_id in pts]
+                wrong = [mt.est_index for mt in matches if mt.est_index >= 0 and not mt.error < 0.1 * inventory[gt[mt.gt_index][0]].diameter]
                 for j in unmatched:
                     oid, T, _ = est[j]
                     d = inventory[oid].diameter
                     if not any(o == oid and adi(T, Tg, pts[oid][::4]) < 0.1 * d for o, Tg in low):
                         false_pos += 1
+                        wrong.append(j)
+                # False positives that lie on an object outside the inventory (a box, a can, a sponge).
+                dis = [(g.obj_id, distractor_pts[g.obj_id] @ g.T_cam_obj[:3, :3].T + g.T_cam_obj[:3, 3])
+                       for g in im.gt if g.obj_id in distractor_pts and g.visib_fract > 0]
+                distractors_seen += sum(1 for g in im.gt if g.obj_id in distractor_pts and g.visib_fract >= min_visib)
+                for j in wrong if dis else []:
+                    k = _on_distractor(est[j][1], pts[est[j][0]], dis)
+                    if k >= 0:
+                        name = distractor_names[dis[k][0]]
+                        dfp[name] = dfp.get(name, 0) + 1
                 per_scan.append({"scene_id": im.scene_id, "im_id": im.im_id, "gt": len(gt), "estimates": len(est),
                                  "correct": int(ok_count)})
         if bar is not None:
@@ -147,6 +221,12 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
         "per_object": {str(o): {"name": inventory[o].name, "recall": float(np.mean(v)), "n": len(v)}
                        for o, v in sorted(per_obj.items())},
         "false_positives": int(false_pos),  # per image: unmatched (and not a low-visibility object) or wrong
+        "false_positives_per_image": float(false_pos / n_images) if n_images else 0.0,
+        # Of those, the ones on an object outside the inventory (its ground truth is in the dataset), by name.
+        "false_positives_on_distractors": int(sum(dfp.values())),
+        "false_positives_on_distractors_by_name": dict(sorted(dfp.items())),
+        "distractors": int(distractors_seen),  # distractor instances at least min_visib visible, over images
+        "inventory": sorted(inventory.models),
         "objects": int(len(e)),
         "estimates": len(estimates),
         "scenes": len(dirs),

@@ -18,8 +18,8 @@ from kitchenbot.world.inventory import GraspSpec, Inventory, ObjectModel
 def ensure_grasps(inventory: Inventory) -> Inventory:
     """Give every model without grasps its synthesised ones (in place; idempotent). Returns the inventory."""
     for model in inventory:
-        if not model.grasps and model.dish is not None:
-            model.grasps = generate_grasps(model, foot=model.dish.foot)
+        if not model.grasps:
+            model.grasps = generate_grasps(model, foot=model.dish.foot if model.dish is not None else None)
     return inventory
 
 

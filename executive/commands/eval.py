@@ -23,8 +23,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_model_sweep_arguments(p)  # --sweep-models, --sweep-table, --point-encoders
     p.add_argument("--overlays", type=Path, help="write PNG overlays of model contours at the estimated poses")
     p.add_argument("--overlay-scenes", type=int, nargs="+", help="scenes to draw (default: the first three)")
-    p.add_argument("--cell", choices=["auto", "always", "never"], default="auto",
-                   help="use the config's cell geometry to segment (auto: when images have world poses)")
+    p.add_argument("--cell", choices=["auto", "always", "never", "dataset"], default="auto",
+                   help="use the config's cell geometry to segment (auto: when images have world poses; "
+                        "dataset: each generated scene's own cell from its scene_sim.json)")
+    p.add_argument("--inventory", type=Path,
+                   help="BOP models folder of the dishware to find (default: the dataset's models/)")
+    p.add_argument("--objects", type=int, nargs="+",
+                   help="only these model ids are dishware to find; every other object in the ground truth "
+                        "is a distractor that must get no pose (e.g. YCB-Video: 13 14, the bowl and the mug)")
     p.add_argument("--min-visib", type=float, default=0.1, help="evaluate GT objects at least this visible")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
@@ -38,8 +44,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.dataset.is_dir():
         raise FileNotFoundError(f"{args.dataset}: dataset folder not found")
     cfg = load_config(args.config)
+    if args.inventory is not None and not args.inventory.is_dir():
+        raise FileNotFoundError(f"--inventory {args.inventory}: models folder not found")
     kw = dict(cell=Cell(cfg.cell), use_cell=args.cell, split=args.split, scenes=args.scenes,
-              min_visib=args.min_visib, progress=not args.no_progress)
+              min_visib=args.min_visib, progress=not args.no_progress, inventory=args.inventory,
+              object_ids=args.objects)
     if getattr(args, "sweep_models", False):  # every backend combination with weights (perception/sweep.py)
         from kitchenbot.perception.sweep import run_cli
 
@@ -68,6 +77,9 @@ def run(args: argparse.Namespace) -> int:
           f"objects {r['objects']}  false positives {r['false_positives']}  scenes {r['scenes']}  images {r['images']}")
     for oid, o in r["per_object"].items():
         print(f"  {oid:>3} {o['name']:<16} recall {o['recall']:.3f}  (n={o['n']})")
+    print(f"false positives per image {r['false_positives_per_image']:.2f}; on distractors (objects outside the "
+          f"inventory, {r['distractors']} seen): {r['false_positives_on_distractors']}"
+          + "".join(f"  {k} {v}" for k, v in r["false_positives_on_distractors_by_name"].items()))
     if r.get("grasp_errors"):
         print("per scan, base frame: position / axis error of matched objects (median, p90), missed, extra "
               "(duplicates, phantoms), share within 1 cm and 5 deg")

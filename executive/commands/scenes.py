@@ -1,4 +1,5 @@
-"""`kitchenbot scenes generate --out DIR [--scenes N] [--seed S]`: a BOP dataset with ground truth."""
+"""`kitchenbot scenes generate --out DIR [--scenes N] [--seed S] [--variety default|wide] [--distractors N]
+[--camera oakd|d435|kinect]`: a BOP dataset with ground truth."""
 
 from __future__ import annotations
 
@@ -17,6 +18,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--config", help="cell config YAML (default: the shipped simulation config)")
     g.add_argument("--pose-noise-mm", type=float, default=0.0, help="perturb each scan pose by this much")
     g.add_argument("--pose-noise-deg", type=float, default=0.0)
+    g.add_argument("--variety", choices=["default", "wide"], default="default",
+                   help="wide: new dishware of every family in the inventory, sink fixtures (rounded corners, "
+                        "drain, faucet, floor grid), basin size, light and depth noise drawn per scene")
+    g.add_argument("--distractors", type=int, default=0,
+                   help="non-inventory objects per scene (box, can, bottle, sponge, cutlery, scraps); default 0")
+    g.add_argument("--camera", choices=["oakd", "d435", "kinect"], default="oakd",
+                   help="camera model: intrinsics and depth error (default oakd, the cell's camera)")
     g.set_defaults(func=run_generate)
 
 
@@ -31,6 +39,8 @@ def run_generate(args: argparse.Namespace) -> int:
 
     if args.scenes < 1:
         raise ValueError(f"--scenes: expected a positive number, got {args.scenes}")
+    if args.distractors < 0:
+        raise ValueError(f"--distractors: expected a count >= 0, got {args.distractors}")
     cfg = load_config(args.config)
     world_kwargs = {
         "robot": ur_model(cfg.robot.model),
@@ -47,8 +57,10 @@ def run_generate(args: argparse.Namespace) -> int:
             height=getattr(cfg.drivers.camera, "height", 480),
             pose_noise_m=args.pose_noise_mm / 1000.0, pose_noise_deg=args.pose_noise_deg, scene_options=opts,
             progress=lambda i, n: bar.update(task, completed=i),
+            variety=args.variety, distractors=args.distractors, camera=args.camera,
         )
     dt = time.perf_counter() - t0
-    print(f"wrote {stats['scenes']} scenes, {stats['images']} images, {stats['objects']} objects, "
-          f"{stats['targets']} targets to {args.out} in {dt:.1f} s ({dt / stats['scenes']:.2f} s/scene)")
+    print(f"wrote {stats['scenes']} scenes, {stats['images']} images, {stats['objects']} objects "
+          f"({stats['distractors']} distractors), {stats['targets']} targets, {stats['inventory']} inventory models "
+          f"to {args.out} in {dt:.1f} s ({dt / stats['scenes']:.2f} s/scene)")
     return 0
