@@ -323,7 +323,7 @@ class URArm(Arm):
         servo_gain: float = 300.0,
         servo_settle_tolerance: float = 1e-3,
         servo_settle_time: float = 1.0,
-        motion_start_timeout: float = 1.0,
+        motion_start_timeout: float = 2.0,
         upper_range_registers: bool = False,
         watchdog: bool = True,
         preflight: bool = True,
