@@ -175,7 +175,7 @@ def preflight_rtde(host: str, timeout: float = 2.0) -> tuple[int, int, int, int]
             except OSError:
                 pass
             return version
-    except (TimeoutError, socket.timeout):
+    except TimeoutError:
         raise DeviceNotConnectedError(
             f"UR arm at {host}: the controller accepted TCP port {RTDE_PORT} but did not {stage} within "
             f"{timeout:.1f} s. Restart the controller (or its RTDE service) and check nothing else floods it."
@@ -191,7 +191,7 @@ def preflight_dashboard(host: str, timeout: float = 2.0) -> None:
         s.settimeout(timeout)
         try:
             greeting = s.recv(256)
-        except (TimeoutError, socket.timeout):
+        except TimeoutError:
             raise DeviceNotConnectedError(
                 f"UR arm at {host}: the dashboard server (port {DASHBOARD_PORT}) accepted the connection but sent "
                 f"no greeting within {timeout:.1f} s"
@@ -323,7 +323,7 @@ class URArm(Arm):
         servo_gain: float = 300.0,
         servo_settle_tolerance: float = 1e-3,
         servo_settle_time: float = 1.0,
-        motion_start_timeout: float = 1.0,
+        motion_start_timeout: float = 2.0,
         upper_range_registers: bool = False,
         watchdog: bool = True,
         preflight: bool = True,

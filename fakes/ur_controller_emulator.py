@@ -48,7 +48,7 @@ class URControllerEmulator:
     def _random_host() -> str:
         return f"127.{random.randint(2, 254)}.{random.randint(1, 254)}.{random.randint(2, 254)}"
 
-    def start(self, timeout: float = 20.0) -> "URControllerEmulator":
+    def start(self, timeout: float = 20.0) -> URControllerEmulator:
         for _ in range(5):
             host = self.fixed_host or self._random_host()
             self.proc = subprocess.Popen(
@@ -142,7 +142,7 @@ class URControllerEmulator:
             proc.kill()
             proc.wait(timeout=2.0)
 
-    def __enter__(self) -> "URControllerEmulator":
+    def __enter__(self) -> URControllerEmulator:
         return self.start() if self.proc is None else self
 
     def __exit__(self, *exc) -> None:

@@ -564,7 +564,7 @@ class Controller:
             text += data.decode(errors="replace")
             # a program is complete at its top-level "end" (column 0) after a top-level "def"
             while True:
-                m = re.search(r"^def [^\n]*\n.*?^end[ \t]*(\n|$)", text, re.S | re.M)
+                m = re.search(r"^def [^\n]*\n.*?^end[ \t]*(\n|$)", text, re.DOTALL | re.MULTILINE)
                 if not m:
                     break
                 self.load_program(m.group(0))

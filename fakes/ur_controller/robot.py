@@ -119,7 +119,7 @@ class JointMove(PathMotion):
         self.dir = d / length if length > 0 else np.zeros(6)
         super().__init__(length, v, a)
 
-    def step(self, robot: "Robot", dt: float) -> np.ndarray:
+    def step(self, robot: Robot, dt: float) -> np.ndarray:
         self.step_s(dt)
         return self.q0 + self.dir * self.s
 
@@ -129,7 +129,7 @@ class LinearMove(PathMotion):
 
     kind = "movel"
 
-    def __init__(self, robot: "Robot", T_base_tcp_goal: np.ndarray, v: float, a: float):
+    def __init__(self, robot: Robot, T_base_tcp_goal: np.ndarray, v: float, a: float):
         self.T0 = robot.tcp_T()
         self.T1 = T_base_tcp_goal
         self.tcp = robot.tcp.copy()
@@ -137,7 +137,7 @@ class LinearMove(PathMotion):
         ang = float(np.linalg.norm(matrix_to_rotvec(self.T0[:3, :3].T @ self.T1[:3, :3])))
         super().__init__(max(dist, 0.1 * ang), v, a)  # pure rotations move at v rad/s about a 0.1 m arm
 
-    def step(self, robot: "Robot", dt: float) -> np.ndarray:
+    def step(self, robot: Robot, dt: float) -> np.ndarray:
         self.step_s(dt)
         u = self.s / self.length if self.length > 0 else 1.0
         T = np.eye(4)
@@ -166,7 +166,7 @@ class ServoTrack:
         self.target = np.asarray(target, float)
         self.tau = max(float(t), lookahead * 300.0 / max(gain, 1.0))
 
-    def step(self, robot: "Robot", dt: float) -> np.ndarray:
+    def step(self, robot: Robot, dt: float) -> np.ndarray:
         vmax = np.asarray(robot.model.max_joint_speed)
         want = np.clip((self.target - robot.q) / self.tau, -vmax, vmax)
         dv = np.clip(want - robot.qd, -robot.max_joint_accel * dt, robot.max_joint_accel * dt)
@@ -183,7 +183,7 @@ class Brake:
         self.done = False
         self.failed = None
 
-    def step(self, robot: "Robot", dt: float) -> np.ndarray:
+    def step(self, robot: Robot, dt: float) -> np.ndarray:
         top = float(np.max(np.abs(robot.qd)))
         if top <= self.decel * dt:
             self.done = True

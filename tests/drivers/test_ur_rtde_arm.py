@@ -179,13 +179,13 @@ def test_async_move_is_moving_from_the_start_and_wait_ends_it(emu, arm):
 
 
 def test_stop_uses_stopj_or_stopl(emu, arm):
-    target = HOME + np.array([0.5, 0, 0, 0, 0, 0])
+    target = HOME + np.array([1.0, 0, 0, 0, 0, 0])  # > 2 s of motion: the stop lands well before the end
     arm.move_joints(target, speed=0.5, asynchronous=True)
     emu.wait_for(lambda s: s["moving"], what="moving")
     arm.stop(decel=2.5)
     assert logged(emu, "stopJ") == 1
     assert not arm.is_moving() and not emu.state()["moving"]
-    assert abs(arm.joint_positions()[0] - target[0]) > 0.05  # stopped on the way
+    assert abs(arm.joint_positions()[0] - target[0]) > 0.1  # stopped on the way
     T = arm.tcp_pose()
     T[2, 3] -= 0.1
     arm.move_linear(T, speed=0.05, asynchronous=True)
@@ -218,6 +218,7 @@ def test_a_range_error_from_ur_rtde_is_a_limit_violation(emu):
 
 
 def test_trajectory_is_streamed_with_servoj_and_ends_on_the_last_waypoint(emu, arm):
+    arm.servo_settle_time = 30.0  # an upper bound only: the stream ends as soon as the arm is there
     times = np.array([0.0, 0.3, 0.6])
     q = np.stack([HOME, HOME + 0.05, HOME + 0.1])
     arm.execute_trajectory(times, q)
@@ -262,7 +263,7 @@ def test_stall_is_caught_on_read_by_the_age_of_the_data(emu, arm):
 
 
 def test_watchdog_thread_rebuilds_a_stalled_receive_interface(emu):
-    arm = make_arm(emu, watchdog=True, receive_timeout=0.3, clock=time.monotonic)
+    arm = make_arm(emu, watchdog=True, receive_timeout=1.0, clock=time.monotonic)  # real clock: be lenient
     arm.connect()
     try:
         assert any(t.name == "ur-rtde-watchdog" for t in threading.enumerate())
