@@ -82,11 +82,45 @@ class Released:
 
 
 @dataclass
-class Belief:
-    poses: list[ObjectPose] = field(default_factory=list)
-    map_base: np.ndarray | None = None  # the latest perception's map points
+class BeliefMap:
+    """The map plans keep clear of: the latest perception's points, contact marks (where a stopped motion met
+    something no model shows; a keep-out under a drop site where a fallen item may lie unseen) with the scene
+    epoch each was made in, and a temporary keep-out."""
+
+    base: np.ndarray | None = None
     contact_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     contact_epochs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    keep_out: np.ndarray | None = None
+    _cache: tuple | None = None
+
+    @property
+    def points(self) -> np.ndarray | None:
+        """All of it as one array (the same object while nothing changes: the planner caches by identity)."""
+        if self._cache is None:
+            parts = [p for p in (self.base, self.contact_points, self.keep_out) if p is not None and len(p)]
+            self._cache = (np.vstack(parts) if len(parts) > 1 else parts[0] if parts else self.base,)
+        return self._cache[0]
+
+    def set_base(self, points: np.ndarray | None) -> None:
+        self.base, self._cache = points, None
+
+    def add_contacts(self, pts: np.ndarray, epoch: int) -> None:
+        self.contact_points = np.vstack([self.contact_points, pts])
+        self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), epoch)])
+        self._cache = None
+
+    def keep_contacts(self, keep: np.ndarray) -> None:
+        self.contact_points, self.contact_epochs = self.contact_points[keep], self.contact_epochs[keep]
+        self._cache = None
+
+    def set_keep_out(self, pts: np.ndarray | None) -> None:
+        self.keep_out, self._cache = pts, None
+
+
+@dataclass
+class Belief:
+    poses: list[ObjectPose] = field(default_factory=list)
+    map: BeliefMap = field(default_factory=BeliefMap)
     scene_epoch: int = 0
     placed: list[Placed] = field(default_factory=list)  # what the robot put down (staged items included)
     staged: list[Placed] = field(default_factory=list)  # of those, set down on the counter for a regrasp
@@ -102,8 +136,6 @@ class Belief:
     dropped: int = 0  # items that left the gripper on the way
     first_total: int | None = None  # the task's items in the first perception
     _next_id: int = 0
-    _keep_out: np.ndarray | None = None
-    _map_cache: tuple | None = None
 
     # ---- perception and the map ------------------------------------------------------------------------------
     def perceived(self, poses: list[ObjectPose], map_points: np.ndarray | None, pending: list, sink_lo_hi) -> None:
@@ -111,51 +143,50 @@ class Belief:
         scene go (the scan saw the sink anew); `pending` = the models the task still has to move."""
         self.poses = list(poses)
         self.unplannable = []
-        self.map_base = map_points
         self.pending = list(pending)
+        self.map.set_base(map_points)
         lo, hi = sink_lo_hi
-        c, e = self.contact_points, self.contact_epochs
+        c, e = self.map.contact_points, self.map.contact_epochs
         old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
-        self.contact_points, self.contact_epochs = c[~old], e[~old]
-        self._map_cache = None
+        self.map.keep_contacts(~old)
 
     @property
     def map_points(self) -> np.ndarray | None:
-        """The map plans keep clear of: perceived points, contact marks, a temporary keep-out (one array object
-        while nothing changes: the planner caches by identity)."""
-        if self._map_cache is None:
-            parts = [p for p in (self.map_base, self.contact_points, self._keep_out) if p is not None and len(p)]
-            self._map_cache = (np.vstack(parts) if len(parts) > 1 else parts[0] if parts else self.map_base,)
-        return self._map_cache[0]
+        """The map plans keep clear of (BeliefMap.points)."""
+        return self.map.points
+
+    @property
+    def map_base(self) -> np.ndarray | None:
+        return self.map.base
+
+    @property
+    def contact_points(self) -> np.ndarray:
+        return self.map.contact_points
 
     def set_map_base(self, points: np.ndarray | None) -> None:
         """Replace the perceived map points (e.g. less those an item picked away explained)."""
-        self.map_base = points
-        self._map_cache = None
+        self.map.set_base(points)
 
     def mark_contact(self, pts: np.ndarray | None) -> int:
         """Keep `pts` as map points no object explains (a contact sliver, a keep-out under a drop site); marks in
         the sink last until the scene has changed and the sink been perceived again. Returns how many."""
         if pts is None or not len(pts):
             return 0
-        self.contact_points = np.vstack([self.contact_points, pts])
-        self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), self.scene_epoch)])
-        self._map_cache = None
+        self.map.add_contacts(pts, self.scene_epoch)
         return len(pts)
 
     def drop_contacts(self) -> None:
         """Forget every contact mark (they block a move the arm must make)."""
-        self.contact_points, self.contact_epochs = np.zeros((0, 3)), np.zeros(0, int)
-        self._map_cache = None
+        self.map.keep_contacts(np.zeros(len(self.map.contact_points), bool))
 
     @contextlib.contextmanager
     def keeping_out(self, pts: np.ndarray | None):
         """Within the block, `pts` are part of the map too."""
-        self._keep_out, self._map_cache = pts, None
+        self.map.set_keep_out(pts)
         try:
             yield
         finally:
-            self._keep_out, self._map_cache = None, None
+            self.map.set_keep_out(None)
 
     # ---- items -------------------------------------------------------------------------------------------------
     def attempts_for(self, obj: ObjectPose, create: bool = False) -> Attempts | None:

@@ -16,7 +16,16 @@ from kitchenbot.perception.inventory import ObjectModel
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import Holdings, Task, _drop_zone_targets, area_spots, as_is, footprint, on_top_of_same, upright
+from kitchenbot.tasks.base import (
+    Holdings,
+    Task,
+    _drop_zone_targets,
+    area_spots,
+    as_is,
+    footprint,
+    on_top_of_same,
+    upright,
+)
 
 MAX_STACK = 6
 
