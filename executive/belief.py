@@ -225,10 +225,14 @@ class Belief:
         if reason:
             t.reasons.append(reason)
 
-    def record_slide(self, obj: ObjectPose, T_after: np.ndarray) -> None:
-        """`obj` was slid to T_after: the same item over there (bounded slides); the scene changed."""
+    def record_slide(self, obj: ObjectPose) -> Attempts:
+        """A slide of `obj` starts (counted whether or not it completes: slides are bounded per item)."""
         t = self.attempts_for(obj, create=True)
         t.slides += 1
+        return t
+
+    def record_slid(self, t: Attempts, T_after: np.ndarray) -> None:
+        """The item slid to T_after: the same item over there; the scene changed."""
         t.pos = T_after[:3, 3].copy()
         self.scene_changed()
 

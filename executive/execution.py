@@ -124,13 +124,14 @@ class Execution:
     def _execute_slide(self) -> str:
         """Close the fingers, press on the item, slide it, go back up; the re-scan (verify) sees where it went."""
         sl, obj = self.item.slide, self.item.obj
+        t = self.belief.record_slide(obj)
         self.report.slides += 1
         self._cmd("gripper.open", opening=0.0, why="closed fingers press on the item")
         self.gripper.open(0.0)
         for traj in sl.trajectories:
             self._run_trajectory(traj)
         self.item.plan = None
-        self.belief.record_slide(obj, sl.T_base_obj_after)  # the scene changed: what could not be planned may be now
+        self.belief.record_slid(t, sl.T_base_obj_after)  # the scene changed: what could not be planned may be now
         self._log("result", "slid", cls=obj.cls, to=sl.T_base_obj_after[:3, 3])
         return "executed"
 

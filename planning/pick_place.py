@@ -170,11 +170,12 @@ class Planner:
         except LimitViolation as e:
             return CartesianPathFailed(f"{name}: {e}")
 
-    def _joint_motion(self, scene: Scene, q0, q1, name: str, timings: dict) -> Trajectory | PlanningFailure:
+    def _joint_motion(self, scene: Scene, q0, q1, name: str, timings: dict,
+                      timeout_scale: float = 1.0) -> Trajectory | PlanningFailure:
         s = self.settings
         t0 = time.perf_counter()
         res = plan_joint_path(
-            scene, q0, q1, timeout=s.planner_timeout, simplify_timeout=s.simplify_timeout,
+            scene, q0, q1, timeout=s.planner_timeout * timeout_scale, simplify_timeout=s.simplify_timeout,
             planning_resolution=self.planning_resolution, validity_resolution=s.validity_resolution,
         )
         timings[f"{name}_plan_ms"] = (time.perf_counter() - t0) * 1e3
@@ -704,8 +705,10 @@ class Planner:
         objects: Sequence[ObjectPose] = (),
         held: Grasp | None = None,
         map_points: np.ndarray | None = None,
+        timeout_scale: float = 1.0,
     ) -> MovePlan | PlanningFailure:
-        """Collision-free joint motion (e.g. to a scan waypoint or home), with `held` attached if given."""
+        """Collision-free joint motion (e.g. to a scan waypoint or home), with `held` attached if given;
+        `timeout_scale` times the configured RRT-Connect budget."""
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
             return q0
@@ -714,7 +717,7 @@ class Planner:
             return q1
         timings: dict = {}
         scene = self.scene(objects, map_points, exclude=held.obj if held is not None else None, held=held)
-        traj = self._joint_motion(scene, q0, q1, "move", timings)
+        traj = self._joint_motion(scene, q0, q1, "move", timings, timeout_scale)
         if isinstance(traj, PlanningFailure):
             return traj
         return MovePlan(traj, timings)
