@@ -285,6 +285,17 @@ class Belief:
                 and not any(same_item(p.cls, p.T_base_obj[:3, 3], o.cls, o.T_base_obj[:3, 3]) for o in placed)]
         return seen + placed
 
+    def provenance(self, obj: ObjectPose) -> str:
+        """Where the belief's pose of `obj` comes from: "staged" / "placed" (a record of what the robot put down),
+        "released" (put down, not verified yet), "perceived" (the latest perception), or "unknown"."""
+        if any(p.instance_id == obj.instance_id for p in self.staged):
+            return "staged"
+        if any(p.instance_id == obj.instance_id for p in self.placed):
+            return "placed"
+        if obj.instance_id == 99_999 or (self.released is not None and obj is self.released.obj):
+            return "released"
+        return "perceived" if any(p is obj for p in self.poses) else "unknown"
+
     def staged_waiting(self) -> list[Placed]:
         """Staged items with attempts left."""
         return [st for st in self.staged if not self.exhausted(as_pose(st))]

@@ -88,6 +88,7 @@ def test_a_perceived_item_where_one_was_placed_is_that_one():
     b.perceived([seen_there, glass], None, task.pending_models([glass]), Cell().sink_interior)
     objs = b.scene_objects()
     assert [o.instance_id for o in objs] == [3, b.placed[0].instance_id]
+    assert [b.provenance(o) for o in objs] == ["perceived", "placed"]
 
 
 def test_tasks_read_the_belief_and_do_not_change_it():
