@@ -250,6 +250,51 @@ class Belief:
     def scene_changed(self) -> None:
         self.scene_epoch += 1
 
+    def record_unplannable(self, obj: ObjectPose) -> None:
+        """No plan for `obj` with the current poses: the others first until the next perception."""
+        self.unplannable.append(obj)
+
+    def record_first_total(self, n: int) -> None:
+        if self.first_total is None:
+            self.first_total = n
+
+    # ---- what left the gripper -----------------------------------------------------------------------------------
+    def release(self, rel: Released) -> None:
+        """An item was set down: the next perception verifies it."""
+        self.released = rel
+
+    def take_released(self) -> Released | None:
+        rel, self.released = self.released, None
+        return rel
+
+    def record_dropped(self, where: np.ndarray) -> None:
+        """An item left the gripper on the way (slipped, let go over the cell) about above `where`."""
+        self.dropped += 1
+        self.drop_site = np.array(where, float)
+
+    def record_unseen(self, obj: ObjectPose, record: Placed, site: np.ndarray) -> None:
+        """A placement was not seen at its target: kept there as an obstacle (`record`), counted as unverified,
+        and looked for around `site` (it may have tipped or fallen off)."""
+        self.unverified.append(obj.cls)
+        self.unseen_placement = record
+        self.drop_site = np.array(site, float)
+
+    def take_drop_site(self) -> tuple[np.ndarray | None, Placed | None]:
+        """(where to look for a dropped item, the record of the unseen placement it may be), once."""
+        out = (self.drop_site, self.unseen_placement)
+        self.drop_site, self.unseen_placement = None, None
+        return out
+
+    def found_unseen(self, record: Placed) -> None:
+        """The item not seen at its target was found near it: its record there goes; no longer unverified."""
+        self.unplace(record)
+        if record.cls in self.unverified:
+            self.unverified.remove(record.cls)
+
+    def record_found(self, p: Placed) -> None:
+        """A dropped item found outside its target: it waits there to be picked up again, as a staged one."""
+        self.staged.append(p)
+
     # ---- what the robot put down ----------------------------------------------------------------------------
     def record_placed(self, task, obj: ObjectPose, target, T_base_obj: np.ndarray) -> Placed:
         """`obj` rests at T_base_obj at `target` (the task's record of it: footprint, height)."""

@@ -139,8 +139,8 @@ class Execution:
         """The current object was set down at `target`, resting at T_rest: the next perception verifies it (gone
         from the sink, present there) and records it (staged for a regrasp when `staging`)."""
         obj, b = self.item.obj, self.belief
-        b.released = Released(obj, target, T_rest, None, staging, self.item.staged,
-                              near_before=max(1, len(self._same_class_near(obj))))
+        b.release(Released(obj, target, T_rest, None, staging, self.item.staged,
+                           near_before=max(1, len(self._same_class_near(obj)))))
         if self.planner is not None and b.map_base is not None:
             # the map still holds the points where it stood: nothing explains them now that it is gone
             b.set_map_base(self.planner.without_points_of(b.map_base, obj))
