@@ -82,11 +82,45 @@ class Released:
 
 
 @dataclass
-class Belief:
-    poses: list[ObjectPose] = field(default_factory=list)
-    map_base: np.ndarray | None = None  # the latest perception's map points
+class BeliefMap:
+    """The map plans keep clear of: the latest perception's points, contact marks (where a stopped motion met
+    something no model shows; a keep-out under a drop site where a fallen item may lie unseen) with the scene
+    epoch each was made in, and a temporary keep-out."""
+
+    base: np.ndarray | None = None
     contact_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     contact_epochs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    keep_out: np.ndarray | None = None
+    _cache: tuple | None = None
+
+    @property
+    def points(self) -> np.ndarray | None:
+        """All of it as one array (the same object while nothing changes: the planner caches by identity)."""
+        if self._cache is None:
+            parts = [p for p in (self.base, self.contact_points, self.keep_out) if p is not None and len(p)]
+            self._cache = (np.vstack(parts) if len(parts) > 1 else parts[0] if parts else self.base,)
+        return self._cache[0]
+
+    def set_base(self, points: np.ndarray | None) -> None:
+        self.base, self._cache = points, None
+
+    def add_contacts(self, pts: np.ndarray, epoch: int) -> None:
+        self.contact_points = np.vstack([self.contact_points, pts])
+        self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), epoch)])
+        self._cache = None
+
+    def keep_contacts(self, keep: np.ndarray) -> None:
+        self.contact_points, self.contact_epochs = self.contact_points[keep], self.contact_epochs[keep]
+        self._cache = None
+
+    def set_keep_out(self, pts: np.ndarray | None) -> None:
+        self.keep_out, self._cache = pts, None
+
+
+@dataclass
+class Belief:
+    poses: list[ObjectPose] = field(default_factory=list)
+    map: BeliefMap = field(default_factory=BeliefMap)
     scene_epoch: int = 0
     placed: list[Placed] = field(default_factory=list)  # what the robot put down (staged items included)
     staged: list[Placed] = field(default_factory=list)  # of those, set down on the counter for a regrasp
@@ -102,8 +136,6 @@ class Belief:
     dropped: int = 0  # items that left the gripper on the way
     first_total: int | None = None  # the task's items in the first perception
     _next_id: int = 0
-    _keep_out: np.ndarray | None = None
-    _map_cache: tuple | None = None
 
     # ---- perception and the map ------------------------------------------------------------------------------
     def perceived(self, poses: list[ObjectPose], map_points: np.ndarray | None, pending: list, sink_lo_hi) -> None:
@@ -111,51 +143,50 @@ class Belief:
         scene go (the scan saw the sink anew); `pending` = the models the task still has to move."""
         self.poses = list(poses)
         self.unplannable = []
-        self.map_base = map_points
         self.pending = list(pending)
+        self.map.set_base(map_points)
         lo, hi = sink_lo_hi
-        c, e = self.contact_points, self.contact_epochs
+        c, e = self.map.contact_points, self.map.contact_epochs
         old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
-        self.contact_points, self.contact_epochs = c[~old], e[~old]
-        self._map_cache = None
+        self.map.keep_contacts(~old)
 
     @property
     def map_points(self) -> np.ndarray | None:
-        """The map plans keep clear of: perceived points, contact marks, a temporary keep-out (one array object
-        while nothing changes: the planner caches by identity)."""
-        if self._map_cache is None:
-            parts = [p for p in (self.map_base, self.contact_points, self._keep_out) if p is not None and len(p)]
-            self._map_cache = (np.vstack(parts) if len(parts) > 1 else parts[0] if parts else self.map_base,)
-        return self._map_cache[0]
+        """The map plans keep clear of (BeliefMap.points)."""
+        return self.map.points
+
+    @property
+    def map_base(self) -> np.ndarray | None:
+        return self.map.base
+
+    @property
+    def contact_points(self) -> np.ndarray:
+        return self.map.contact_points
 
     def set_map_base(self, points: np.ndarray | None) -> None:
         """Replace the perceived map points (e.g. less those an item picked away explained)."""
-        self.map_base = points
-        self._map_cache = None
+        self.map.set_base(points)
 
     def mark_contact(self, pts: np.ndarray | None) -> int:
         """Keep `pts` as map points no object explains (a contact sliver, a keep-out under a drop site); marks in
         the sink last until the scene has changed and the sink been perceived again. Returns how many."""
         if pts is None or not len(pts):
             return 0
-        self.contact_points = np.vstack([self.contact_points, pts])
-        self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), self.scene_epoch)])
-        self._map_cache = None
+        self.map.add_contacts(pts, self.scene_epoch)
         return len(pts)
 
     def drop_contacts(self) -> None:
         """Forget every contact mark (they block a move the arm must make)."""
-        self.contact_points, self.contact_epochs = np.zeros((0, 3)), np.zeros(0, int)
-        self._map_cache = None
+        self.map.keep_contacts(np.zeros(len(self.map.contact_points), bool))
 
     @contextlib.contextmanager
     def keeping_out(self, pts: np.ndarray | None):
         """Within the block, `pts` are part of the map too."""
-        self._keep_out, self._map_cache = pts, None
+        self.map.set_keep_out(pts)
         try:
             yield
         finally:
-            self._keep_out, self._map_cache = None, None
+            self.map.set_keep_out(None)
 
     # ---- items -------------------------------------------------------------------------------------------------
     def attempts_for(self, obj: ObjectPose, create: bool = False) -> Attempts | None:
@@ -194,10 +225,14 @@ class Belief:
         if reason:
             t.reasons.append(reason)
 
-    def record_slide(self, obj: ObjectPose, T_after: np.ndarray) -> None:
-        """`obj` was slid to T_after: the same item over there (bounded slides); the scene changed."""
+    def record_slide(self, obj: ObjectPose) -> Attempts:
+        """A slide of `obj` starts (counted whether or not it completes: slides are bounded per item)."""
         t = self.attempts_for(obj, create=True)
         t.slides += 1
+        return t
+
+    def record_slid(self, t: Attempts, T_after: np.ndarray) -> None:
+        """The item slid to T_after: the same item over there; the scene changed."""
         t.pos = T_after[:3, 3].copy()
         self.scene_changed()
 
@@ -214,6 +249,51 @@ class Belief:
 
     def scene_changed(self) -> None:
         self.scene_epoch += 1
+
+    def record_unplannable(self, obj: ObjectPose) -> None:
+        """No plan for `obj` with the current poses: the others first until the next perception."""
+        self.unplannable.append(obj)
+
+    def record_first_total(self, n: int) -> None:
+        if self.first_total is None:
+            self.first_total = n
+
+    # ---- what left the gripper -----------------------------------------------------------------------------------
+    def release(self, rel: Released) -> None:
+        """An item was set down: the next perception verifies it."""
+        self.released = rel
+
+    def take_released(self) -> Released | None:
+        rel, self.released = self.released, None
+        return rel
+
+    def record_dropped(self, where: np.ndarray) -> None:
+        """An item left the gripper on the way (slipped, let go over the cell) about above `where`."""
+        self.dropped += 1
+        self.drop_site = np.array(where, float)
+
+    def record_unseen(self, obj: ObjectPose, record: Placed, site: np.ndarray) -> None:
+        """A placement was not seen at its target: kept there as an obstacle (`record`), counted as unverified,
+        and looked for around `site` (it may have tipped or fallen off)."""
+        self.unverified.append(obj.cls)
+        self.unseen_placement = record
+        self.drop_site = np.array(site, float)
+
+    def take_drop_site(self) -> tuple[np.ndarray | None, Placed | None]:
+        """(where to look for a dropped item, the record of the unseen placement it may be), once."""
+        out = (self.drop_site, self.unseen_placement)
+        self.drop_site, self.unseen_placement = None, None
+        return out
+
+    def found_unseen(self, record: Placed) -> None:
+        """The item not seen at its target was found near it: its record there goes; no longer unverified."""
+        self.unplace(record)
+        if record.cls in self.unverified:
+            self.unverified.remove(record.cls)
+
+    def record_found(self, p: Placed) -> None:
+        """A dropped item found outside its target: it waits there to be picked up again, as a staged one."""
+        self.staged.append(p)
 
     # ---- what the robot put down ----------------------------------------------------------------------------
     def record_placed(self, task, obj: ObjectPose, target, T_base_obj: np.ndarray) -> Placed:
@@ -249,6 +329,17 @@ class Belief:
         seen = [p for p in self.poses if not (rel is not None and p is rel.obj)
                 and not any(same_item(p.cls, p.T_base_obj[:3, 3], o.cls, o.T_base_obj[:3, 3]) for o in placed)]
         return seen + placed
+
+    def provenance(self, obj: ObjectPose) -> str:
+        """Where the belief's pose of `obj` comes from: "staged" / "placed" (a record of what the robot put down),
+        "released" (put down, not verified yet), "perceived" (the latest perception), or "unknown"."""
+        if any(p.instance_id == obj.instance_id for p in self.staged):
+            return "staged"
+        if any(p.instance_id == obj.instance_id for p in self.placed):
+            return "placed"
+        if obj.instance_id == 99_999 or (self.released is not None and obj is self.released.obj):
+            return "released"
+        return "perceived" if any(p is obj for p in self.poses) else "unknown"
 
     def staged_waiting(self) -> list[Placed]:
         """Staged items with attempts left."""

@@ -124,13 +124,14 @@ class Execution:
     def _execute_slide(self) -> str:
         """Close the fingers, press on the item, slide it, go back up; the re-scan (verify) sees where it went."""
         sl, obj = self.item.slide, self.item.obj
+        t = self.belief.record_slide(obj)
         self.report.slides += 1
         self._cmd("gripper.open", opening=0.0, why="closed fingers press on the item")
         self.gripper.open(0.0)
         for traj in sl.trajectories:
             self._run_trajectory(traj)
         self.item.plan = None
-        self.belief.record_slide(obj, sl.T_base_obj_after)  # the scene changed: what could not be planned may be now
+        self.belief.record_slid(t, sl.T_base_obj_after)  # the scene changed: what could not be planned may be now
         self._log("result", "slid", cls=obj.cls, to=sl.T_base_obj_after[:3, 3])
         return "executed"
 
@@ -138,8 +139,8 @@ class Execution:
         """The current object was set down at `target`, resting at T_rest: the next perception verifies it (gone
         from the sink, present there) and records it (staged for a regrasp when `staging`)."""
         obj, b = self.item.obj, self.belief
-        b.released = Released(obj, target, T_rest, None, staging, self.item.staged,
-                              near_before=max(1, len(self._same_class_near(obj))))
+        b.release(Released(obj, target, T_rest, None, staging, self.item.staged,
+                           near_before=max(1, len(self._same_class_near(obj)))))
         if self.planner is not None and b.map_base is not None:
             # the map still holds the points where it stood: nothing explains them now that it is gone
             b.set_map_base(self.planner.without_points_of(b.map_base, obj))

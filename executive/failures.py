@@ -1,5 +1,5 @@
 """How a step of a task run fails: the exceptions the runner raises inside states, and the Failure record that
-the recovery rules (executive/recovery.py, docs/executive.md) branch on."""
+the recovery rules (executive/recovery_rules.py, docs/executive.md) branch on."""
 
 from __future__ import annotations
 

@@ -101,20 +101,28 @@ class Motions:
             raise self._slipped(traj.name)
         self._log("result", "arm.execute_trajectory", name=traj.name, q=self.arm.joint_positions())
 
+    # RRT-Connect's time budget grows by this factor after each timeout of one move: a search cut short by its
+    # wall-clock budget (a narrow way out, a loaded computer) gets longer, not the same budget again.
+    TIMEOUT_GROWTH = 2.0
+
     def _move_joints(self, q: np.ndarray, what: str) -> None:
-        """A collision-free planned joint motion (two tries: RRT-Connect is randomised). Without one the arm does
-        not move: StepFailed("no_path"). Only a runner built without a planner moves directly."""
+        """A collision-free planned joint motion (three tries: RRT-Connect is randomised; after a timeout with a
+        longer budget). Without one the arm does not move: StepFailed("no_path"). Only a runner built without a
+        planner moves directly."""
         q_now = self.arm.joint_positions()
         if np.max(np.abs(q_now - q)) < 1e-3:
             return
         b = self.belief
         if self.planner is not None:
-            plan, escaped = None, False
+            plan, escaped, scale = None, False, 1.0
             for _ in range(3):
-                plan = self.planner.plan_move(q_now, q, objects=b.scene_objects(), map_points=b.map_points)
+                plan = self.planner.plan_move(q_now, q, objects=b.scene_objects(), map_points=b.map_points,
+                                              timeout_scale=scale)
                 if plan.ok:
                     self._run_trajectory(plan.trajectory)
                     return
+                if plan.kind == "planner_timeout":
+                    scale *= self.TIMEOUT_GROWTH
                 if plan.kind in ("start_in_collision", "goal_in_collision") and len(b.contact_points):
                     # the marks of a stop (RecoveryActions._mark_contact) block where the arm is or must go: they
                     # have done their part (the arm backed off); a move they make impossible is planned without them
@@ -153,8 +161,7 @@ class Motions:
     def _slipped(self, what: str) -> StepFailed:
         """The held object slipped out: it fell straight down from about where the tool is now."""
         where = self.arm.tcp_pose()[:3, 3].copy()
-        self.belief.dropped += 1
-        self.belief.drop_site = where
+        self.belief.record_dropped(where)
         obj = self.item.obj
         return StepFailed("slip", f"the {obj.cls if obj is not None else 'object'} slipped out during {what}",
                           at=where)

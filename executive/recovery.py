@@ -61,7 +61,7 @@ class RecoveryActions:
             return
         self.belief.record_plan_failure(obj, f.details.get("planning_kind", f.kind))
         if self.item.staged is None:
-            self.belief.unplannable.append(obj)
+            self.belief.record_unplannable(obj)
 
     def _act_prefer_blocker(self, f: Failure, ctx: dict) -> None:
         if self.item.obj is not None:
@@ -237,8 +237,7 @@ class RecoveryActions:
         down at where it fell; an item of its class found there (and not one placed earlier) is picked up again
         from there, as an item staged on the counter is."""
         b = self.belief
-        site, b.drop_site = b.drop_site, None
-        unseen_rec, b.unseen_placement = b.unseen_placement, None  # (it stands where it was not seen)
+        site, unseen_rec = b.take_drop_site()  # (unseen_rec: a placement not seen at its target, kept there)
         if site is None or self.item.obj is None or self.planner is None:
             return
         lo, hi = self.robot.cell.sink_interior
@@ -278,9 +277,7 @@ class RecoveryActions:
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
         if unseen_rec is not None and unseen_rec.cls == cls:  # nothing stands at its target; handled again from here
-            b.unplace(unseen_rec)
-            if cls in b.unverified:
-                b.unverified.remove(cls)
+            b.found_unseen(unseen_rec)
             self._log("note", "the item not seen at its target lies near it", cls=cls, xyz=obj.T_base_obj[:3, 3],
                       target=unseen_rec.T_base_obj[:3, 3])
         T_release = np.array(obj.T_base_obj, float)
@@ -293,7 +290,7 @@ class RecoveryActions:
             b.scene_changed()
             self._log("note", "the dropped item lies at its target", cls=cls, xyz=obj.T_base_obj[:3, 3])
             return
-        b.staged.append(placed)
+        b.record_found(placed)
         self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
 
     KEEP_OUT_DEPTH = 0.45  # m below the drop site a fallen item may have come to rest (a rack under the counter)
@@ -391,8 +388,7 @@ class RecoveryActions:
         (x0, y0), (x1, y1) = self.robot.cell.spec.counter_extent_xy
         if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
             self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
-            self.belief.dropped += 1
-            self.belief.drop_site = tcp.copy()
+            self.belief.record_dropped(tcp)
             self._cmd("gripper.open", release=True)
             self.gripper.open()
             return False

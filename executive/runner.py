@@ -336,7 +336,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self._verify_pending()
         if b.first_total is None:
             # the task's own objects (remaining() may also list items to move out of their way first)
-            b.first_total = sum(1 for p in self.task.remaining(poses) if self.task.wants(p))
+            b.record_first_total(sum(1 for p in self.task.remaining(poses) if self.task.wants(p)))
             self.report.objects_total = b.first_total
         self._emit({"type": "progress", "objects_done": self.report.objects_done,
                     "objects_total": max(self.report.objects_total,

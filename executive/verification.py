@@ -70,10 +70,9 @@ class Verification:
     def _verify_pending(self) -> None:
         """Verify the last placement against fresh poses: gone from the sink, present at its target."""
         b = self.belief
-        p = b.released
+        p = b.take_released()
         if p is None:
             return
-        b.released = None
         # Gone when fewer same-class objects are seen there than before the pick: the top plate of a stack
         # leaves the one nested below it within gone_radius.
         near = self._same_class_near(p.obj)
@@ -90,13 +89,11 @@ class Verification:
         if presence is not None and presence.decided and not presence.present:
             # Gone from the sink but not seen where it should be (tipped over, fell): something is likely
             # there, so it stays an obstacle at its target; the report counts it as unverified.
-            b.unverified.append(p.obj.cls)
             if p.staged is not None:
                 b.unplace(p.staged)
-            b.unseen_placement = b.record_placed(self.task, p.obj, p.target, p.T_base_obj)
             # it may have tipped or fallen off a stack next to its target: the recovery looks there from above
             # (as for a slip), and an item found there is picked up again (its record at the target goes)
-            b.drop_site = np.array(p.T_base_obj[:3, 3], float)
+            b.record_unseen(p.obj, b.record_placed(self.task, p.obj, p.target, p.T_base_obj), p.T_base_obj[:3, 3])
             raise StepFailed("verify_failed", f"the {p.obj.cls} was not seen at its target "
                              f"({presence.agree:.0%} of {presence.pixels} px agree)")
         T_settled = p.T_base_obj.copy()

@@ -25,6 +25,7 @@ from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
+from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks
 from kitchenbot.planning.motion import cartesian_line, plan_joint_path
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.settings import PlanningSettings
@@ -171,11 +172,12 @@ class Planner:
         except LimitViolation as e:
             return CartesianPathFailed(f"{name}: {e}")
 
-    def _joint_motion(self, scene: Scene, q0, q1, name: str, timings: dict) -> Trajectory | PlanningFailure:
+    def _joint_motion(self, scene: Scene, q0, q1, name: str, timings: dict,
+                      timeout_scale: float = 1.0) -> Trajectory | PlanningFailure:
         s = self.settings
         t0 = time.perf_counter()
         res = plan_joint_path(
-            scene, q0, q1, timeout=s.planner_timeout, simplify_timeout=s.simplify_timeout,
+            scene, q0, q1, timeout=s.planner_timeout * timeout_scale, simplify_timeout=s.simplify_timeout,
             planning_resolution=self.planning_resolution, validity_resolution=s.validity_resolution,
             max_iterations=s.planner_max_iterations, seed=s.planner_seed,
         )
@@ -428,15 +430,9 @@ class Planner:
         held_only = True
         near_wall = self._near_sink_wall(g.obj)
         centre = np.asarray(g.obj.T_base_obj, float)[:3, 3]
-        directions = self._lift_directions(centre, g.obj.T_base_obj, away_from_walls=near_wall)
-        n_base = len(directions)
-        k = 0
-        while k < len(directions):
-            d = directions[k]
+        for d, along in lift_fallbacks(self.cell.sink_interior, g.obj.T_base_obj, objects, lift_objects,
+                                       near_wall=near_wall):
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
-            # the first one or two directions are straight up and along the item's axis (see _lift_directions)
-            along = k == 0 or (k == 1 and self._tilted_axis(g.obj.T_base_obj) is not None)
-            k += 1
             info: dict = {}
             r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False,
                            start_scene=vertical_start_scene if along else start_scene,
@@ -467,10 +463,6 @@ class Planner:
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 first = first or CartesianPathFailed("lift: the lifted pose is within the collision margin",
                                                      {"pairs": pairs, "segment": "lift"})
-            if k == n_base and lift_objects:
-                # every planned direction ran into something; if items were among it, try tilting away from them
-                # (a cup under the rim of a glass leaning over it slips out from under it)
-                directions += self._lift_directions_away(centre, objects, lift_objects, directions)
         if first is not None:
             if lift_objects:
                 first.details["lift_objects"] = sorted(lift_objects)
@@ -503,27 +495,9 @@ class Planner:
         return None
 
     @staticmethod
-    def _lift_directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.ndarray],
-                              tilts=(30.0, 45.0), turns=(0.0, 40.0, -40.0)) -> list[np.ndarray]:
-        """Unit lift directions tilted away (horizontally) from the named perceived objects' centres, not
-        within 10 degrees of one in `have`."""
-        away = np.zeros(2)
-        for k, o in enumerate(objects):
-            if object_name(o, k) in names:
-                v = centre[:2] - np.asarray(o.T_base_obj, float)[:2, 3]
-                if np.linalg.norm(v) > 1e-3:
-                    away += v / np.linalg.norm(v)
-        if np.linalg.norm(away) < 1e-6:
-            return []
-        a0 = float(np.arctan2(away[1], away[0]))
-        out: list[np.ndarray] = []
-        for tilt in tilts:
-            for da in turns:
-                t, a = np.radians(tilt), a0 + np.radians(da)
-                d = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)])
-                if all(float(d @ h) < np.cos(np.radians(10.0)) for h in [*have, *out]):
-                    out.append(d)
-        return out
+    def _lift_directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.ndarray]) -> list[np.ndarray]:
+        """planning.lift.directions_away."""
+        return directions_away(centre, objects, names, have)
 
     def _near_sink_wall(self, o: ObjectPose, clearance: float = 0.03) -> bool:
         """Whether the object reaches within `clearance` of a basin wall (its bounding sphere)."""
@@ -534,35 +508,10 @@ class Planner:
         gap = min(float(np.min(c - np.asarray(lo, float)[:2])), float(np.min(np.asarray(hi, float)[:2] - c)))
         return gap < self.inventory[o.obj_id].diameter / 2 + clearance
 
-    @staticmethod
-    def _tilted_axis(T_base_obj: np.ndarray | None) -> np.ndarray | None:
-        """The item's axis (upward, unit) when it rests tilted by 5 to 60 degrees, else None."""
-        if T_base_obj is None:
-            return None
-        axis = np.asarray(T_base_obj, float)[:3, 2]
-        axis = axis * np.sign(axis[2]) if abs(axis[2]) > 1e-9 else axis
-        if np.cos(np.radians(60)) <= axis[2] <= np.cos(np.radians(5)):
-            return axis / np.linalg.norm(axis)
-        return None
-
     def _lift_directions(self, p: np.ndarray, T_base_obj: np.ndarray | None = None, *,
                          away_from_walls: bool = True) -> list[np.ndarray]:
-        """Unit lift directions from a grasp at `p` (base frame): up; along the object's axis when it rests
-        tilted (5 to 60 degrees; the upward one of +-z); then (`away_from_walls`) tilted towards the sink's
-        middle."""
-        lo, hi = self.cell.sink_interior
-        to_mid = (np.asarray(lo, float) + np.asarray(hi, float))[:2] / 2 - np.asarray(p, float)[:2]
-        out = [np.array([0.0, 0.0, 1.0])]
-        axis = self._tilted_axis(T_base_obj)
-        if axis is not None:
-            out.append(axis)
-        if not away_from_walls or np.linalg.norm(to_mid) < 1e-6:
-            return out
-        a0 = float(np.arctan2(to_mid[1], to_mid[0]))
-        for tilt, da in ((30.0, 0.0), (30.0, 60.0), (30.0, -60.0), (50.0, 0.0)):
-            t, a = np.radians(tilt), a0 + np.radians(da)
-            out.append(np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)]))
-        return out
+        """planning.lift.base_directions for this cell's sink."""
+        return base_directions(self.cell.sink_interior, p, T_base_obj, away_from_walls=away_from_walls)
 
     # ---- place -----------------------------------------------------------------------------------------------------
     def _place_turns(self, target: PlaceTarget, obj_id: int) -> list[np.ndarray]:
@@ -759,8 +708,10 @@ class Planner:
         objects: Sequence[ObjectPose] = (),
         held: Grasp | None = None,
         map_points: np.ndarray | None = None,
+        timeout_scale: float = 1.0,
     ) -> MovePlan | PlanningFailure:
-        """Collision-free joint motion (e.g. to a scan waypoint or home), with `held` attached if given."""
+        """Collision-free joint motion (e.g. to a scan waypoint or home), with `held` attached if given;
+        `timeout_scale` times the configured RRT-Connect budget."""
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
             return q0
@@ -769,7 +720,7 @@ class Planner:
             return q1
         timings: dict = {}
         scene = self.scene(objects, map_points, exclude=held.obj if held is not None else None, held=held)
-        traj = self._joint_motion(scene, q0, q1, "move", timings)
+        traj = self._joint_motion(scene, q0, q1, "move", timings, timeout_scale)
         if isinstance(traj, PlanningFailure):
             return traj
         return MovePlan(traj, timings)

@@ -1,12 +1,13 @@
 """What every task names: which objects it picks, in what order, where each goes, and when it is done.
 
-A task is pure bookkeeping over perception results and the cell geometry: it never moves the robot. The
-executive asks it for the next object and its place target, tells it when a placement was verified, and asks
-whether the work is complete. Place targets are :class:`kitchenbot.planning.types.PlaceTarget` (object pose at
-release); the planner turns them into motions.
+A task is a pure function of perception results, the cell geometry and the executive's belief (what it has
+placed, what is still pending: :class:`Holdings`): it never moves the robot and holds no state of the run. The
+executive asks it for the next object (`remaining`) and its place targets (`targets(obj, belief)`), for the
+record of a placement (`placed_record`, which the belief keeps), and whether the work is complete. Place targets
+are :class:`kitchenbot.planning.types.PlaceTarget` (object pose at release); the planner turns them into motions.
 
-Footprints on the target areas are tracked here as discs/boxes in the base xy plane (what the rack, the
-stacking area or the drop zone already holds), because the scan only looks into the sink.
+Footprints on the target areas are discs/boxes in the base xy plane (what the rack, the stacking area or the
+drop zone already holds, from the belief's placed records), because the scan only looks into the sink.
 """
 
 from __future__ import annotations

@@ -15,7 +15,16 @@ import numpy as np
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.tasks.base import Holdings, Task, _drop_zone_targets, area_spots, as_is, footprint, on_top_of_same, upright
+from kitchenbot.tasks.base import (
+    Holdings,
+    Task,
+    _drop_zone_targets,
+    area_spots,
+    as_is,
+    footprint,
+    on_top_of_same,
+    upright,
+)
 from kitchenbot.world.attitude import is_upright
 from kitchenbot.world.inventory import ObjectModel
 

@@ -35,7 +35,7 @@ def test_attempts_follow_the_item_and_a_slide_moves_them():
     assert b.attempts_for(_pose(inv, "cup", (0.7, 0.0, -0.15))) is None
     plate = _pose(inv, "dinner_plate", (0.5, 0.1, -0.15))
     b.record_plan_failure(plate, "no_collision_free_grasp")
-    b.record_slide(plate, make_T(np.eye(3), (0.56, 0.1, -0.15)))
+    b.record_slid(b.record_slide(plate), make_T(np.eye(3), (0.56, 0.1, -0.15)))
     assert b.scene_epoch == 1 and b.attempts_for(_pose(inv, "dinner_plate", (0.56, 0.1, -0.15))).slides == 1
 
 
@@ -88,6 +88,7 @@ def test_a_perceived_item_where_one_was_placed_is_that_one():
     b.perceived([seen_there, glass], None, task.pending_models([glass]), Cell().sink_interior)
     objs = b.scene_objects()
     assert [o.instance_id for o in objs] == [3, b.placed[0].instance_id]
+    assert [b.provenance(o) for o in objs] == ["perceived", "placed"]
 
 
 def test_tasks_read_the_belief_and_do_not_change_it():

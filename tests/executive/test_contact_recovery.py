@@ -48,3 +48,32 @@ def test_a_stop_marks_the_space_the_pads_were_about_to_enter(make_runner):
     b.perceived([], fresh, [], (lo, hi))
     sink_pts = np.all(P[:, :2] >= lo[:2], axis=1) & np.all(P[:, :2] <= hi[:2], axis=1)
     assert len(b.map_points) == 5 + int((~sink_pts).sum())
+
+
+def test_a_move_whose_search_timed_out_is_planned_again_with_a_longer_budget(make_runner):
+    """RRT-Connect stops at its wall-clock budget (a narrow way, a loaded computer): the next try of that move
+    gets TIMEOUT_GROWTH times the budget, not the same one again (that left the arm unable to reach any scan
+    waypoint, and the run gave up)."""
+    from kitchenbot.planning.types import PlannerTimeout
+
+    runner, world = make_runner()
+    runner.arm.connect()
+    runner.gripper.connect()
+    real = runner.planner
+    asked = []
+
+    class ShortBudget:  # a search that needs twice the configured budget
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_move(self, q0, q1, *, timeout_scale=1.0, **kw):
+            asked.append(timeout_scale)
+            if timeout_scale < 2.0:
+                return PlannerTimeout("test: the search needs twice the budget")
+            return real.plan_move(q0, q1, timeout_scale=timeout_scale, **kw)
+
+    runner.planner = ShortBudget()
+    q = np.asarray(runner.robot.config.scan_waypoints[0], float)
+    runner._move_joints(q, "scan waypoint 0")
+    assert asked == [1.0, runner.TIMEOUT_GROWTH]
+    assert np.max(np.abs(runner.arm.joint_positions() - q)) < 1e-3

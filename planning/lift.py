@@ -1,0 +1,83 @@
+"""The lift's fallbacks, in the order plan_pick tries them, as one generator (`lift_fallbacks`): straight up;
+along the item's own axis when it rests tilted (as it was stacked); tilted away from the basin walls when it
+is near one; and, once all of those ran into perceived items, tilted away from the items they ran into.
+
+Each direction comes with `along`: whether it is straight up or along the item's axis (those lifts may keep
+the fingers' and the held item's start contacts for a few centimetres; see Planner.plan_pick).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from kitchenbot.planning.grasps import object_name
+
+
+def tilted_axis(T_base_obj: np.ndarray | None) -> np.ndarray | None:
+    """The item's axis (upward, unit) when it rests tilted by 5 to 60 degrees, else None."""
+    if T_base_obj is None:
+        return None
+    axis = np.asarray(T_base_obj, float)[:3, 2]
+    axis = axis * np.sign(axis[2]) if abs(axis[2]) > 1e-9 else axis
+    if np.cos(np.radians(60)) <= axis[2] <= np.cos(np.radians(5)):
+        return axis / np.linalg.norm(axis)
+    return None
+
+
+def base_directions(sink_lo_hi, p: np.ndarray, T_base_obj: np.ndarray | None = None, *,
+                    away_from_walls: bool = True) -> list[np.ndarray]:
+    """Unit lift directions from a grasp at `p` (base frame): up; along the object's axis when it rests tilted
+    (5 to 60 degrees; the upward one of +-z); then (`away_from_walls`) tilted towards the sink's middle."""
+    lo, hi = sink_lo_hi
+    to_mid = (np.asarray(lo, float) + np.asarray(hi, float))[:2] / 2 - np.asarray(p, float)[:2]
+    out = [np.array([0.0, 0.0, 1.0])]
+    axis = tilted_axis(T_base_obj)
+    if axis is not None:
+        out.append(axis)
+    if not away_from_walls or np.linalg.norm(to_mid) < 1e-6:
+        return out
+    a0 = float(np.arctan2(to_mid[1], to_mid[0]))
+    for tilt, da in ((30.0, 0.0), (30.0, 60.0), (30.0, -60.0), (50.0, 0.0)):
+        t, a = np.radians(tilt), a0 + np.radians(da)
+        out.append(np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)]))
+    return out
+
+
+def directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.ndarray],
+                    tilts=(30.0, 45.0), turns=(0.0, 40.0, -40.0)) -> list[np.ndarray]:
+    """Unit lift directions tilted away (horizontally) from the named perceived objects' centres, not within
+    10 degrees of one in `have`."""
+    away = np.zeros(2)
+    for k, o in enumerate(objects):
+        if object_name(o, k) in names:
+            v = centre[:2] - np.asarray(o.T_base_obj, float)[:2, 3]
+            if np.linalg.norm(v) > 1e-3:
+                away += v / np.linalg.norm(v)
+    if np.linalg.norm(away) < 1e-6:
+        return []
+    a0 = float(np.arctan2(away[1], away[0]))
+    out: list[np.ndarray] = []
+    for tilt in tilts:
+        for da in turns:
+            t, a = np.radians(tilt), a0 + np.radians(da)
+            d = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)])
+            if all(float(d @ h) < np.cos(np.radians(10.0)) for h in [*have, *out]):
+                out.append(d)
+    return out
+
+
+def lift_fallbacks(sink_lo_hi, T_base_obj: np.ndarray, objects, ran_into: set[str], *,
+                   near_wall: bool) -> Iterator[tuple[np.ndarray, bool]]:
+    """(direction, along) for the lift of the item at T_base_obj, in the order to try them. `ran_into` is the
+    caller's set of perceived objects the lifts tried so far ran into: read when the base directions are used up
+    (a cup under the rim of a glass leaning over it slips out from under it, tilted away from the glass)."""
+    centre = np.asarray(T_base_obj, float)[:3, 3]
+    base = base_directions(sink_lo_hi, centre, T_base_obj, away_from_walls=near_wall)
+    tilted = tilted_axis(T_base_obj) is not None
+    for k, d in enumerate(base):
+        yield d, k == 0 or (k == 1 and tilted)
+    if ran_into:
+        for d in directions_away(centre, objects, ran_into, base):
+            yield d, False
