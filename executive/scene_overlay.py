@@ -2,7 +2,7 @@
 image coordinates of the views they were perceived from.
 
 The runner's views, poses, selected object and pick plan change as it works. :class:`PerceptionTracker` is a
-runner listener: it keeps references to them at the transitions where they belong together (``perceived``:
+runner listener: it keeps references to them at the transitions where they belong together (:data:`PERCEIVED`:
 the views and the poses found in them; ``selected``: the object chosen; ``planned``: its grasp), so a drawing
 never mixes one scan's image with another scan's poses. Nothing is computed in the runner's thread; the
 outlines are rendered when asked for (:meth:`PerceptionTracker.overlay`) and cached per perception.
@@ -23,6 +23,8 @@ from kitchenbot.transforms import inv
 #: Outlines are traced on a raycast at 1/OUTLINE_SCALE of the image size (4x fewer rays; a pixel of error at
 #: the image's own size is invisible on the page).
 OUTLINE_SCALE = 2
+#: Triggers fired right after a perception: by the perceive state, and by verify (it re-scans and perceives).
+PERCEIVED = ("perceived", "next_object", "complete")
 
 
 @dataclass
@@ -37,6 +39,7 @@ class Perception:
     grasp: object = None  # planning.types.Grasp of the planned pick
     sim_t: float | None = None
     outlines: dict = field(default_factory=dict)  # view index -> [object dict], computed on demand
+    views_ref: object = None  # the runner's list itself (a new scan assigns a new one)
 
 
 class PerceptionTracker:
@@ -53,10 +56,12 @@ class PerceptionTracker:
         if ev.get("type") != "transition":
             return
         r, trig = self.runner, ev.get("trigger")
-        if trig == "perceived":
+        fresh = self.latest is None or r.views is not self.latest.views_ref
+        if trig in PERCEIVED and fresh:
             with self._lock:
                 seq = self.latest.seq + 1 if self.latest else 1
-                self.latest = Perception(seq, list(r.views), list(r.poses), sim_t=ev.get("sim_t"))
+                self.latest = Perception(seq, list(r.views), list(r.poses), sim_t=ev.get("sim_t"),
+                                         views_ref=r.views)
         elif trig == "selected" and self.latest is not None:
             self.latest.selected, self.latest.grasp = r.current, None
         elif trig == "planned" and self.latest is not None:

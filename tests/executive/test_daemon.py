@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import time
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
@@ -219,3 +220,41 @@ def test_a_worker_that_dies_leaves_status_failed_with_the_run_id_and_the_error(a
     r = c.post("/runs", json={"task": "cup-stacking"}, headers=AUTH)
     assert r.status_code == 202 and r.json()["run_id"] == rid + 1
     assert d.slot.ended.wait(120) and c.get("/status").json()["status"] == "succeeded"
+
+
+def test_latest_perception_outlines_and_grasp_are_in_image_coordinates(app):
+    from kitchenbot.executive.scene_overlay import project
+
+    c = TestClient(app)
+    assert c.get("/perception/latest").json()["views"] == []
+    assert c.get("/perception/latest/0.png").status_code == 404
+    d = app.state.daemon
+    seen = []  # the overlay as the page would have fetched it once the pick was planned
+    orig = d.runner_factory
+
+    def factory(*a):
+        runner = orig(*a)
+        runner.listeners.append(lambda ev: ev.get("trigger") == "executed" and seen.append(
+            (d.slot.tracker.overlay(), d.slot.tracker.latest)))
+        return runner
+
+    d.runner_factory = factory
+    assert c.post("/runs", json={"task": "cup-stacking"}, headers=AUTH).status_code == 202
+    assert d.slot.ended.wait(120) and seen
+    p, latest = seen[0]
+    v = p["views"][0]
+    cups = [o for o in v["objects"] if o["cls"] == "cup"]
+    assert cups and [o["selected"] for o in cups] == [True] and p["grasp"]["cls"] == "cup"
+    xy = np.array(cups[0]["outline"])
+    assert len(xy) >= 3 and (xy >= 0).all() and (xy[:, 0] <= v["width"]).all() and (xy[:, 1] <= v["height"]).all()
+    # the outline surrounds the projection of the cup's origin; the grasp's TCP is on the cup (a rim grasp)
+    pose = next(q for q in latest.poses if q.cls == "cup")
+    (x, y), = project(pose.T_base_obj[:3, 3][None], latest.views[0])
+    assert xy[:, 0].min() <= x <= xy[:, 0].max() and xy[:, 1].min() <= y <= xy[:, 1].max()
+    gx, gy = v["grasp"]["tcp"]
+    assert xy[:, 0].min() - 10 <= gx <= xy[:, 0].max() + 10 and xy[:, 1].min() - 10 <= gy <= xy[:, 1].max() + 10
+    assert len(v["grasp"]["fingers"]) == 2
+    # after the run: the last perception (the verifying scan) and its image
+    assert c.get("/perception/latest").json()["seq"] >= 2
+    img = c.get("/perception/latest/0.png")
+    assert img.status_code == 200 and img.content[:8] == b"\x89PNG\r\n\x1a\n"
