@@ -144,8 +144,10 @@ function connect() {
     render();
   };
   es.addEventListener("status", (m) => {
+    const before = ui.status.run_id;
     ui.status = JSON.parse(m.data);
     if (!ui.status.busy) ui.object = "";
+    if (ui.status.run_id !== before) ui.lastEvent = "";  // a new run, or a restarted daemon
     render();
     refreshImages();
     refreshHistory();

@@ -140,42 +140,39 @@ def test_a_run_with_the_token_progresses_stop_stops_it_and_a_wrong_token_is_refu
     shot(page, "wrong_token")
     assert daemon.status()["state"] == "idle" and httpx.get(daemon.url + "/runs").json() == []
 
-    # the token, kept in the tab's session storage; a free-running run progresses to its end
+    # the token, kept in the tab's session storage; a run (held in execute by operator_sim_daemon.py) progresses
+    # from scan to execute, with the cup's outline and the planned grasp drawn on the camera view
     page.fill("#token", TOKEN)
     page.click("#token-save")
     assert page.evaluate("sessionStorage.getItem('kitchenbot.token')") == TOKEN
-    page.select_option("#task-select", "cup-stacking")
-    page.click("#start")
-    expect(page.locator("#api-ok")).to_have_text("started run #1 (cup-stacking)")
-    expect(page.locator("#state")).to_have_attribute("data-state", "done")
-    expect(page.locator("#progress")).to_have_text("placed 1 of 1")
-    expect(page.locator("#runs tr.run")).to_have_count(1)
-    page.click("#runs tr.run")
-    expect(page.locator("#runs td.report")).to_contain_text("No failures")
-    shot(page, "done")
-
-    # a held run (operator_sim_daemon.py): in execute with the grasp drawn, then STOP
     page.select_option("#task-select", "sink-pick")
     page.click("#start")
+    expect(page.locator("#api-ok")).to_have_text("started run #1 (sink-pick)")
     expect(page.locator("#state")).to_have_attribute("data-state", "execute")
     expect(page.locator("#progress")).to_have_text("object 1 of 1 (cup) · 0 placed")
-    expect(page.locator("#start-why")).to_have_text("busy: run #2 is execute")
-    expect(page.locator("#views svg polygon.selected").first).to_be_visible()  # the cup, in each view
-    expect(page.locator("#views line.finger").first).to_be_visible()  # the grasp's finger pads
+    expect(page.locator("#start-why")).to_have_text("busy: run #1 is execute")
+    expect(page.locator("#pause")).to_be_enabled()
+    expect(page.locator("#views svg polygon.selected")).to_have_count(1)  # the cup
+    expect(page.locator("#views line.finger")).to_have_count(2)  # the grasp's finger pads
     shot(page, "running")
+
+    # STOP (no token needed) stops it; the history shows the run's report
     page.click("#stop")
     expect(page.locator("#state")).to_have_attribute("data-state", "stopped")
     s = daemon.status()
-    assert s["state"] == "stopped" and s["status"] == "stopped" and s["run_id"] == 2 and not s["busy"]
+    assert s["state"] == "stopped" and s["status"] == "stopped" and s["run_id"] == 1 and not s["busy"]
     expect(page.locator("#runs tr.run").first).to_contain_text("stopped on request")
+    page.locator("#runs tr.run").first.click()
+    expect(page.locator("#runs td.report")).to_contain_text("No failures")
+    expect(page.locator("#start")).to_be_enabled()
+    shot(page, "stopped")
 
-    # space stops too, wherever the focus is (here on Start: the key must not press it)
-    page.click("#start")
-    expect(page.locator("#state")).to_have_attribute("data-state", "execute")
+    # space is STOP wherever the focus is: here on Start, which it must not press
     page.focus("#start")
-    page.keyboard.press("Space")
-    expect(page.locator("#state")).to_have_attribute("data-state", "stopped")
-    assert daemon.status()["run_id"] == 3 and len(httpx.get(daemon.url + "/runs").json()) == 3
+    with page.expect_request(lambda r: r.method == "POST" and r.url.endswith("/stop")):
+        page.keyboard.press("Space")
+    expect(page.locator("#api-ok")).to_have_text("nothing is running")
+    assert len(httpx.get(daemon.url + "/runs").json()) == 1
 
 
 def test_the_homing_banner_appears_after_a_kill_9_and_clears_after_home(browser, daemon):
