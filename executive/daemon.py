@@ -8,7 +8,12 @@
   token on purpose: stopping never moves anything, and whoever can reach the local port must be able to stop.
 - One run at a time, in a worker thread; ``/stop`` acts at once (the arm decelerates), ``/pause`` and
   ``/resume`` at safe points. ``GET /events`` streams runner events as server-sent events.
-- Malformed bodies, unknown tasks and missing tokens get 4xx with a message and never reach a driver.
+- Malformed bodies, unknown tasks, numbers out of range and missing tokens get 4xx with a message (a 422 names
+  the field and its range) and never reach a driver.
+- ``POST /runs`` begins the run in the journal and answers with its id; a worker that dies leaves ``/status``
+  and the journal saying the run failed, with the error (homing required: the arm's pose is unknown).
+- ``GET /`` is the operator page (``static/``, docs/operator.md); ``GET /perception/latest`` gives it the
+  perceived outlines and the chosen grasp in image coordinates (executive/scene_overlay.py).
 - The journal is shared with ``kitchenbot run``: interrupted runs are reported at start-up and motion is refused
   until ``POST /home``.
 """
@@ -293,11 +298,11 @@ def create_app(config, *, token: str, journal: Journal | None = None, runner_fac
     @app.post("/home", dependencies=[Depends(require_token)], summary="move the arm home; clears the homing "
                                                                       "requirement after an interrupted run")
     def home():
-        if d.busy:
-            raise HTTPException(409, "a run is in progress; stop it first")
         from kitchenbot.drivers.errors import DriverError
 
         with d.lock:  # no run can start while the arm is being homed
+            if d.busy:
+                raise HTTPException(409, "a run is in progress; stop it first")
             try:
                 d.home_action()
             except DriverError as e:  # the arm could not be reached / moved: say so, stay un-homed

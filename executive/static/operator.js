@@ -139,6 +139,7 @@ function connect() {
   es.onerror = () => {
     if (es.readyState === EventSource.CLOSED) setTimeout(connect, 1000);  // the browser gave up: start again
     ui.connected = false;
+    $("api-ok").hidden = true;  // it was about an earlier action
     conn.dataset.state = "lost";
     conn.textContent = "connection lost: reconnecting…";
     render();
@@ -263,7 +264,8 @@ async function refreshHistory() {
     tr.appendChild(text("td", r.status, `status-${r.status}`));
     tr.appendChild(text("td", r.objects_done == null ? "–" : `${r.objects_done} / ${r.objects_total ?? "?"}`));
     tr.appendChild(text("td", new Date(r.started * 1000).toLocaleString(), "hide-narrow"));
-    tr.appendChild(text("td", (r.message || "") + (r.failures ? ` (${r.failures} failure${r.failures > 1 ? "s" : ""})` : "")));
+    const msg = r.message || (r.status === "interrupted" ? "the daemon stopped during this run" : "");
+    tr.appendChild(text("td", msg + (r.failures ? ` (${r.failures} failure${r.failures > 1 ? "s" : ""})` : "")));
     tr.title = "show the report";
     tr.addEventListener("click", () => toggleReport(tr, r.id));
     body.appendChild(tr);
