@@ -163,9 +163,9 @@ class Daemon:
                 raise HTTPException(409, str(e)) from None
             runner.run_id = run_id
             tracker = PerceptionTracker(runner) if hasattr(runner, "robot") else None
-            runner.listeners.append(self.publish)
-            if tracker is not None:
+            if tracker is not None:  # before publish: a page fetching on an event finds what the event announced
                 runner.listeners.append(tracker.on_event)
+            runner.listeners.append(self.publish)
             slot = RunSlot(runner, run_id, tracker)
             slot.thread = threading.Thread(target=self._work, args=(slot,), name=f"run-{run_id}", daemon=True)
             self.slot = slot
