@@ -8,7 +8,12 @@
   token on purpose: stopping never moves anything, and whoever can reach the local port must be able to stop.
 - One run at a time, in a worker thread; ``/stop`` acts at once (the arm decelerates), ``/pause`` and
   ``/resume`` at safe points. ``GET /events`` streams runner events as server-sent events.
-- Malformed bodies, unknown tasks and missing tokens get 4xx with a message and never reach a driver.
+- Malformed bodies, unknown tasks, numbers out of range and missing tokens get 4xx with a message (a 422 names
+  the field and its range) and never reach a driver.
+- ``POST /runs`` begins the run in the journal and answers with its id; a worker that dies leaves ``/status``
+  and the journal saying the run failed, with the error (homing required: the arm's pose is unknown).
+- ``GET /`` is the operator page (``static/``, docs/operator.md); ``GET /perception/latest`` gives it the
+  perceived outlines and the chosen grasp in image coordinates (executive/scene_overlay.py).
 - The journal is shared with ``kitchenbot run``: interrupted runs are reported at start-up and motion is refused
   until ``POST /home``.
 """
@@ -22,34 +27,44 @@ import queue
 import secrets
 import threading
 import time
-from pathlib import Path
-from typing import Literal
+from dataclasses import dataclass, field
+from pathlib import Path as FilePath
+from typing import Annotated, Literal
 
-from fastapi import Depends, FastAPI, Header, HTTPException, Request
+from fastapi import Depends, FastAPI, Header, HTTPException, Path, Query, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response, StreamingResponse
+from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field
 
 from kitchenbot.executive.journal import HomingRequired, Journal, default_journal_path
 from kitchenbot.executive.machine import TERMINAL
+from kitchenbot.executive.scene_overlay import PerceptionTracker
 
 TaskName = Literal["sink-pick", "sink-to-dishwasher", "cup-stacking"]
+
+#: Largest simulated scene seed (numpy seeds any non-negative integer; the journal stores a 64-bit one).
+MAX_SEED = 2**32 - 1
+#: Largest run id a request may name (the journal's ids are SQLite 64-bit integers).
+MAX_RUN_ID = 2**63 - 1
+#: The operator page (plain HTML/CSS/JS, no build step): served at / and /static/.
+STATIC_DIR = FilePath(__file__).parent / "static"
 
 
 class StartRun(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     task: TaskName
-    seed: int | None = Field(None, ge=0, description="simulated scene seed (simulation only)")
+    seed: int | None = Field(None, ge=0, le=MAX_SEED, description="simulated scene seed (simulation only)")
     oracle_perception: bool = Field(False, description="simulation only: poses from the simulator's truth")
 
 
-def load_token(token_file: str | Path | None = None) -> str:
+def load_token(token_file: str | FilePath | None = None) -> str:
     """KITCHENBOT_TOKEN, else the token file (created with a random token, mode 0600, when missing)."""
     env = os.environ.get("KITCHENBOT_TOKEN")
     if env:
         return env
-    path = Path(token_file) if token_file else default_journal_path(False).parent / "token"
+    path = FilePath(token_file) if token_file else default_journal_path(False).parent / "token"
     if path.exists():
         tok = path.read_text().strip()
         if not tok:
@@ -63,6 +78,18 @@ def load_token(token_file: str | Path | None = None) -> str:
     return tok
 
 
+@dataclass
+class RunSlot:
+    """The run the daemon started last: its runner, journal id, worker thread and how the worker ended."""
+
+    runner: object
+    run_id: int
+    tracker: PerceptionTracker | None = None
+    thread: threading.Thread | None = None
+    ended: threading.Event = field(default_factory=threading.Event)  # set when the worker has finished
+    error: str | None = None  # the worker died of this (the runner did not end the run itself)
+
+
 class Daemon:
     """The run slot, the journal and the event fan-out shared by the endpoints."""
 
@@ -72,11 +99,14 @@ class Daemon:
         self.runner_factory = runner_factory
         self.home_action = home_action
         self.lock = threading.Lock()
-        self.runner = None
-        self.thread: threading.Thread | None = None
+        self.slot: RunSlot | None = None
         self.subscribers: list[queue.Queue] = []
         self.interrupted = [r.as_dict() for r in journal.recover()]
-        self.last_error: str | None = None
+
+    @property
+    def runner(self):
+        s = self.slot
+        return s.runner if s is not None else None
 
     def publish(self, ev: dict) -> None:
         ev = {**ev, "wall_time": time.time()}
@@ -86,21 +116,31 @@ class Daemon:
             except queue.Full:
                 pass
 
+    def publish_status(self) -> None:
+        self.publish({"type": "status", **self.status()})
+
     @property
     def busy(self) -> bool:
-        return self.thread is not None and self.thread.is_alive()
+        s = self.slot
+        return s is not None and not s.ended.is_set()
 
     def status(self) -> dict:
-        r = self.runner
-        out = {"busy": self.busy, "state": r.state if r is not None else "idle", "homed": self.journal.homed,
-               "interrupted_runs": self.interrupted, "last_error": self.last_error}
-        if r is not None:
-            rep = r.report
-            out.update(run_id=r.run_id, task=rep.task, status=rep.status, objects_done=rep.objects_done,
-                       objects_total=rep.objects_total, attempts=rep.attempts, recoveries=rep.recoveries)
+        s = self.slot
+        out = {"busy": self.busy, "state": "idle", "homed": self.journal.homed, "interrupted_runs": self.interrupted,
+               "last_error": s.error if s is not None else None}
+        if s is not None:
+            r, rep = s.runner, s.runner.report
+            state = r.state
+            if s.ended.is_set() and state not in TERMINAL:
+                state = "failed"  # the worker died outside the state machine (last_error says how)
+            out.update(state=state, run_id=s.run_id, task=rep.task, status=rep.status, message=rep.message,
+                       objects_done=rep.objects_done, objects_total=rep.objects_total, attempts=rep.attempts,
+                       recoveries=rep.recoveries)
         return out
 
     def start(self, req: StartRun) -> dict:
+        from kitchenbot.drivers.errors import DriverError
+
         with self.lock:
             if self.busy:
                 raise HTTPException(409, f"a run is in progress ({self.runner.report.task}, state "
@@ -113,25 +153,50 @@ class Daemon:
                 runner = self.runner_factory(req.task, req.seed, req.oracle_perception)
             except ValueError as e:
                 raise HTTPException(422, str(e)) from None
+            except DriverError as e:  # a device could not be reached: nothing started
+                raise HTTPException(503, f"cannot start: {type(e).__name__}: {e}") from None
+            if runner.journal is None:
+                runner.journal = self.journal
+            try:  # reserved here, so that the reply names it and a worker that dies still leaves it ended
+                run_id = runner.journal.begin_run(runner.report.task, runner.report.seed)
+            except HomingRequired as e:
+                raise HTTPException(409, str(e)) from None
+            runner.run_id = run_id
+            tracker = PerceptionTracker(runner) if hasattr(runner, "robot") else None
+            if tracker is not None:  # before publish: a page fetching on an event finds what the event announced
+                runner.listeners.append(tracker.on_event)
             runner.listeners.append(self.publish)
-            self.runner = runner
-            started = threading.Event()
+            slot = RunSlot(runner, run_id, tracker)
+            slot.thread = threading.Thread(target=self._work, args=(slot,), name=f"run-{run_id}", daemon=True)
+            self.slot = slot
+            slot.thread.start()
+        self.publish_status()
+        return {"accepted": True, "run_id": run_id, "task": req.task, "seed": runner.report.seed}
 
-            def work():
-                try:
-                    started.set()
-                    runner.run()
-                except Exception as e:  # noqa: BLE001 - reported through /status
-                    self.last_error = f"{type(e).__name__}: {e}"
-                    self.publish({"type": "error", "message": self.last_error})
-                finally:
-                    started.set()
-
-            self.last_error = None
-            self.thread = threading.Thread(target=work, name=f"run-{req.task}", daemon=True)
-            self.thread.start()
-            started.wait(5)
-            return {"accepted": True, "task": req.task, "seed": runner.report.seed}
+    def _work(self, slot: RunSlot) -> None:
+        """The worker: run; whatever happens, leave the journal and /status saying how the run ended."""
+        runner = slot.runner
+        try:
+            runner.run()
+        except BaseException as e:  # noqa: BLE001 - reported through /status and the journal
+            slot.error = f"{type(e).__name__}: {e}"
+            rep = runner.report
+            if rep.status == "running":
+                rep.status = "failed"
+            rep.message = rep.message or f"the run's worker died: {slot.error}"
+            self.publish({"type": "error", "run_id": slot.run_id, "message": slot.error})
+        finally:
+            try:
+                rec = runner.journal.run(slot.run_id)
+                if rec is not None and rec.status == "running":  # the runner could not end it: the arm's pose
+                    rep = runner.report                           # is unknown, so homing is required
+                    rep.status = "failed" if rep.status == "running" else rep.status
+                    runner.journal.end_run(slot.run_id, rep.status, rep.to_dict() | {"error": slot.error},
+                                           safe=False)
+            except Exception as e:  # noqa: BLE001 - the journal itself failed: say so
+                slot.error = (slot.error + "; " if slot.error else "") + f"journal: {type(e).__name__}: {e}"
+            slot.ended.set()
+            self.publish_status()
 
 
 def create_app(config, *, token: str, journal: Journal | None = None, runner_factory=None, home_action=None,
@@ -164,15 +229,19 @@ def create_app(config, *, token: str, journal: Journal | None = None, runner_fac
     d = Daemon(config, journal, runner_factory, home_action)
     app = FastAPI(title="kitchenbot daemon", version="1",
                   description="Start, stop, pause and watch kitchenbot tasks on this robot. Moving the robot needs "
-                              "the token (Authorization: Bearer ...).")
+                              "the token (Authorization: Bearer ...). The operator page is at /.")
     app.state.daemon = d
 
     @app.exception_handler(RequestValidationError)
     async def _bad_body(request: Request, exc: RequestValidationError):
         msgs = []
         for e in exc.errors():
-            loc = ".".join(str(x) for x in e.get("loc", ()) if x != "body") or "body"
-            msgs.append(f"{loc}: {e.get('msg')}")
+            loc = ".".join(str(x) for x in e.get("loc", ()) if x not in ("body", "query", "path")) or "body"
+            msg = f"{loc}: {e.get('msg')}"
+            lo, hi = _bounds_of(request, tuple(e.get("loc", ())))
+            if lo is not None or hi is not None:
+                msg += f" (expected {'' if lo is None else f'{lo} <= '}{loc}{'' if hi is None else f' <= {hi}'})"
+            msgs.append(msg)
         return JSONResponse(status_code=422, content={"detail": "invalid request: " + "; ".join(msgs),
                                                       "errors": json.loads(json.dumps(exc.errors(), default=str))})
 
@@ -183,26 +252,32 @@ def create_app(config, *, token: str, journal: Journal | None = None, runner_fac
         if not given:
             raise HTTPException(401, "missing token: send 'Authorization: Bearer <token>' or 'X-Kitchenbot-Token'",
                                 headers={"WWW-Authenticate": "Bearer"})
-        if not secrets.compare_digest(given, token):
+        if not secrets.compare_digest(given.encode(), token.encode()):
             raise HTTPException(403, "wrong token")
+
+    @app.get("/", include_in_schema=False)
+    def page():
+        return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 
     @app.get("/status", summary="what the robot is doing")
     def status():
         return d.status()
 
-    @app.post("/runs", status_code=202, dependencies=[Depends(require_token)], summary="start a task")
+    @app.post("/runs", status_code=202, dependencies=[Depends(require_token)],
+              summary="start a task; returns its run id")
     def start(req: StartRun):
         return d.start(req)
 
     @app.post("/stop", summary="stop now (no token needed: stopping never moves the robot)")
     def stop():
-        r = d.runner
-        if r is None or r.state in TERMINAL:
+        s = d.slot
+        if s is None or s.runner.state in TERMINAL or s.ended.is_set():
             return {"stopped": False, "detail": "nothing is running"}
-        r.request_stop()
-        if d.thread is not None:
-            d.thread.join(10)
-        return {"stopped": True, "state": r.state}
+        s.runner.request_stop()
+        s.ended.wait(10)
+        return {"stopped": True, "state": s.runner.state, "run_id": s.run_id}
 
     @app.post("/pause", dependencies=[Depends(require_token)], summary="pause at the next safe point")
     def pause():
@@ -223,24 +298,31 @@ def create_app(config, *, token: str, journal: Journal | None = None, runner_fac
     @app.post("/home", dependencies=[Depends(require_token)], summary="move the arm home; clears the homing "
                                                                       "requirement after an interrupted run")
     def home():
-        if d.busy:
-            raise HTTPException(409, "a run is in progress; stop it first")
         from kitchenbot.drivers.errors import DriverError
 
-        try:
-            d.home_action()
-        except DriverError as e:  # the arm could not be reached / moved: say so, stay un-homed
-            raise HTTPException(503, f"homing failed: {type(e).__name__}: {e}") from None
-        d.interrupted = []
+        with d.lock:  # no run can start while the arm is being homed
+            if d.busy:
+                raise HTTPException(409, "a run is in progress; stop it first")
+            try:
+                d.home_action()
+            except DriverError as e:  # the arm could not be reached / moved: say so, stay un-homed
+                raise HTTPException(503, f"homing failed: {type(e).__name__}: {e}") from None
+            d.interrupted = []
+        d.publish_status()
         return {"homed": True}
 
     @app.get("/runs", summary="run history (newest first)")
-    def runs(limit: int = 50):
-        return [{k: v for k, v in r.as_dict().items() if k != "report"} | {"objects_done": (r.report or {}).get(
-            "objects_done")} for r in journal.runs(limit=max(1, min(limit, 1000)))]
+    def runs(limit: Annotated[int, Query(ge=1, le=1000, description="newest runs to list")] = 50):
+        out = []
+        for r in journal.runs(limit=limit):
+            rep = r.report or {}
+            out.append({k: v for k, v in r.as_dict().items() if k != "report"}
+                       | {"objects_done": rep.get("objects_done"), "objects_total": rep.get("objects_total"),
+                          "message": rep.get("message"), "failures": len(rep.get("failures") or [])})
+        return out
 
     @app.get("/runs/{run_id}", summary="one run: its report and journal")
-    def run(run_id: int, events: bool = False):
+    def run(run_id: Annotated[int, Path(ge=1, le=MAX_RUN_ID)], events: bool = False):
         r = journal.run(run_id)
         if r is None:
             raise HTTPException(404, f"no run {run_id}")
@@ -257,24 +339,41 @@ def create_app(config, *, token: str, journal: Journal | None = None, runner_fac
     @app.get("/images/latest/{name}", summary="one latest image as PNG", response_class=Response,
              responses={200: {"content": {"image/png": {}}}})
     def image(name: str):
-        from PIL import Image
-
         r = d.runner
         if r is None or name.removesuffix(".png") not in r.latest_images:
             raise HTTPException(404, f"no image {name!r}")
-        buf = io.BytesIO()
-        Image.fromarray(r.latest_images[name.removesuffix(".png")]).save(buf, format="PNG")
-        return Response(buf.getvalue(), media_type="image/png")
+        return _png(r.latest_images[name.removesuffix(".png")])
+
+    @app.get("/perception/latest", summary="the latest perception: objects' outlines and the chosen grasp in "
+                                           "image coordinates of the views they were found in")
+    def perception():
+        s = d.slot
+        if s is None or s.tracker is None:
+            return {"seq": 0, "sim_t": None, "views": [], "grasp": None, "run_id": None}
+        return s.tracker.overlay() | {"run_id": s.run_id}
+
+    @app.get("/perception/latest/{index}.png", summary="the image of one view of the latest perception",
+             response_class=Response, responses={200: {"content": {"image/png": {}}}})
+    def perception_image(index: Annotated[int, Path(ge=0, le=63)]):
+        s = d.slot
+        rgb = s.tracker.image(index) if s is not None and s.tracker is not None else None
+        if rgb is None:
+            raise HTTPException(404, f"no view {index} in the latest perception")
+        return _png(rgb)
 
     @app.get("/events", summary="live status stream (server-sent events)")
-    def events(limit: int | None = None, heartbeat: float = 15.0):
+    def events(limit: Annotated[int | None, Query(ge=1, le=1_000_000, description="events to send, then close")]
+               = None,
+               heartbeat: Annotated[float, Query(ge=0.5, le=300.0, allow_inf_nan=False,
+                                                 description="seconds between keep-alive comments")] = 15.0):
         q: queue.Queue = queue.Queue(maxsize=1000)
         d.subscribers.append(q)
 
         def gen():
             n = 0
             try:
-                yield f"event: status\ndata: {json.dumps(d.status(), default=str)}\n\n"
+                # retry: a page reconnects within a second when the daemon comes back (after a crash)
+                yield f"retry: 1000\nevent: status\ndata: {json.dumps(d.status(), default=str)}\n\n"
                 while limit is None or n < limit:
                     try:
                         ev = q.get(timeout=heartbeat)
@@ -286,6 +385,36 @@ def create_app(config, *, token: str, journal: Journal | None = None, runner_fac
             finally:
                 d.subscribers.remove(q)
 
-        return StreamingResponse(gen(), media_type="text/event-stream")
+        return StreamingResponse(gen(), media_type="text/event-stream", headers={"Cache-Control": "no-cache"})
 
     return app
+
+
+def _png(rgb) -> Response:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format="PNG", compress_level=1)
+    return Response(buf.getvalue(), media_type="image/png", headers={"Cache-Control": "no-store"})
+
+
+def _bounds_of(request: Request, loc: tuple) -> tuple[float | None, float | None]:
+    """(lower, upper) bound of the request field at `loc` (from its Field/Query/Path metadata), for messages that
+    say the range and not only the side that was crossed."""
+    route = request.scope.get("route")
+    dep = getattr(route, "dependant", None)
+    if dep is None or len(loc) < 2:
+        return None, None
+    info = None
+    if loc[0] == "body" and dep.body_params:
+        model = dep.body_params[0].field_info.annotation
+        fields = getattr(model, "model_fields", {})
+        info = fields.get(loc[1])
+    else:
+        params = {"query": dep.query_params, "path": dep.path_params}.get(loc[0], [])
+        info = next((p.field_info for p in params if p.name == loc[1]), None)
+    lo = hi = None
+    for m in getattr(info, "metadata", []):
+        lo = getattr(m, "ge", getattr(m, "gt", lo))
+        hi = getattr(m, "le", getattr(m, "lt", hi))
+    return lo, hi

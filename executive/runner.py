@@ -210,7 +210,8 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self.clock.deadline = None
         sim0 = self._sim_now()
         if self.journal is not None:
-            self.run_id = self.journal.begin_run(self.task.name, self.report.seed)  # raises HomingRequired
+            if self.run_id is None:  # the daemon begins the journal's run itself, to answer with its id
+                self.run_id = self.journal.begin_run(self.task.name, self.report.seed)  # raises HomingRequired
             self._log("note", "task", **self.task.describe())
         self.report.run_id = self.run_id
         if self.truth is not None:

@@ -5,8 +5,9 @@ set -euo pipefail
 PYTHON=${1:-python3}
 VENV=${2:-.venv}
 
-# 1. Debian packages. open3d needs libusb; depthai wants it too.
-DEB_PACKAGES="libusb-1.0-0 libgomp1"
+# 1. Debian packages. open3d needs libusb; depthai wants it too. chromium: the operator page's browser tests
+# (tests/executive/test_operator_page.py drive it headless through Playwright).
+DEB_PACKAGES="libusb-1.0-0 libgomp1 chromium"
 missing=""
 for p in $DEB_PACKAGES; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
@@ -49,6 +50,6 @@ if ! "$VENV/bin/python" -m pip install -q -e ".[dev,learned]" >"$log" 2>&1; then
   echo "setup: pip could not install the Python packages (see above)." >&2; exit 1
 fi
 rm -f "$log"
-"$VENV/bin/python" -c "import kitchenbot, open3d, pinocchio, ompl, torch, transformers" || {
+"$VENV/bin/python" -c "import kitchenbot, open3d, pinocchio, ompl, torch, transformers, playwright" || {
   echo "setup: the Python packages did not install; see the pip output above." >&2; exit 1; }
 echo "setup: ready ($VENV)"
