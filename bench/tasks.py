@@ -29,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--slip", type=float, default=0.05, help="slip probability per transport motion")
     p.add_argument("--objects", type=int, default=None, help="objects per scene (default: config sim min..max)")
     p.add_argument("--config", help="cell config YAML (default: the shipped simulation config)")
+    p.add_argument("--models", help="a BOP models/ folder to use as the inventory (overrides the config's): "
+                                    "classes from the meshes' shapes, grasps synthesised (see README)")
     p.add_argument("--oracle-perception", action="store_true", help="poses from the simulator's truth (labelled)")
     p.add_argument("--jobs", type=int, default=1, help="parallel processes")
     p.add_argument("--json", help="write every run's numbers here")
@@ -46,12 +48,16 @@ def _seed_list(text: str) -> list[int]:
 
 
 def one(args: tuple) -> dict:
-    config_path, task, seed, slip, objects, oracle = args
-    from kitchenbot.executive.config import DriversConfig, load_config
+    config_path, task, seed, slip, objects, oracle, models = args
+    from kitchenbot.executive.config import DriversConfig, InventoryConfig, load_config
     from kitchenbot.executive.runner import run_task
 
     cfg = load_config(config_path)
     cfg = cfg.model_copy(update={"drivers": DriversConfig()})
+    if models is not None:
+        inv = cfg.inventory.model_dump()
+        inv.update(models_dir=str(Path(models).resolve()), grasps_file=None)
+        cfg = cfg.model_copy(update={"inventory": InventoryConfig(**inv)})
     cfg.sim.slip_probability = slip
     if objects is not None:
         cfg.sim.min_objects = cfg.sim.max_objects = objects
@@ -103,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     seeds = args.seed_list if args.seed_list else range(args.start, args.start + args.seeds)
-    jobs = [(args.config, t, s, args.slip, args.objects, args.oracle_perception)
+    jobs = [(args.config, t, s, args.slip, args.objects, args.oracle_perception, args.models)
             for t in args.tasks for s in seeds]
     console = Console(width=160)
     results = []

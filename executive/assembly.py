@@ -50,7 +50,7 @@ def load_inventory(config: CellConfig) -> Inventory:
     if inv_cfg.models_dir == "builtin":
         return Inventory.builtin()
     grasps = config.resolve_path(inv_cfg.grasps_file) if inv_cfg.grasps_file else None
-    return Inventory.load(config.resolve_path(inv_cfg.models_dir), grasps)
+    return Inventory.load(config.resolve_path(inv_cfg.models_dir), grasps, inv_cfg.classes)
 
 
 def make_sim_world(config: CellConfig, seed: int | None = None, inventory: Inventory | None = None):

@@ -8,7 +8,7 @@ import importlib
 import sys
 
 # Order shown in --help. A module that does not exist yet is simply not offered.
-COMMANDS = ["run", "demo", "scenes", "eval", "bench", "calibrate", "daemon", "doctor", "models", "config", "docs"]
+COMMANDS = ["run", "demo", "scenes", "eval", "bench", "calibrate", "daemon", "doctor", "models", "inventory", "config", "docs"]
 
 
 def build_parser() -> argparse.ArgumentParser:

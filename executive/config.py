@@ -141,7 +141,10 @@ class CalibrationConfig(_Strict):
 
 class InventoryConfig(_Strict):
     models_dir: str = Field("builtin", description="'builtin' or a BOP models/ folder")
-    grasps_file: str | None = Field(None, description="grasps JSON for a BOP models/ folder")
+    grasps_file: str | None = Field(None, description="grasps JSON for a BOP models/ folder (optional: grasps are "
+                                                      "synthesised from the meshes)")
+    classes: dict[int, Literal["plate", "bowl", "cup", "mug", "glass"]] = Field(
+        default_factory=dict, description="obj_id -> class, where the class from the mesh's shape is not right")
 
 
 class SimConfig(_Strict):

@@ -2,25 +2,71 @@
 
 The inventory (world/inventory.py) holds grasps as data; this module fills them for models that come without:
 ``ensure_grasps(inventory)`` (the Planner calls it) gives the builtin dishware its hand-designed grasp families
-(``generate_grasps``). ``pad_span`` measures the width the pads would close to on a mesh.
+(``generate_grasps``) and any other mesh grasps synthesised from its surface (``synthesise_grasps``: antipodal
+pairs, see below), cached on disk. ``pad_span`` measures the width the pads would close to on a mesh.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+from pathlib import Path
+
 import numpy as np
 import open3d as o3d
 
-from kitchenbot.transforms import make_T, rot_x, rot_y
+from kitchenbot.transforms import make_T, rot_x, rot_y, rot_z
 from kitchenbot.world.gripper import MAX_OPENING, PAD_ENVELOPE
 from kitchenbot.world.inventory import GraspSpec, Inventory, ObjectModel
 
 
-def ensure_grasps(inventory: Inventory) -> Inventory:
-    """Give every model without grasps its synthesised ones (in place; idempotent). Returns the inventory."""
+def ensure_grasps(inventory: Inventory, cache_dir: str | Path | None = None) -> Inventory:
+    """Give every model without grasps its synthesised ones (in place; idempotent). Returns the inventory.
+
+    The builtin dishware gets its hand-designed families (``generate_grasps``); any other mesh the antipodal
+    synthesis (``synthesise_grasps``), cached in `cache_dir` under a hash of the mesh and the gripper."""
     for model in inventory:
-        if not model.grasps:
-            model.grasps = generate_grasps(model, foot=model.dish.foot if model.dish is not None else None)
+        if model.grasps:
+            continue
+        if model.dish is not None:
+            model.grasps = generate_grasps(model, foot=model.dish.foot)
+        else:
+            model.grasps = cached_synthesis(model, cache_dir)
     return inventory
+
+
+def synthesis_key(model: ObjectModel) -> str:
+    """Hash of the mesh, the gripper geometry and the synthesis parameters: the grasp cache's key."""
+    from kitchenbot.world.gripper import FINGERS, PAD_DEPTH
+
+    h = hashlib.sha1()
+    h.update(np.asarray(model.mesh.vertices, np.float32).tobytes())
+    h.update(np.asarray(model.mesh.triangles, np.int32).tobytes())
+    h.update(repr((SYNTHESIS_VERSION, MAX_OPENING, PAD_DEPTH, PAD_ENVELOPE, FINGERS, FRICTION_COEFF, SURFACE_SAMPLES,
+                   APPROACHES, CONTACT_DEPTHS, OPEN_SLACKS, WIDTH_TOLERANCE, CONTACT_TOLERANCE, MIN_CONTACT,
+                   CENTRE_WEIGHT, MAX_GRASPS, PINCH_MAX_WIDTH, WRAP_CONE_DEG, ROUND_COPIES)).encode())
+    return h.hexdigest()[:20]
+
+
+def cached_synthesis(model: ObjectModel, cache_dir: str | Path | None) -> list[GraspSpec]:
+    """``synthesise_grasps(model)``, read from / written to `cache_dir` (None: always synthesise)."""
+    path = Path(cache_dir).expanduser() / f"grasps_{synthesis_key(model)}.json" if cache_dir else None
+    if path is not None and path.is_file():
+        try:
+            recs = json.loads(path.read_text())
+            return [GraspSpec(r["name"], np.asarray(r["T_obj_tcp"], float), float(r["opening"]), float(r["width"]))
+                    for r in recs]
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # a damaged cache entry is synthesised again and rewritten
+    grasps = synthesise_grasps(model)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps([{"name": g.name, "T_obj_tcp": g.T_obj_tcp.tolist(), "opening": g.opening,
+                                    "width": g.width} for g in grasps]))
+        tmp.replace(path)  # atomic: parallel benchmark workers may write the same entry
+    return grasps
 
 
 def _tcp_frame(approach: np.ndarray, closing: np.ndarray, position: np.ndarray) -> np.ndarray:
@@ -217,3 +263,222 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
         limit = 2.0 * float(np.median(rim_w))
         out = [g for g in out if not (g.name.startswith(("rim_", "rimroll")) and g.width > limit)]
     return out
+
+
+# ---- grasps synthesised from a mesh (any dishware: models that come without grasps) --------------------------
+# Antipodal pairs (Nguyen 1988; the ray-casting form of Dex-Net / GPD): from surface samples, a ray into the
+# material along the inward normal finds the points where the line leaves it; a pair (sample, exit) whose exit
+# normal lies within the friction cone of the closing axis can be squeezed between two pads. Each pair gets
+# approach directions all around its closing axis; a candidate is kept when the open pads and the palm come in
+# clear of the item, the pads close on that pair first, and enough of each pad face touches. Written here
+# because no maintained library synthesises grasps for a given two-pad gripper geometry on CPU (GPD and Dex-Net
+# are unmaintained and need their own builds); Open3D does the sampling and ray casting.
+FRICTION_COEFF = 0.5  # silicone pads on glazed ceramic or glass: friction cone half angle atan(0.5) = 27 deg
+# A Fin-Ray finger wraps around a thin wall it pinches (a rim, a plate's lip): the far normal of a pair narrower than
+# PINCH_MAX_WIDTH may lie up to this far off the closing axis (the near one is on it by construction). Without
+# it a plate's lip (sloped ~20 degrees) offers no pinch from above, which is how a plate lying flat is taken.
+WRAP_CONE_DEG = 70.0
+SURFACE_SAMPLES = 1000  # Poisson-disk surface samples (about 5 mm apart on a mug)
+APPROACHES = 8  # approach directions around each closing axis (45 degrees apart)
+# m: the pair lies this far behind the TCP along the approach: deep in the pads, or near their tips (where the
+# tips must stop short of a surface beyond the pair: a pinch of a bowl's foot ring short of its recessed bottom)
+CONTACT_DEPTHS = (0.004, -0.006)
+OPEN_SLACKS = (0.03, 0.016)  # m added to the width when opening (both pads), widest that keeps the pads clear
+WIDTH_TOLERANCE = 0.003  # m: the pads must close on the pair, not on something else first
+CONTACT_TOLERANCE = 0.003  # m: a pad point this close to the first contact touches (the Fin-Ray wraps around)
+MIN_CONTACT = 0.1  # fraction of each pad face's sample points that must touch
+CENTRE_WEIGHT = 0.5  # score = contact fraction - CENTRE_WEIGHT * (closing line to centroid) / diameter
+MAX_GRASPS = 160
+ROUND_COPIES = 12  # a round item's grasps are chosen at one azimuth and repeated every 30 degrees
+PINCH_MAX_WIDTH = 0.02  # m: narrower pairs pinch one wall (a rim), wider ones grip across the body
+SYNTHESIS_VERSION = 2  # part of the cache key: bump when the method changes
+
+
+def _cast(scene: o3d.t.geometry.RaycastingScene, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    rays = np.hstack([origins, dirs]).astype(np.float32)
+    ans = scene.cast_rays(o3d.core.Tensor(rays))
+    return ans["t_hit"].numpy().astype(float), ans["primitive_normals"].numpy().astype(float)
+
+
+def _local_rays(R: np.ndarray, t: np.ndarray, grid: np.ndarray, y_shift: np.ndarray, direction: np.ndarray):
+    """Rays from `grid` points (TCP frame, k x 3) shifted by `y_shift` (n,) along y, in `direction` (TCP frame),
+    for n TCP poses (R: n x 3 x 3, t: n x 3); origins and directions in the object frame, (n * k) x 3."""
+    O = t[:, None, :] + np.einsum("nij,kj->nki", R, grid) + R[:, None, :, 1] * y_shift[:, None, None]
+    D = np.broadcast_to((R @ direction)[:, None, :], O.shape)
+    return O.reshape(-1, 3), D.reshape(-1, 3)
+
+
+def _antipodal_pairs(scene, P: np.ndarray, N: np.ndarray, max_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """(centres, closing axes) of pairs (sample, a point where the inward line leaves the material) whose far
+    normal lies within the friction cone: the closing axis runs from the sample inwards."""
+    cos_cone, cos_wrap = np.cos(np.arctan(FRICTION_COEFF)), np.cos(np.radians(WRAP_CONE_DEG))
+    centres, axes = [], []
+    origin, travelled = P - N * 1e-4, np.zeros(len(P))
+    alive = np.ones(len(P), bool)
+    for hit in range(4):  # exits are the 1st and 3rd hits (wall, then across a cavity and the far wall)
+        t, n_hit = _cast(scene, origin[alive], -N[alive])
+        idx = np.flatnonzero(alive)
+        ok = np.isfinite(t)
+        travelled[idx[ok]] += t[ok]
+        alive[idx[~ok]] = False
+        idx, t, n_hit = idx[ok], t[ok], n_hit[ok]
+        if hit % 2 == 0:
+            w = travelled[idx]
+            cos_far = np.einsum("ij,ij->i", n_hit, -N[idx])
+            good = (w <= max_width) & (w > 0.001) & ((cos_far >= cos_cone) | ((w < PINCH_MAX_WIDTH) & (cos_far >= cos_wrap)))
+            centres.append(P[idx[good]] - N[idx[good]] * (w[good] / 2)[:, None])
+            axes.append(-N[idx[good]] * w[good][:, None])  # closing axis scaled by the width
+        origin[idx] = origin[idx] - N[idx] * (t + 1e-4)[:, None]
+        travelled[idx] += 1e-4
+        alive[idx[travelled[idx] > max_width]] = False
+        if not alive.any():
+            break
+    return np.vstack(centres), np.vstack(axes)
+
+
+def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
+    """Fin-Ray grasps for any closed mesh: antipodal pairs within the opening, the open pads and the palm clear of
+    the item along the approach, the pads closing on that pair first, each pad face touching over at least
+    MIN_CONTACT of it; best contact and most centred first within each kind of grasp (approach direction,
+    pinch or across the body), the kinds taken in turn, spread out (no two within 6 mm and 30 degrees)."""
+    from kitchenbot.world.gripper import FINGERS, PAD_DEPTH
+
+    mesh = o3d.geometry.TriangleMesh(model.mesh)
+    mesh.compute_triangle_normals()
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    o3d.utility.random.seed(4)  # deterministic sampling
+    pc = mesh.sample_points_poisson_disk(SURFACE_SAMPLES, use_triangle_normal=True)
+    P, N = np.asarray(pc.points), np.asarray(pc.normals)
+    max_width = MAX_OPENING - 0.01
+    centres, axes = _antipodal_pairs(scene, P, N, max_width)
+    if not len(centres):
+        return []
+    widths = np.linalg.norm(axes, axis=1)
+    y = axes / widths[:, None]
+    # approach directions all around each closing axis
+    ref = np.where(np.abs(y[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    u = np.cross(y, ref)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(y, u)
+    phis = 2 * np.pi * np.arange(APPROACHES) / APPROACHES
+    z = (np.cos(phis)[None, :, None] * u[:, None] + np.sin(phis)[None, :, None] * v[:, None]).reshape(-1, 3)
+    k = len(CONTACT_DEPTHS)
+    z = np.repeat(z, k, axis=0)
+    y = np.repeat(y, APPROACHES * k, axis=0)
+    w = np.repeat(widths, APPROACHES * k)
+    c = np.repeat(centres, APPROACHES * k, axis=0)
+    R = np.stack([np.cross(y, z), y, z], axis=2)
+    t = c + z * np.tile(CONTACT_DEPTHS, len(z) // k)[:, None]
+    centroid, diameter = P.mean(axis=0), max(model.diameter, 1e-3)
+
+    # the palm's underside, and each open pad's cross-section at its tip, looking back along the approach
+    gx, gy = np.meshgrid(np.linspace(-0.035, 0.035, 5), np.linspace(-0.065, 0.065, 7))
+    palm = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, PAD_ENVELOPE.root)])
+    hx = PAD_ENVELOPE.width / 2 - 0.002
+    px, py = np.meshgrid([-hx, 0.0, hx], np.linspace(0.002, PAD_ENVELOPE.thickness - 0.002, 3))
+    pad_cut = np.column_stack([px.ravel(), py.ravel(), np.full(px.size, PAD_ENVELOPE.tip)])
+    # the physical pad face (contact check): 5 x 7 points over its width and its last PAD_DEPTH
+    fx, fz = np.meshgrid(np.linspace(-FINGERS.finger_half_x, FINGERS.finger_half_x, 5),
+                         np.linspace(FINGERS.tip_z - PAD_DEPTH, FINGERS.tip_z, 7))
+    face = np.column_stack([fx.ravel(), np.zeros(fx.size), fz.ravel()])
+    back = np.array([0.0, 0.0, -1.0])
+
+    n = len(w)
+    clear_palm = np.ones(n, bool)
+    for lo in range(0, n, 4000):  # the palm does not depend on the opening
+        sl = slice(lo, lo + 4000)
+        O, D = _local_rays(R[sl], t[sl], palm, np.zeros(len(w[sl])), back)
+        th, _ = _cast(scene, O, D)
+        clear_palm[sl] = ~np.isfinite(th).reshape(len(w[sl]), -1).any(axis=1)
+    best: dict[int, tuple[float, float, float]] = {}  # candidate -> (score, opening, closed width)
+    for slack in OPEN_SLACKS:
+        todo = np.flatnonzero(clear_palm & ~np.isin(np.arange(n), list(best)))
+        if not len(todo):
+            break
+        o = np.minimum(w[todo] + slack, MAX_OPENING)
+        clear = np.ones(len(todo), bool)
+        for sgn in (1.0, -1.0):
+            grid = pad_cut * np.array([1.0, sgn, 1.0])
+            O, D = _local_rays(R[todo], t[todo], grid, sgn * o / 2, back)
+            th, _ = _cast(scene, O, D)
+            clear &= ~np.isfinite(th).reshape(len(todo), -1).any(axis=1)
+        todo, o = todo[clear], o[clear]
+        if not len(todo):
+            continue
+        first, frac = [], []
+        for sgn in (1.0, -1.0):  # pad a at +y closes along -y, pad b at -y along +y
+            O, D = _local_rays(R[todo], t[todo], face, sgn * o / 2, np.array([0.0, -sgn, 0.0]))
+            th, _ = _cast(scene, O, D)
+            th = th.reshape(len(todo), -1)
+            th[th > o[:, None]] = np.inf
+            t_min = th.min(axis=1)
+            first.append(t_min)
+            frac.append((th <= t_min[:, None] + CONTACT_TOLERANCE).mean(axis=1))
+        closed = o - first[0] - first[1]
+        area = np.minimum(frac[0], frac[1])
+        ok = np.isfinite(closed) & (np.abs(closed - w[todo]) <= WIDTH_TOLERANCE) & (area >= MIN_CONTACT)
+        d_centre = np.linalg.norm(np.cross(centroid - c[todo], y[todo]), axis=1)
+        score = area - CENTRE_WEIGHT * d_centre / diameter
+        for i in np.flatnonzero(ok):
+            best[int(todo[i])] = (float(score[i]), float(o[i]), float(closed[i]))
+    round_ = _round_about_z(model)
+    if round_:
+        # a round item: every grasp turned about the axis is the same grasp; bring each to azimuth 0 (its TCP,
+        # or its closing axis when the TCP is on the axis, along +x), choose there, and repeat the chosen ones all
+        # around (a lying item's top, where a pinch comes from above, can be at any azimuth)
+        ref_dir = np.where(np.hypot(t[:, 0], t[:, 1])[:, None] > 0.001, t, y)
+        az = np.arctan2(ref_dir[:, 1], ref_dir[:, 0])
+        ca, sa = np.cos(-az), np.sin(-az)
+        Rz = np.zeros((len(az), 3, 3))
+        Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = ca, -sa, sa, ca, 1.0
+        R, t = Rz @ R, np.einsum("nij,nj->ni", Rz, t)
+        y, z = R[:, :, 1], R[:, :, 2]
+    kept = _spread(best, t, y, z, w, MAX_GRASPS // ROUND_COPIES if round_ else MAX_GRASPS)
+    out = []
+    for rank, i in enumerate(kept):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R[i], t[i]
+        if not round_:
+            out.append(GraspSpec(f"ap{rank:03d}", T, opening=best[i][1], width=best[i][2]))
+            continue
+        for k in range(ROUND_COPIES):
+            out.append(GraspSpec(f"ap{rank:02d}_{k:02d}", rot_z(2 * np.pi * k / ROUND_COPIES) @ T,
+                                 opening=best[i][1], width=best[i][2]))
+    return out
+
+
+def _round_about_z(model: ObjectModel) -> bool:
+    """Whether the model declares the continuous symmetry about its z axis through the origin."""
+    for sym in model.symmetries_continuous:
+        axis = np.asarray(sym["axis"], float)
+        axis = axis / np.linalg.norm(axis)
+        if abs(axis[2]) > 0.999 and np.linalg.norm(np.asarray(sym.get("offset", [0, 0, 0]), float)[:2]) < 1e-4:
+            return True
+    return False
+
+
+def _spread(best: dict, t: np.ndarray, y: np.ndarray, z: np.ndarray, w: np.ndarray, limit: int) -> list[int]:
+    """Up to `limit` candidates of `best` (index -> (score, ...)), best first within each kind of grasp (approach
+    from above / tilted / level / tilted from below / from below, the item's z; a pinch of one wall or a grip
+    across the body), the kinds taken in turn, no two within 6 mm and 30 degrees (approach and closing axis)."""
+    by_score = sorted(best, key=lambda i: -best[i][0])
+    kind = np.digitize(z[:, 2], [-0.7, -0.3, 0.3, 0.7]) * 2 + (w > PINCH_MAX_WIDTH)
+    rank_in_kind: dict[int, int] = {}
+    seen: dict[int, int] = {}
+    for i in by_score:
+        rank_in_kind[i] = seen.get(int(kind[i]), 0)
+        seen[int(kind[i])] = rank_in_kind[i] + 1
+    kept: list[int] = []
+    cos30 = np.cos(np.radians(30))
+    for i in sorted(by_score, key=lambda i: rank_in_kind[i]):
+        if len(kept) >= limit:
+            break
+        if kept:
+            k = np.array(kept)
+            near = ((np.linalg.norm(t[k] - t[i], axis=1) < 0.006) & (z[k] @ z[i] > cos30)
+                    & (np.abs(y[k] @ y[i]) > cos30))
+            if near.any():
+                continue
+        kept.append(i)
+    return kept

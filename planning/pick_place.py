@@ -71,8 +71,9 @@ class Planner:
     ):
         self.robot = robot
         self.cell = cell
-        self.inventory = ensure_grasps(inventory)  # models that come without grasps get synthesised ones
         self.settings = settings or PlanningSettings()
+        # models that come without grasps get synthesised ones
+        self.inventory = ensure_grasps(inventory, self.settings.grasp_cache_dir)
         s = self.settings
         self.world = CollisionWorld(
             robot, cell, T_flange_cam, margin=s.collision_margin, grasp_margin=s.grasp_margin, voxel_size=s.map_voxel_size

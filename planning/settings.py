@@ -63,5 +63,9 @@ class PlanningSettings(BaseModel):
     max_release_drop: float = Field(
         0.10, ge=0.0, le=0.2, description="highest release (m) above the resting pose when the gripper cannot go lower"
     )
+    grasp_cache_dir: str | None = Field(
+        "~/.cache/kitchenbot/grasps",
+        description="where grasps synthesised from meshes are cached (keyed by a hash of the mesh); null: no cache",
+    )
     velocity_scale: float = Field(0.5, gt=0.0, le=1.0)
     acceleration_scale: float = Field(0.5, gt=0.0, le=1.0)

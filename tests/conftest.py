@@ -31,3 +31,34 @@ def pytest_collection_modifyitems(config, items):
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
+
+
+def write_own_dishware(folder):
+    """A BOP models/ folder of dishware this project has never seen, made here from parametric profiles: meshes
+    (mm) and models_info.json with diameters only (no classes, no grasps, no symmetries). Returns
+    {obj_id: (name, expected class)}."""
+    from kitchenbot.world.dishware import DishSpec, _bowl_body, _plate, _vessel, build_mesh
+    from kitchenbot.world.inventory import Inventory, ObjectModel, _diameter
+
+    specs = [  # (name, expected class, spec)
+        ("saucer", "plate", DishSpec("saucer", "?", (0.85, 0.80, 0.70), _plate(0.150, 0.019, 0.040), 0.004)),
+        ("tumbler", "glass", DishSpec("tumbler", "?", (0.70, 0.80, 0.85), _vessel(0.031, 0.035, 0.110), 0.003)),
+        ("espresso_cup", "mug", DishSpec("espresso_cup", "?", (0.95, 0.90, 0.60), _vessel(0.024, 0.031, 0.064),
+                                         0.004, handle=True)),
+        ("deep_bowl", "bowl", DishSpec("deep_bowl", "?", (0.40, 0.55, 0.75),
+                                       _bowl_body(0.036, 0.072, 0.088, 0.008, belly=0.006), 0.004,
+                                       foot=(0.031, 0.005, 0.008))),
+    ]
+    models = []
+    for i, (name, _, spec) in enumerate(specs, start=1):
+        mesh = build_mesh(spec)
+        models.append(ObjectModel(i, name, "?", mesh, _diameter(np.asarray(mesh.vertices)), colour=spec.colour))
+    Inventory(models).save_bop(folder)
+    return {i: (name, cls) for i, (name, cls, _) in enumerate(specs, start=1)}
+
+
+@pytest.fixture(scope="session")
+def own_dishware(tmp_path_factory):
+    """(models_dir, {obj_id: (name, expected class)}) of dishware this project has never seen."""
+    folder = tmp_path_factory.mktemp("own_dishware") / "models"
+    return folder, write_own_dishware(folder)

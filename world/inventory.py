@@ -30,6 +30,7 @@ import open3d as o3d
 
 from kitchenbot.transforms import check_rigid, make_T
 from kitchenbot.world.dishware import BUILTIN_DISHES, DishSpec, build_mesh
+from kitchenbot.world.shape import CLASSES, classify
 
 
 class InventoryError(ValueError):
@@ -185,8 +186,17 @@ class Inventory:
 
     # ---- BOP models/ folders ------------------------------------------------------------------------------
     @classmethod
-    def load(cls, models_dir: str | Path, grasps_file: str | Path | None = None) -> "Inventory":
+    def load(cls, models_dir: str | Path, grasps_file: str | Path | None = None,
+             classes: dict[int, str] | None = None) -> "Inventory":
+        """A BOP ``models/`` folder: ``obj_XXXXXX.ply`` (mm) and ``models_info.json``, each mesh in its object frame
+        with z along the item's axis, rim up (how it stands on a table). The class of each model: `classes`
+        (obj_id -> class, the config's one-line override), else the grasps file's, else from the mesh's shape
+        (world/shape.py). A round mesh whose models_info gives no symmetries gets the continuous one about z."""
         models_dir = Path(models_dir)
+        for obj_id, c in (classes or {}).items():
+            if c not in CLASSES:
+                raise InventoryError(f"inventory.classes: object {obj_id}: unknown class {c!r} (expected one of "
+                                     f"{', '.join(CLASSES)})")
         info_path = models_dir / "models_info.json"
         if not info_path.is_file():
             raise InventoryError(f"{info_path}: missing; a BOP models/ folder needs models_info.json")
@@ -215,11 +225,15 @@ class Inventory:
             ]
             ex = extra.get(obj_id, {})
             colour = _mesh_colour(mesh)
+            shape = classify(mesh)
+            if ("symmetries_continuous" not in rec and "symmetries_discrete" not in rec and shape.round
+                    and np.hypot(*shape.axis_xy) < 0.001):
+                sym_c = [{"axis": [0.0, 0.0, 1.0], "offset": [0.0, 0.0, 0.0]}]
             models.append(
                 ObjectModel(
                     obj_id=obj_id,
                     name=ex.get("name", f"obj_{obj_id:06d}"),
-                    cls=ex.get("class", ex.get("name", f"obj_{obj_id:06d}")),
+                    cls=(classes or {}).get(obj_id) or ex.get("class") or shape.cls,
                     mesh=mesh,
                     diameter=float(rec["diameter"]) * 0.001,
                     symmetries_discrete=sym_d,

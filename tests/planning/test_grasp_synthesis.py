@@ -112,3 +112,81 @@ def test_bowl_foot_ring_pinches_pitched_in_from_outside(inventory):
             assert g.width == pytest.approx(w, abs=0.002) and g.opening < 0.025
             assert ro - w - 0.004 < tcp_r < ro + 0.004
             assert _pads_clear(surface, T, g.opening)
+
+
+# ---- grasps synthesised from meshes (dishware this project has never seen) ------------------------------------
+@pytest.fixture(scope="module")
+def own_inventory(own_dishware, tmp_path_factory):
+    folder, expected = own_dishware
+    cache = tmp_path_factory.mktemp("grasp_cache")
+    return ensure_grasps(Inventory.load(folder), cache), expected, cache
+
+
+def test_synthesised_grasps_fit_and_the_simulated_gripper_holds_them(own_inventory):
+    """Every new item gets grasps of several kinds; each closes within the opening on what pad_span measures,
+    and the simulator's Fin-Ray model (its own contact test) holds the item with them at about that width."""
+    from kitchenbot.executive.config import CellConfig
+    from kitchenbot.fakes.gripper import FakeGripper
+    from kitchenbot.fakes.world import SimWorld
+    from kitchenbot.planning.grasp_synthesis import WIDTH_TOLERANCE
+    from kitchenbot.transforms import inv
+    from kitchenbot.world.cell import Cell
+
+    inventory, expected, _ = own_inventory
+    cfg = CellConfig()
+    world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
+    for m in inventory:
+        name = expected[m.obj_id][0]
+        assert len(m.grasps) >= 40, name
+        approach_z = np.array([g.T_obj_tcp[2, 2] for g in m.grasps])
+        assert (approach_z < -0.7).any() and (np.abs(approach_z) < 0.7).any(), name  # from above, and not only
+        for g in m.grasps:
+            assert np.allclose(g.T_obj_tcp[:3, :3].T @ g.T_obj_tcp[:3, :3], np.eye(3), atol=1e-9)
+            assert 0 < g.width < g.opening <= MAX_OPENING, (name, g.name)
+        for g in m.grasps[::10]:
+            span = pad_span(m, g.T_obj_tcp)
+            assert span is not None and span <= g.width + WIDTH_TOLERANCE + 1e-6, (name, g.name)
+            uid = world.add_object(m, world.T_base_tcp() @ inv(g.T_obj_tcp))
+            gripper = FakeGripper(world)
+            gripper.connect()
+            gripper.open(g.opening)
+            r = gripper.grasp(0.8)
+            assert r.holding and world.held_uid == uid, (name, g.name)
+            assert abs(r.opening - g.width) < 0.006, (name, g.name, r.opening, g.width)
+            gripper.open(g.opening)
+            world.remove_object(uid)
+            gripper.disconnect()
+
+
+def test_synthesised_grasps_are_cached_by_mesh(own_inventory, own_dishware, monkeypatch):
+    from kitchenbot.planning import grasp_synthesis
+
+    inventory, _, cache = own_inventory
+    assert len(list(cache.glob("grasps_*.json"))) == len(inventory)
+
+    def fail(model):
+        raise AssertionError("synthesised again although cached")
+
+    monkeypatch.setattr(grasp_synthesis, "synthesise_grasps", fail)
+    again = ensure_grasps(Inventory.load(own_dishware[0]), cache)
+    for m in again:
+        assert [g.name for g in m.grasps] == [g.name for g in inventory[m.obj_id].grasps]
+        assert np.allclose(m.grasps[0].T_obj_tcp, inventory[m.obj_id].grasps[0].T_obj_tcp)
+
+
+def test_antipodal_pairs_respect_the_opening():
+    """A 4 cm cube is taken across opposite faces (4 cm); a 12 cm cube is wider than the open gripper everywhere."""
+    from kitchenbot.planning.grasp_synthesis import synthesise_grasps
+    from kitchenbot.world.inventory import ObjectModel
+
+    def cube(a):
+        mesh = o3d.geometry.TriangleMesh.create_box(a, a, a)
+        mesh.translate((-a / 2, -a / 2, -a / 2))
+        return ObjectModel(1, "cube", "?", mesh, a * np.sqrt(3))
+
+    small = synthesise_grasps(cube(0.04))
+    assert len(small) >= 10
+    for g in small:
+        assert g.width == pytest.approx(0.04, abs=0.002)
+        assert max(np.abs(g.T_obj_tcp[:3, 1])) > 0.99  # the closing axis along a face normal
+    assert synthesise_grasps(cube(0.12)) == []

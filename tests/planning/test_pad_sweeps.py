@@ -4,6 +4,7 @@ import coal
 import numpy as np
 
 from kitchenbot.planning.collision import GripperGeometry, mesh_bvh
+from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import _tf, pad_sweeps
 from kitchenbot.transforms import trans
 from kitchenbot.world.inventory import Inventory
@@ -14,7 +15,7 @@ def _hits(vol_T, bvh, T_obj):
 
 
 def test_overhanging_top_plate_is_pinched_alone_on_its_overhang_side():
-    inv = Inventory.builtin()
+    inv = ensure_grasps(Inventory.builtin())
     plate = next(m for m in inv if m.cls == "plate" and m.name == "dinner_plate")
     bvh = mesh_bvh(np.asarray(plate.mesh.vertices), np.asarray(plate.mesh.triangles))
     g = GripperGeometry()
