@@ -60,12 +60,12 @@ class PerceptionTracker:
         if trig in PERCEIVED and fresh:
             with self._lock:
                 seq = self.latest.seq + 1 if self.latest else 1
-                self.latest = Perception(seq, list(r.views), list(r.poses), sim_t=ev.get("sim_t"),
+                self.latest = Perception(seq, list(r.views), list(r.belief.poses), sim_t=ev.get("sim_t"),
                                          views_ref=r.views)
         elif trig == "selected" and self.latest is not None:
-            self.latest.selected, self.latest.grasp = r.current, None
+            self.latest.selected, self.latest.grasp = r.item.obj, None
         elif trig == "planned" and self.latest is not None:
-            pick = r.pick
+            pick = r.item.pick
             self.latest.grasp = pick.grasp if pick is not None else None
 
     def image(self, index: int) -> np.ndarray | None:
