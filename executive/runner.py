@@ -75,6 +75,7 @@ class RunClock:
     t_start: float = field(default_factory=time.perf_counter)
     state_t0: float = field(default_factory=time.perf_counter)
     state_sim0: float | None = None
+    state_cpu0: float = field(default_factory=time.thread_time)  # the runner thread's CPU time at the state's start
     cycle_t0: tuple = (0.0, 0.0, None)  # (wall, motion wall, sim) at the start of the placement cycle
     deadline: float | None = None  # s the current state may take
 
@@ -183,7 +184,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self._log("transition", trigger, source=src, dest=dest)  # journaled before it happens
         getattr(self.machine_model, trigger)()
         rt.transitions.append(rec)
-        ck.state_t0, ck.state_sim0 = now, sim
+        ck.state_t0, ck.state_sim0, ck.state_cpu0 = now, sim, time.thread_time()
         ck.deadline = M.timeout_of(dest)
         if self.recorder is not None:
             self.recorder.state(src, dest, trigger, sim)
@@ -198,9 +199,13 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         ck = self.clock
         if ck.deadline is None:
             return
-        elapsed = time.perf_counter() - ck.state_t0
-        if ck.state_sim0 is not None:
-            elapsed += self._sim_now() - ck.state_sim0
+        if ck.state_sim0 is None:  # real devices: wall time, whatever it was spent on
+            elapsed = time.perf_counter() - ck.state_t0
+        else:
+            # Simulation: the runner thread's CPU time (its compute) plus simulated time (its motions). Wall time
+            # would make the timeout depend on what else the machine runs, and a loaded host would time out
+            # states that a robot computer would finish.
+            elapsed = time.thread_time() - ck.state_cpu0 + self._sim_now() - ck.state_sim0
         if elapsed > ck.deadline:
             raise StateTimeout(f"state {self.state} exceeded its {ck.deadline:g} s timeout")
 
