@@ -51,7 +51,8 @@ def write_scene(world, scene_dir: Path, camera_poses: list[np.ndarray], K: np.nd
         (scene_dir / sub).mkdir(parents=True, exist_ok=True)
     reported_poses = reported_poses or camera_poses
     scene_camera, scene_gt, scene_gt_info = {}, {}, {}
-    uids = sorted(world.objects)
+    # Ground truth for inventory items only: distractors (fakes/distractors.py) are in no models/ folder.
+    uids = sorted(u for u in world.objects if world.objects[u].model.obj_id in world.inventory.models)
     for im_id, (T_true, T_rep) in enumerate(zip(camera_poses, reported_poses)):
         r = render(world, K, T_true, width, height)
         depth = stereo_noise(r.depth, r.cos_incidence, K, rng)

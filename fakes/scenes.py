@@ -28,6 +28,7 @@ class SceneOptions:
     style: str = "random"  # stainless | ceramic | random
     stack_probability: float = 0.35
     lean_probability: float = 0.3
+    distractors: int = 0  # up to this many things not in the inventory (fakes/distractors.py), 1..n per scene
 
 
 _ORDER = {"plate": 0, "bowl": 1, "mug": 2, "cup": 2, "glass": 3}
@@ -147,6 +148,11 @@ def generate_scene(
             world.set_pose(uid, T_rest)
             prev = (model, T_rest, mode)
             break
+    if options.distractors > 0:
+        from kitchenbot.fakes.distractors import add_distractors
+
+        drng = np.random.default_rng([seed, 1])  # its own stream: the dishware is the same with or without
+        add_distractors(world, int(drng.integers(1, options.distractors + 1)), drng, MAX_TOP_Z)
     return world
 
 

@@ -62,14 +62,16 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
         dirs = [d for d in dirs if d.name.isdigit() and int(d.name) in scenes]
         if not dirs:
             raise ValueError(f"--scenes: none of {scenes} is in {root}")
-    perceivers: dict[bool, Perceiver] = {}
+    if use_cell not in ("auto", "always", "never"):
+        raise ValueError(f"--cell: expected auto, always or never, got {use_cell!r}")
+    perceivers: dict[str, Perceiver] = {}
 
-    def perceiver(with_cell: bool) -> Perceiver:
-        if with_cell not in perceivers:
-            c = (cell or Cell()) if with_cell else None
+    def perceiver(mode: str) -> Perceiver:
+        if mode not in perceivers:
+            c = (cell or Cell()) if mode != "never" else None
             db = next(iter(perceivers.values())).database if perceivers else None
-            perceivers[with_cell] = Perceiver(settings, inventory, c, database=db, use_cell=with_cell)
-        return perceivers[with_cell]
+            perceivers[mode] = Perceiver(settings, inventory, c, database=db, use_cell=mode)
+        return perceivers[mode]
 
     estimates: list[Estimate] = []
     errors: list[float] = []
@@ -80,6 +82,9 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
     pose_ms: list[float] = []
     scan_ms: list[float] = []
     per_scan = []
+    rejected = 0
+    sources: dict[str, int] = {}
+    cell_misfits: list[dict] = []
     grasp_err: dict[str, list] = {}  # class name -> [translations, tilts, extra count]
     pts = {m.obj_id: m.points for m in inventory}
     n_images = 0
@@ -91,11 +96,19 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
     for sd in dirs:
         images = bop.read_scene(sd)
         for group in bop.view_groups(images):
-            with_cell = use_cell == "always" or (use_cell == "auto" and group[0].has_world_pose)
-            p = perceiver(with_cell)
+            # Images without world poses have no gravity: no cell to check, no surfaces to find but their own
+            # dominant plane (unless the cell is asked for always).
+            world = group[0].has_world_pose
+            mode = use_cell if (world or use_cell == "always") else "never"
+            p = perceiver(mode)
             t0 = time.perf_counter()
-            res = p.perceive([im.view for im in group])
+            res = p.perceive([im.view for im in group], up=np.array([0.0, 0.0, 1.0]) if world else None)
             dt = time.perf_counter() - t0
+            rejected += res.rejected
+            sources[res.surfaces_from] = sources.get(res.surfaces_from, 0) + 1
+            if res.cell_check is not None and not res.cell_check.fits:
+                cell_misfits.append({"scene_id": group[0].scene_id, "im_ids": [im.im_id for im in group],
+                                     "behind": round(res.cell_check.behind, 4), "message": res.cell_check.message})
             scan_ms.append(1000 * dt)
             pose_ms += res.pose_ms
             for k, v in res.timings_ms.items():
@@ -147,6 +160,11 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
         "per_object": {str(o): {"name": inventory[o].name, "recall": float(np.mean(v)), "n": len(v)}
                        for o, v in sorted(per_obj.items())},
         "false_positives": int(false_pos),  # per image: unmatched (and not a low-visibility object) or wrong
+        # Instances no inventory model explained (left in the map as obstacles), summed over scans.
+        "rejected": int(rejected),
+        "cell": use_cell,
+        "surfaces_from": sources,  # scans segmented with the cell's surfaces / found in the data / per view plane
+        "cell_misfits": cell_misfits,  # --cell auto: scans whose configured cell did not fit (not used there)
         "objects": int(len(e)),
         "estimates": len(estimates),
         "scenes": len(dirs),

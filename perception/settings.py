@@ -28,4 +28,5 @@ class PerceptionSettings(BaseModel):
     align_to_cell: bool = Field(True, description="register the scan onto the known cell geometry (sink floor, walls)")
     cache_dir: str = Field("~/.cache/kitchenbot/cad", description="where the CAD feature database is cached")
     residual_tolerance: float = Field(0.8, gt=0, le=3, description="voxels: query points farther than this from a found pose are re-fitted as another object (a nested item's peeking rim)")
+    verify_threshold: float = Field(0.0, ge=0.0, le=1.0, description="reject poses whose verification (coverage both ways x normals agreement x free space, perception/verify.py) is lower")
     max_splits: int = Field(20, ge=0, le=50, description="times an instance may be split by re-fitting what a pose leaves unexplained")

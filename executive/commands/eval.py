@@ -24,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overlays", type=Path, help="write PNG overlays of model contours at the estimated poses")
     p.add_argument("--overlay-scenes", type=int, nargs="+", help="scenes to draw (default: the first three)")
     p.add_argument("--cell", choices=["auto", "always", "never"], default="auto",
-                   help="use the config's cell geometry to segment (auto: when images have world poses)")
+                   help="the config's cell geometry: always use it; never (find supports and walls in each "
+                        "scan); auto (default: use it where it fits what the cameras see, else the surfaces found)")
     p.add_argument("--min-visib", type=float, default=0.1, help="evaluate GT objects at least this visible")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
@@ -66,6 +67,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"overlays: {n} images in {args.overlays}")
     print(f"ADI recall@0.1d {r['adi_recall_0.1d']:.3f}  AUC ADD-S(10cm) {r['auc_adds_10cm']:.3f}  "
           f"objects {r['objects']}  false positives {r['false_positives']}  scenes {r['scenes']}  images {r['images']}")
+    print(f"rejected instances (no inventory model explains them; obstacles) {r['rejected']}  surfaces from "
+          + ", ".join(f"{k} {v}" for k, v in r["surfaces_from"].items()) + " (scans)")
+    for mf in r["cell_misfits"]:
+        print(f"  scene {mf['scene_id']}: {mf['message']}")
     for oid, o in r["per_object"].items():
         print(f"  {oid:>3} {o['name']:<16} recall {o['recall']:.3f}  (n={o['n']})")
     if r.get("grasp_errors"):

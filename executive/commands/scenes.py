@@ -17,6 +17,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--config", help="cell config YAML (default: the shipped simulation config)")
     g.add_argument("--pose-noise-mm", type=float, default=0.0, help="perturb each scan pose by this much")
     g.add_argument("--pose-noise-deg", type=float, default=0.0)
+    g.add_argument("--distractors", type=int, default=0,
+                   help="up to this many things not in the inventory per scene (boxes, cans, bottles, sponges, "
+                        "cutlery; no ground truth: a pose on one is a false positive)")
     g.set_defaults(func=run_generate)
 
 
@@ -37,7 +40,10 @@ def run_generate(args: argparse.Namespace) -> int:
         "T_flange_tcp": cfg.robot.tool.T_flange_tcp.matrix(),
         "T_flange_cam": cfg.T_flange_cam(),
     }
-    opts = SceneOptions(min_objects=cfg.sim.min_objects, max_objects=cfg.sim.max_objects, style=cfg.sim.style)
+    if args.distractors < 0:
+        raise ValueError(f"--distractors: expected 0 or more, got {args.distractors}")
+    opts = SceneOptions(min_objects=cfg.sim.min_objects, max_objects=cfg.sim.max_objects, style=cfg.sim.style,
+                        distractors=args.distractors)
     t0 = time.perf_counter()
     with Progress() as bar:
         task = bar.add_task("scenes", total=args.scenes)
