@@ -47,8 +47,11 @@ def collect(dataset: Path, use_cell: str = "always", settings: PerceptionSetting
             m = inventory[p.obj_id]
             pts = m.points[::4]
             err = min((adi(p.T_base_obj, T, pts) for o, T in gt if o == p.obj_id), default=np.inf)
+            # Near some inventory item (a wrong fit of dishware) or not (a distractor, a phantom).
+            near = min((np.linalg.norm(p.T_base_obj[:3, 3] - T[:3, 3]) for _, T in gt), default=np.inf)
             rows.append({"scene": int(images[0].scene_id), "obj_id": p.obj_id, "verification": p.verification,
-                         "score": p.score, "right": bool(err < 0.1 * m.diameter)})
+                         "score": p.score, "right": bool(err < 0.1 * m.diameter),
+                         "near_dishware": bool(near < 0.5 * m.diameter), **p.checks})
     return rows
 
 

@@ -96,13 +96,15 @@ def make_detector(settings: PerceptionSettings, cell: Cell | None) -> tuple[Dete
 class Perceiver:
     def __init__(self, settings: PerceptionSettings | None = None, inventory: Inventory | None = None,
                  cell: Cell | None = None, detector: Detector | None = None, segmenter: Segmenter | None = None,
-                 database: CadDatabase | None = None, use_cell: bool | str = True):
+                 database: CadDatabase | None = None, use_cell: bool | str | None = None):
         """`use_cell`: True / "always": segment with the configured cell's surfaces; False / "never": with the
         support surfaces and walls found in each scan (perception/surfaces.py), or, for a view without
         gravity (`perceive(..., up=None)`), its dominant plane; "auto": the cell when it fits what the cameras
-        see (perception/cell_check.py), else the surfaces found, with a warning and `result.cell_check`."""
+        see (perception/cell_check.py), else the surfaces found, with a warning and `result.cell_check`.
+        None: the setting `perception.use_cell` (default "auto")."""
         self.settings = settings or PerceptionSettings()
         self.inventory = inventory or Inventory.builtin()
+        use_cell = self.settings.use_cell if use_cell is None else use_cell
         mode = ("always" if use_cell else "never") if isinstance(use_cell, bool) else use_cell
         if mode not in ("always", "never", "auto"):
             raise ValueError(f"use_cell: expected True, False, 'always', 'never' or 'auto', got {use_cell!r}")
@@ -325,7 +327,8 @@ class Perceiver:
                 model = self.inventory[hyp.obj_id]
                 ver = getattr(hyp, "verification", None)
                 poses.append(ObjectPose(hyp.obj_id, model.cls, hyp.T_base_obj, hyp.score, m.points[own], iid,
-                                        hyp.visible_fraction, ver.score if ver is not None else 1.0))
+                                        hyp.visible_fraction, ver.score if ver is not None else 1.0,
+                                        ver.parts() if ver is not None else {}))
         m = InstanceMap(m.points, ids_out, m.view, m.pixel, m.cam_centres)
         source = "cell" if self._active_cell is not None else ("data" if self._surfaces is not None else "plane")
         return PerceptionResult(poses, m, dets, timings, pose_ms, rejected, list(views), cpu, pose_cpu_ms,
@@ -357,8 +360,17 @@ class Perceiver:
             # Under the counter and the basin is cabinet: nothing the cameras could see rests there.
             lo[[b.kind in ("counter", "sink") for b in boxes], 2] = -10.0
 
+            # The open basin (less 5 mm) holds no solid: only points outside it are tested against the boxes
+            # (most model points of a pose in the sink are inside it; the box test is the Scorer's hot spot).
+            open_lo, open_hi = s_lo + 0.005, s_hi + np.array([-0.005, -0.005, 1.0])
+
             def inside(P: np.ndarray) -> np.ndarray:
-                return np.any(np.all((P[:, None] > lo) & (P[:, None] < hi), axis=2), axis=1)
+                out = np.zeros(len(P), bool)
+                rest = np.nonzero(~np.all((P > open_lo) & (P < open_hi), axis=1))[0]
+                if len(rest):
+                    Q = P[rest][:, None]
+                    out[rest] = np.any(np.all((Q > lo) & (Q < hi), axis=2), axis=1)
+                return out
 
             return inside
         if self._surfaces is not None:

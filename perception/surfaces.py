@@ -20,6 +20,7 @@ import numpy as np
 import open3d as o3d
 from scipy import ndimage
 
+from kitchenbot.perception.features import voxel_keys
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import View
 
@@ -63,7 +64,13 @@ class Surface:
 
     def covers(self, P: np.ndarray, grow: int = 0) -> np.ndarray:
         """Whether points (N, 3) project into the footprint (grown by `grow` grid cells)."""
-        fp = self.footprint if grow == 0 else ndimage.binary_dilation(self.footprint, iterations=grow)
+        if grow == 0:
+            fp = self.footprint
+        else:  # grown footprints are asked for per view and per segment: made once
+            cache = self.__dict__.setdefault("_grown", {})
+            if grow not in cache:
+                cache[grow] = ndimage.binary_dilation(self.footprint, iterations=grow)
+            fp = cache[grow]
         i = np.floor((P @ self.u - self.origin[0]) / self.cell).astype(np.int64)
         j = np.floor((P @ self.v - self.origin[1]) / self.cell).astype(np.int64)
         ok = (i >= 0) & (i < fp.shape[0]) & (j >= 0) & (j < fp.shape[1])
@@ -176,8 +183,8 @@ class SurfaceMap:
 
     def is_wall_remnant(self, P: np.ndarray) -> bool:
         """Whether a segment is a piece of structure too little seen to be found as a surface: a flat sheet (95 %
-        of it within 4 mm of its plane), either level and in a found support's plane (a counter's strip seen
-        apart), or plumb at the edge of a support (its lower part within 3 cm of the hull's boundary, or outside
+        of it within 4 mm of its plane), either level and in a found support's plane (within half the margin:
+        a plate's flat centre lies one wall, 4.5 mm, above the floor; a counter's strip seen apart), or plumb at the edge of a support (its lower part within 3 cm of the hull's boundary, or outside
         it: a basin side hidden behind a leaning plate)."""
         if len(P) < 50 or not self.supports:
             return False
@@ -187,7 +194,7 @@ class SurfaceMap:
             return False  # not a flat sheet
         if abs(n @ self.up) >= np.cos(self.cfg.max_tilt):
             # Level: a strip of a found support seen apart from it (a counter's edge behind the basin).
-            return any(abs(float(s.height(c[None])[0])) < 0.005 for s in self.supports)
+            return any(abs(float(s.height(c[None])[0])) < 0.5 * self.cfg.margin for s in self.supports)
         if abs(n @ self.up) > np.sin(self.cfg.max_tilt):
             return False
         low = P[(P - c) @ self.up < 0]
@@ -261,7 +268,7 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
     S = np.concatenate(src) if src else np.zeros(0, np.int64)
     cams = np.array([v.T_base_cam[:3, 3] for v in views]).mean(axis=0) if views else np.zeros(3)
     # 1 cm voxels, one point (and its camera) per voxel.
-    _, first = np.unique(np.floor(P / cfg.voxel).astype(np.int64), axis=0, return_index=True)
+    _, first = np.unique(voxel_keys(P, cfg.voxel), return_index=True)
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P[first]))
     S = S[first]
     V = np.asarray(pc.points)  # the whole fused cloud, 1 cm voxels
@@ -270,12 +277,15 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
     for _ in range(cfg.max_planes):
         if len(rest) < cfg.min_inliers:
             break
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rest))
-        plane, inl = cloud.segment_plane(cfg.ransac_distance, 3, cfg.ransac_iterations)
-        if len(inl) < cfg.min_inliers:
-            break
+        # RANSAC on at most 4000 of the points (the plane is then refitted on all of them, below).
+        sub = rest[:: max(1, len(rest) // 4000)]
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sub))
+        plane, _ = cloud.segment_plane(cfg.ransac_distance, 3, cfg.ransac_iterations)
         n = np.asarray(plane[:3], float)
         n /= np.linalg.norm(n)
+        inl = np.nonzero(np.abs(rest @ n + plane[3] / np.linalg.norm(plane[:3])) < cfg.ransac_distance)[0]
+        if len(inl) < cfg.min_inliers:
+            break
         if n @ (cams - rest[inl].mean(axis=0)) < 0:
             n = -n
         cos_up = float(n @ up)
@@ -339,6 +349,8 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
                 cells = _cell_centres(s, part)
                 if any(_in_hull(hulls[id(t)], cells, t).mean() > cfg.max_overlap for t in lower):
                     s.footprint = s.footprint & ~part
+                    s.__dict__.pop("_grown", None)
+                    s.__dict__.pop("_hull", None)
             if not s.footprint.any():
                 continue
         out.append(s)

@@ -35,3 +35,4 @@ class ObjectPose:
     instance_id: int = -1
     visible_fraction: float = 1.0  # how much of the object the views saw (1 = unoccluded)
     verification: float = 1.0  # how well the pose explains its segment (perception/verify.py; 1 = fully)
+    checks: dict[str, float] = field(default_factory=dict)  # the verification's parts (seen, explained, ...)

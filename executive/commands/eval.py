@@ -81,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {name:<16} n {g['n']:3d}  pos mm {fmt(g['translation_mm_median'])} / "
                   f"{fmt(g['translation_mm_p90'])}  tilt deg {fmt(g['tilt_deg_median'])} / {fmt(g['tilt_deg_p90'])}  "
                   f"missed {g['missed']:2d}  extra {g['extra']:2d}  within {g['within']:.2f}")
+    tc = r["timing_cpu_median_ms"]
+    print("median CPU ms per scan: " + ", ".join(f"{k} {v:.0f}" for k, v in tc.items()) +
+          f"; map + segmentation {r['map_seg_cpu_ms_per_scan_median']:.0f}; slowest scan {r['scan_cpu_ms_max']:.0f}; pose per object "
+          f"{r['pose_cpu_ms_per_object_median']:.0f}")
     t = r["timing_median_ms"]
     print("median ms per scan: " + ", ".join(f"{k} {v:.0f}" for k, v in t.items())
           + f"; pose per object {r['pose_ms_per_object_median']:.0f}")

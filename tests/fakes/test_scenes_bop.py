@@ -99,3 +99,31 @@ def test_bop_ground_truth_projects_into_masks(tmp_path):
             assert mask[v[ok][front], u[ok][front]].mean() > 0.95
             checked += 1
     assert checked >= 3
+
+
+def test_distractors_are_added_without_ground_truth(inventory, tmp_path):
+    """`--distractors`: things outside the inventory in the sink; the dishware is the same scene as without them,
+    and the dataset gives the distractors no ground truth (a pose on one is a false positive)."""
+    from kitchenbot.fakes.bop import write_scene
+    from kitchenbot.fakes.distractors import DISTRACTOR_ID0
+    from kitchenbot.fakes.render import oakd_intrinsics
+    from kitchenbot.fakes.scenes import SceneOptions
+    from kitchenbot.perception.synthetic import scan_poses
+
+    plain = generate_scene(7, inventory)
+    mixed = generate_scene(7, inventory, options=SceneOptions(distractors=3))
+    dish = [o for o in mixed.objects.values() if o.model.obj_id < DISTRACTOR_ID0]
+    extra = [o for o in mixed.objects.values() if o.model.obj_id >= DISTRACTOR_ID0]
+    assert len(extra) >= 1 and all(o.model.obj_id not in inventory.models for o in extra)
+    assert [o.model.name for o in dish] == [o.model.name for o in plain.objects.values()]
+    for a, b in zip(dish, plain.objects.values()):
+        assert np.allclose(a.T_base_obj, b.T_base_obj)
+    lo, hi = mixed.cell.sink_interior
+    for o in extra:
+        V = transform_points(o.T_base_obj, np.asarray(o.model.mesh.vertices))
+        assert np.all(V[:, :2] >= lo[:2] - 1e-3) and np.all(V[:, :2] <= hi[:2] + 1e-3)
+    counts = write_scene(mixed, tmp_path, scan_poses(mixed.cell, 1), oakd_intrinsics(320, 240), 320, 240,
+                         np.random.default_rng(0))
+    gt = json.loads((tmp_path / "scene_gt.json").read_text())
+    assert counts["objects"] == len(dish)
+    assert all(rec["obj_id"] in inventory.models for rec in gt["0"])

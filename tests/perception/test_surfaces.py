@@ -125,8 +125,9 @@ def _box(x: float, y: float, z: float, size=(0.16, 0.06, 0.10)) -> o3d.geometry.
 def test_a_box_and_a_can_get_no_pose_and_stay_obstacles(perceiver, inventory, cell, use_cell):
     """Things outside the inventory yield no pose; their points stay in the map, and the planner's collision
     world sees them as occupied voxels (what no pose and no cell surface explains)."""
-    from kitchenbot.drivers.ur_kinematics import ur_model
+    from kitchenbot.executive.config import load_config
     from kitchenbot.planning.collision import CollisionWorld, SceneObject
+    from kitchenbot.planning.robot import RobotModel
 
     lo, _ = cell.sink_interior
     placed = [(4, resting_pose(inventory, 4, 0.38, -0.10, 0.0, cell))]
@@ -137,7 +138,7 @@ def test_a_box_and_a_can_get_no_pose_and_stay_obstacles(perceiver, inventory, ce
     r = p.perceive(views)
     assert _right(r, placed, inventory) == {0}
     assert len(r.poses) == 1 and r.rejected >= 2
-    world = CollisionWorld(ur_model("ur5e"), cell)
+    world = CollisionWorld(RobotModel.from_config(load_config()), cell)
     objs = [SceneObject(f"o{k}", inventory[po.obj_id], po.T_base_obj) for k, po in enumerate(r.poses)]
     vox = world.unexplained_voxels(r.map_points, objs, instance_points=[po.points for po in r.poses])
     for centre in ((0.55, 0.08), (0.60, -0.10)):
