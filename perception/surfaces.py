@@ -242,12 +242,7 @@ def _footprint(I: np.ndarray, n: np.ndarray, cfg: SurfaceConfig) -> tuple[np.nda
     if n_holes:
         sizes = ndimage.sum(holes, lab, index=np.arange(1, n_holes + 1)) * cfg.cell**2
         grid |= np.isin(lab, 1 + np.nonzero(sizes <= cfg.max_hole)[0])
-    lab, n_parts = ndimage.label(grid, structure=np.ones((3, 3)))
-    keep = np.zeros_like(grid)
-    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
-        ext = max(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) * cfg.cell
-        if ext >= cfg.min_extent:
-            keep |= lab == k
+    keep = _long_parts(grid, cfg)
     if not keep.any():
         return None
     return u, v, origin, keep
@@ -334,27 +329,40 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
         if seen > cfg.max_seen_through * len(inl):
             continue
         surfaces.append(s)
-    # A part of a support lying over a lower support (the top of a plate stack, rims of items at one height,
-    # large enough together to pass for a surface) rests on it: no structure. A counter and the basin floor do
-    # not overlap (the sink's hole); a dish rack beside the sink is kept, the items in the sink at its height not.
+    # What of a support lies over a lower support is no structure: the top of a plate stack, rims of items at one
+    # height, or such rims caught in the counter's plane across the sink's opening (a glass standing on the
+    # basin floor reaches the counter's height). Those cells leave its footprint; what is left must still have
+    # a part longer than min_extent. A dish rack beside the sink is kept.
     supports = [s for s in surfaces if s.kind == "support"]
-    hulls = {id(t): _cell_centres(t) for t in supports}
     out = []
     for s in surfaces:
         if s.kind == "support":
-            lower = [t for t in supports if t is not s and -t.offset < -s.offset - 0.02]
-            lab, n_parts = ndimage.label(s.footprint, structure=np.ones((3, 3)))
-            for k in range(1, n_parts + 1):
-                part = lab == k
-                cells = _cell_centres(s, part)
-                if any(_in_hull(hulls[id(t)], cells, t).mean() > cfg.max_overlap for t in lower):
-                    s.footprint = s.footprint & ~part
-                    s.__dict__.pop("_grown", None)
-                    s.__dict__.pop("_hull", None)
-            if not s.footprint.any():
+            i, j = np.nonzero(s.footprint)
+            cells = _cell_centres(s)
+            over = np.zeros(len(cells), bool)
+            for t in supports:
+                if t is not s and -t.offset < -s.offset - 0.02:
+                    over |= _in(_hull_of(_cell_centres(t), t), cells, t)
+            if over.any():
+                fp = s.footprint.copy()
+                fp[i[over], j[over]] = False
+                s.footprint = _long_parts(fp, cfg)
+                s.__dict__.pop("_grown", None)
+                s.__dict__.pop("_hull", None)
+            if not s.footprint.any() or s.footprint.sum() * cfg.cell**2 < cfg.min_area:
                 continue
         out.append(s)
     return SurfaceMap(out, up, cfg)
+
+
+def _long_parts(grid: np.ndarray, cfg: SurfaceConfig) -> np.ndarray:
+    """The connected parts of a footprint grid longer than min_extent (along the grid's axes)."""
+    lab, _ = ndimage.label(grid, structure=np.ones((3, 3)))
+    keep = np.zeros_like(grid)
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if max(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) * cfg.cell >= cfg.min_extent:
+            keep |= lab == k
+    return keep
 
 
 def _hull_of(corners: np.ndarray, s: Surface) -> np.ndarray | None:
