@@ -285,8 +285,19 @@ class Perceiver:
             # Two poses of one model at one place (not stacked along the axis) are one object fitted twice,
             # e.g. a mug fitted with the wrong yaw and its unexplained handle fitted again: both are re-scored
             # on their joint points and the better one stays.
+            # Verification (perception/verify.py): a pose must not put model surface where the cameras saw
+            # through it, and must agree with its points' normals; one threshold. A pose that fails yields
+            # nothing, before duplicates are resolved (it cannot make a right pose a "duplicate"); its points stay
+            # in the map, an obstacle for the planner.
+            verified = []
+            for f in found:
+                ver = f[0].verification
+                if ver is not None and ver.score < self.settings.verify_threshold:
+                    rejected += 1
+                else:
+                    verified.append(f)
             kept: list[list] = []  # [hyp, iid, own]
-            for hyp, iid, own in sorted(found, key=lambda t: -t[0].score):
+            for hyp, iid, own in sorted(verified, key=lambda t: -t[0].score):
                 P = m.points[own]
                 if len(P) == 0:
                     continue
@@ -610,13 +621,11 @@ class Perceiver:
         # surface the views do not confirm is no detection (paper: insufficient correspondences / low overlap).
         if best is None or best.score < st.min_overlap or best.or_model < 0.15 or best.or_query < 0.2:
             return None, query
-        # Verification (perception/verify.py): the pose must explain its segment both ways, not put surface
-        # where the cameras saw through, and agree with the segment's normals; one threshold.
+        # Verification (perception/verify.py), judged on the final poses in perceive(): poses that fail it may
+        # still lead the splitting of a blob to the right fits of its pieces.
         _, _, seen, free, _ = scorers[best.obj_id](best.T_base_obj)
         best.verification = verify(query.points, query.normals, self.database[best.obj_id], best.T_base_obj, seen,
                                    free, st.voxel_size)
-        if best.verification.score < st.verify_threshold:
-            return None, query
         return best, query
 
 
