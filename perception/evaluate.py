@@ -123,12 +123,13 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
             raise ValueError(f"--scenes: none of {scenes} is in {root}")
     perceivers: dict[object, Perceiver] = {}
 
-    def perceiver(with_cell: bool, scene_cell: Cell | None = None) -> Perceiver:
-        c = (scene_cell or cell or Cell()) if with_cell else None
-        key = c.spec.model_dump_json() if c is not None else None
+    def perceiver(mode: str, scene_cell: Cell | None = None) -> Perceiver:
+        """One Perceiver per cell mode (auto / always / never) and cell (`scene_cell`: --cell dataset)."""
+        c = None if mode == "never" else (scene_cell or cell or Cell())
+        key = (mode, c.spec.model_dump_json() if c is not None else None)
         if key not in perceivers:
             db = next(iter(perceivers.values())).database if perceivers else None
-            perceivers[key] = Perceiver(settings, inventory, c, database=db, use_cell=with_cell)
+            perceivers[key] = Perceiver(settings, inventory, c, database=db, use_cell=mode)
         return perceivers[key]
 
     estimates: list[Estimate] = []
@@ -138,8 +139,15 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
     false_pos = 0
     timings: dict[str, list[float]] = {}
     pose_ms: list[float] = []
+    pose_cpu_ms: list[float] = []
+    timings_cpu: dict[str, list[float]] = {}
+    mapseg_cpu: list[float] = []
+    scan_cpu: list[float] = []
     scan_ms: list[float] = []
     per_scan = []
+    rejected = 0
+    sources: dict[str, int] = {}
+    cell_misfits: list[dict] = []
     grasp_err: dict[str, list] = {}  # class name -> [translations, tilts, extra count]
     pts = {m.obj_id: m.points for m in inventory}
     n_images = 0
@@ -154,15 +162,29 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
         images = bop.read_scene(sd)
         scene_cell = _scene_cell(sd) if use_cell == "dataset" else None
         for group in bop.view_groups(images):
-            with_cell = use_cell == "always" or (use_cell in ("auto", "dataset") and group[0].has_world_pose)
-            p = perceiver(with_cell, scene_cell)
+            # Images without world poses have no gravity: no cell to check, no surfaces to find but their own
+            # dominant plane (unless the cell is asked for always). --cell dataset: the scene's own cell, always.
+            world = group[0].has_world_pose
+            want = "always" if use_cell == "dataset" else use_cell
+            mode = want if world else ("always" if use_cell == "always" else "never")
+            p = perceiver(mode, scene_cell)
             t0 = time.perf_counter()
-            res = p.perceive([im.view for im in group])
+            res = p.perceive([im.view for im in group], up=np.array([0.0, 0.0, 1.0]) if world else None)
             dt = time.perf_counter() - t0
+            rejected += res.rejected
+            sources[res.surfaces_from] = sources.get(res.surfaces_from, 0) + 1
+            if res.cell_check is not None and not res.cell_check.fits:
+                cell_misfits.append({"scene_id": group[0].scene_id, "im_ids": [im.im_id for im in group],
+                                     "behind": round(res.cell_check.behind, 4), "message": res.cell_check.message})
             scan_ms.append(1000 * dt)
             pose_ms += res.pose_ms
+            pose_cpu_ms += res.pose_cpu_ms
             for k, v in res.timings_ms.items():
                 timings.setdefault(k, []).append(v)
+            for k, v in res.timings_cpu_ms.items():
+                timings_cpu.setdefault(k, []).append(v)
+            mapseg_cpu.append(sum(v for k, v in res.timings_cpu_ms.items() if k != "pose"))
+            scan_cpu.append(sum(res.timings_cpu_ms.values()))
             if len(group) > 1 or group[0].has_world_pose:
                 _scan_errors(group, res.poses, inventory, min_visib, grasp_err)
             for im, view in zip(group, res.views):
@@ -227,6 +249,11 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
         "false_positives_on_distractors_by_name": dict(sorted(dfp.items())),
         "distractors": int(distractors_seen),  # distractor instances at least min_visib visible, over images
         "inventory": sorted(inventory.models),
+        # Instances no inventory model explained (left in the map as obstacles), summed over scans.
+        "rejected": int(rejected),
+        "cell": use_cell,
+        "surfaces_from": sources,  # scans segmented with the cell's surfaces / found in the data / per view plane
+        "cell_misfits": cell_misfits,  # --cell auto: scans whose configured cell did not fit (not used there)
         "objects": int(len(e)),
         "estimates": len(estimates),
         "scenes": len(dirs),
@@ -234,6 +261,12 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
         "min_visib_fract": min_visib,
         "timing_median_ms": {k: float(np.median(v)) for k, v in timings.items()},
         "pose_ms_per_object_median": float(np.median(pose_ms)) if pose_ms else 0.0,
+        # Process CPU time (what the work costs; wall time on a shared machine includes waiting for a core).
+        "timing_cpu_median_ms": {k: float(np.median(v)) for k, v in timings_cpu.items()},
+        "pose_cpu_ms_per_object_median": float(np.median(pose_cpu_ms)) if pose_cpu_ms else 0.0,
+        # Everything before the poses (cell check, alignment, surfaces, segmentation, association, fusion).
+        "map_seg_cpu_ms_per_scan_median": float(np.median(mapseg_cpu)) if mapseg_cpu else 0.0,
+        "scan_cpu_ms_max": float(np.max(scan_cpu)) if scan_cpu else 0.0,
         "scan_ms_median": float(np.median(scan_ms)) if scan_ms else 0.0,
         "settings": settings.model_dump(mode="json"),
         # Per scan in the base frame, per model: position and axis errors, missed and extra (duplicate or

@@ -8,6 +8,7 @@ Each stage is its own module and runnable alone; this file only wires them and t
 
 from __future__ import annotations
 
+import logging
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -18,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from kitchenbot.perception.associate import associate
 from kitchenbot.world.cell import Cell
+from kitchenbot.perception.cell_check import CellCheck, check_cell
 from kitchenbot.perception.database import CadDatabase
 from kitchenbot.perception.detect import Detection, Detector, PassThroughSegmenter, Segmenter
 from kitchenbot.perception import backends
@@ -29,9 +31,12 @@ from kitchenbot.perception.register import (Hypothesis, RegistrationConfig, Scor
 from kitchenbot.perception.rgbd import check_view
 from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
+from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.types import ObjectPose, View
+from kitchenbot.perception.verify import verify
 from kitchenbot.transforms import inv
 
+log = logging.getLogger(__name__)
 
 # Classes whose items nest / stack on copies of themselves (a plate on a plate, a bowl in a bowl, a cup in a
 # cup): what a pose of one of them leaves over is re-fitted at the tight tolerance.
@@ -59,6 +64,9 @@ class PerceptionResult:
     views: list[View] = field(default_factory=list)  # the views as used (poses after alignment)
     timings_cpu_ms: dict[str, float] = field(default_factory=dict)  # process CPU time per stage
     pose_cpu_ms: list[float] = field(default_factory=list)  # process CPU time per instance
+    surfaces_from: str = "cell"  # "cell": the configured cell's; "data": found in the scan; "plane": per view
+    cell_check: CellCheck | None = None  # with use_cell="auto": how the configured cell fitted the scan
+    surfaces: SurfaceMap | None = None  # the surfaces found in the scan ("data")
 
     @property
     def map_points(self) -> np.ndarray:
@@ -88,12 +96,22 @@ def make_detector(settings: PerceptionSettings, cell: Cell | None) -> tuple[Dete
 class Perceiver:
     def __init__(self, settings: PerceptionSettings | None = None, inventory: Inventory | None = None,
                  cell: Cell | None = None, detector: Detector | None = None, segmenter: Segmenter | None = None,
-                 database: CadDatabase | None = None, use_cell: bool = True):
-        """`use_cell=False`: no known cell geometry (e.g. a BOP dataset of a table top); the geometric
-        segmenter then removes the dominant support plane instead of the cell's surfaces."""
+                 database: CadDatabase | None = None, use_cell: bool | str | None = None):
+        """`use_cell`: True / "always": segment with the configured cell's surfaces; False / "never": with the
+        support surfaces and walls found in each scan (perception/surfaces.py), or, for a view without
+        gravity (`perceive(..., up=None)`), its dominant plane; "auto": the cell when it fits what the cameras
+        see (perception/cell_check.py), else the surfaces found, with a warning and `result.cell_check`.
+        None: the setting `perception.use_cell` (default "auto")."""
         self.settings = settings or PerceptionSettings()
         self.inventory = inventory or Inventory.builtin()
-        self.cell = (cell or Cell()) if use_cell else None
+        use_cell = self.settings.use_cell if use_cell is None else use_cell
+        mode = ("always" if use_cell else "never") if isinstance(use_cell, bool) else use_cell
+        if mode not in ("always", "never", "auto"):
+            raise ValueError(f"use_cell: expected True, False, 'always', 'never' or 'auto', got {use_cell!r}")
+        self.cell_mode = mode
+        self.cell = (cell or Cell()) if mode != "never" else None
+        self._active_cell: Cell | None = self.cell if mode == "always" else None  # per scan
+        self._surfaces: SurfaceMap | None = None  # per scan, when no cell is used
         d, s = make_detector(self.settings, self.cell) if detector is None else (detector, None)
         self.detector = d
         self.segmenter = segmenter or s or PassThroughSegmenter()
@@ -115,7 +133,16 @@ class Perceiver:
         return self._db
 
     # ---- the stages ---------------------------------------------------------------------------------------
-    def perceive(self, views: list[View]) -> PerceptionResult:
+    def _geometric(self) -> list[GeometricSegmenter]:
+        """The geometric segmenters this perceiver uses (told per scan which surfaces to remove)."""
+        out = [x for x in (self.detector, self.segmenter, getattr(self.segmenter, "geometric", None))
+               if isinstance(x, GeometricSegmenter)]
+        return out
+
+    def perceive(self, views: list[View], up: np.ndarray | None = np.array([0.0, 0.0, 1.0])) -> PerceptionResult:
+        """Object poses from one scan. `up`: the base frame's up (against gravity); None when the views' frame
+        has no known gravity (a BOP image without world poses): the dominant plane of each view is then the
+        support."""
         timings: dict[str, float] = {}
 
         cpu: dict[str, float] = {}
@@ -134,12 +161,31 @@ class Perceiver:
         db = self.database
         # Scan poses off (arm repeatability, hand-eye error): with a known cell each view is registered onto the
         # cell's sink (absolute and relative errors at once); without one, the views onto the first view.
-        if self.cell is not None and self.settings.align_to_cell:
-            with timed("align"):
-                views = [align_to_cell([v], self.cell)[0][0] for v in views]
-        elif len(views) > 1 and self.settings.align_views:
+        # Which surfaces to remove: the configured cell's ("auto": if it fits the scan once registered onto it,
+        # perception/cell_check.py), or those found in the scan.
+        check = None
+        self._active_cell = None
+        if self.cell_mode != "never":
+            aligned = views
+            if self.settings.align_to_cell:
+                with timed("align"):
+                    aligned = [align_to_cell([v], self.cell)[0][0] for v in views]
+            if self.cell_mode == "auto":
+                with timed("cell_check"):
+                    check = check_cell(aligned, self.cell)
+                if not check.fits:
+                    log.warning("perception: %s", check.message)
+            if check is None or check.fits:
+                self._active_cell, views = self.cell, aligned
+        if self._active_cell is None and len(views) > 1 and self.settings.align_views:
             with timed("align"):
                 views, _ = align_views(views, self.settings.voxel_size)
+        self._surfaces = None
+        if self._active_cell is None and up is not None:
+            with timed("surfaces"):
+                self._surfaces = find_surfaces(views, up)
+        for g in self._geometric():
+            g.cell, g.surfaces = self._active_cell, self._surfaces
         with timed("segment"):
             dets = backends.detect_and_segment(self.detector, self.segmenter, views)  # batched when learned
         with timed("associate"):
@@ -239,8 +285,19 @@ class Perceiver:
             # Two poses of one model at one place (not stacked along the axis) are one object fitted twice,
             # e.g. a mug fitted with the wrong yaw and its unexplained handle fitted again: both are re-scored
             # on their joint points and the better one stays.
+            # Verification (perception/verify.py): a pose must not put model surface where the cameras saw
+            # through it, and must agree with its points' normals; one threshold. A pose that fails yields
+            # nothing, before duplicates are resolved (it cannot make a right pose a "duplicate"); its points stay
+            # in the map, an obstacle for the planner.
+            verified = []
+            for f in found:
+                ver = f[0].verification
+                if ver is not None and ver.score < self.settings.verify_threshold:
+                    rejected += 1
+                else:
+                    verified.append(f)
             kept: list[list] = []  # [hyp, iid, own]
-            for hyp, iid, own in sorted(found, key=lambda t: -t[0].score):
+            for hyp, iid, own in sorted(verified, key=lambda t: -t[0].score):
                 P = m.points[own]
                 if len(P) == 0:
                     continue
@@ -248,8 +305,7 @@ class Perceiver:
                 if twin is not None:
                     joint = np.union1d(twin[2], own)
                     scorer = Scorer(db[hyp.obj_id], _voxel_centres(m.points[joint], vox), views, vox,
-                                    inside_solid=self._inside_solid(getattr(self.detector, "support_normal", None)
-                                                                    if self.cell is None else None))
+                                    inside_solid=self._inside_solid(self._up()))
                     # The overlap score (epsilon one voxel) decides clear cases; between near-equals, the fit
                     # that puts more of the points on its surface within 3 mm (facing the right way) wins.
                     s_new, s_old = scorer(hyp.T_base_obj)[0], scorer(twin[0].T_base_obj)[0]
@@ -280,18 +336,33 @@ class Perceiver:
             for hyp, iid, own in kept:
                 ids_out[own] = iid
                 model = self.inventory[hyp.obj_id]
+                ver = getattr(hyp, "verification", None)
                 poses.append(ObjectPose(hyp.obj_id, model.cls, hyp.T_base_obj, hyp.score, m.points[own], iid,
-                                        hyp.visible_fraction))
+                                        hyp.visible_fraction, ver.score if ver is not None else 1.0,
+                                        ver.parts() if ver is not None else {}))
         m = InstanceMap(m.points, ids_out, m.view, m.pixel, m.cam_centres)
-        return PerceptionResult(poses, m, dets, timings, pose_ms, rejected, list(views), cpu, pose_cpu_ms)
+        source = "cell" if self._active_cell is not None else ("data" if self._surfaces is not None else "plane")
+        return PerceptionResult(poses, m, dets, timings, pose_ms, rejected, list(views), cpu, pose_cpu_ms,
+                                source, check, self._surfaces)
+
+    def _up(self) -> np.ndarray | None:
+        """The gravity prior for this scan: None with a cell (the base frame's z), the base frame's up with
+        surfaces found in the data, the dominant plane's normal in single-view plane mode."""
+        if self._active_cell is not None:
+            return None
+        if self._surfaces is not None:
+            return self._surfaces.up
+        return getattr(self.detector, "support_normal", None)
 
     def _inside_solid(self, up: np.ndarray | None):
         """Test for points inside known solid matter: the cell's boxes (deeper than 5 mm; the counter and the
-        basin extended downwards), or in plane mode more than 1 cm below the support plane."""
-        if self.cell is not None:
+        basin extended downwards), or more than 1 cm behind a surface found in the data, or in plane mode more
+        than 1 cm below the support plane."""
+        cell = self._active_cell
+        if cell is not None:
             # Boxes near the sink only (objects are found there), shrunk by 5 mm.
-            s_lo, s_hi = self.cell.sink_interior
-            boxes = [b for b in self.cell.boxes
+            s_lo, s_hi = cell.sink_interior
+            boxes = [b for b in cell.boxes
                      if np.all(b.upper > s_lo - 0.3) and np.all(b.lower < s_hi + np.array([0.3, 0.3, 0.6]))]
             if not boxes:
                 return None
@@ -300,10 +371,21 @@ class Perceiver:
             # Under the counter and the basin is cabinet: nothing the cameras could see rests there.
             lo[[b.kind in ("counter", "sink") for b in boxes], 2] = -10.0
 
+            # The open basin (less 5 mm) holds no solid: only points outside it are tested against the boxes
+            # (most model points of a pose in the sink are inside it; the box test is the Scorer's hot spot).
+            open_lo, open_hi = s_lo + 0.005, s_hi + np.array([-0.005, -0.005, 1.0])
+
             def inside(P: np.ndarray) -> np.ndarray:
-                return np.any(np.all((P[:, None] > lo) & (P[:, None] < hi), axis=2), axis=1)
+                out = np.zeros(len(P), bool)
+                rest = np.nonzero(~np.all((P > open_lo) & (P < open_hi), axis=1))[0]
+                if len(rest):
+                    Q = P[rest][:, None]
+                    out[rest] = np.any(np.all((Q > lo) & (Q < hi), axis=2), axis=1)
+                return out
 
             return inside
+        if self._surfaces is not None:
+            return self._surfaces.inside_solid
         det = self.detector
         if up is None or getattr(det, "support_offset", None) is None:
             return None
@@ -473,7 +555,7 @@ class Perceiver:
         if len(query.points) < 8:
             return None, query
         cands = propose(query, self.database, st.top_k, st.candidate_threshold)
-        up = getattr(self.detector, "support_normal", None) if self.cell is None else None
+        up = self._up()
         # Screen every candidate's hypotheses, then refine the best few over all candidates. Appearance must
         # agree too: geometry alone confuses e.g. two nested cups with one glass.
         screened = []
@@ -538,6 +620,11 @@ class Perceiver:
         # surface the views do not confirm is no detection (paper: insufficient correspondences / low overlap).
         if best is None or best.score < st.min_overlap or best.or_model < 0.15 or best.or_query < 0.2:
             return None, query
+        # Verification (perception/verify.py), judged on the final poses in perceive(): poses that fail it may
+        # still lead the splitting of a blob to the right fits of its pieces.
+        _, _, seen, free, _ = scorers[best.obj_id](best.T_base_obj)
+        best.verification = verify(query.points, query.normals, self.database[best.obj_id], best.T_base_obj, seen,
+                                   free, st.voxel_size)
         return best, query
 
 

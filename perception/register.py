@@ -46,6 +46,7 @@ class Hypothesis:
     free_space: float = 0.0  # fraction of the visible model points seen to be empty space
     visible_fraction: float = 0.0
     source: str = ""
+    verification: "object | None" = None  # perception/verify.Verification of the final pose
 
 
 @dataclass

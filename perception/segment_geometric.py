@@ -20,6 +20,7 @@ from scipy.sparse.csgraph import connected_components
 
 from kitchenbot.perception.detect import Detection, box_of
 from kitchenbot.perception.rgbd import point_map
+from kitchenbot.perception.surfaces import SurfaceMap
 from kitchenbot.perception.types import View
 from kitchenbot.world.cell import Cell
 
@@ -166,10 +167,14 @@ def plane_foreground(view: View, cfg: GeometricSegmenterConfig, pts: np.ndarray)
 
 class GeometricSegmenter:
     """Detector and segmenter in one: instance masks of everything in the sink that is not the sink.
-    With `cell=None`, everything standing on the dominant plane of each view instead (generic table tops)."""
+    With `surfaces` (found in the scan, perception/surfaces.py) and no cell: everything standing on a support
+    that is not a surface. With neither (a single image without gravity): everything standing on the
+    dominant plane of each view (generic table tops)."""
 
-    def __init__(self, cell: Cell | None, cfg: GeometricSegmenterConfig | None = None):
+    def __init__(self, cell: Cell | None, cfg: GeometricSegmenterConfig | None = None,
+                 surfaces: SurfaceMap | None = None):
         self.cell = cell
+        self.surfaces = surfaces  # set per scan by the Perceiver when it uses no cell
         self.cfg = cfg or GeometricSegmenterConfig()
         self.support_normal: np.ndarray | None = None  # plane mode: 'up' of the last view (base frame) ...
         self.support_offset: float | None = None  # ... and the plane's offset: p . n + d = 0
@@ -178,10 +183,12 @@ class GeometricSegmenter:
         cfg = self.cfg
         s = cfg.stride
         pts = point_map(view, s)
-        if self.cell is None:
-            fg, self.support_normal, self.support_offset = plane_foreground(view, cfg, pts)
-        else:
+        if self.cell is not None:
             fg = foreground_mask(view, self.cell, cfg, pts)
+        elif self.surfaces is not None:
+            fg = self.surfaces.foreground(pts, view.T_base_cam[:3, 3])
+        else:
+            fg, self.support_normal, self.support_offset = plane_foreground(view, cfg, pts)
         if not fg.any():
             return []
         lab, k = components(pts, fg, cfg.link_distance, cfg.max_gap, s / view.K[0, 0], view.T_base_cam[2, 3])
@@ -194,6 +201,9 @@ class GeometricSegmenter:
             ext = np.percentile(p, 98, axis=0) - np.percentile(p, 2, axis=0)
             if ext.max() < cfg.min_extent:
                 continue
+            if self.cell is None and self.surfaces is not None and (
+                    self.surfaces.is_crease(p.astype(np.float64)) or self.surfaces.is_wall_remnant(p.astype(np.float64))):
+                continue  # a basin's rounded corner or bevel between a floor and a wall, or a wall little seen
             if s > 1:  # back to full resolution: each sample covers its s x s block
                 m = np.repeat(np.repeat(m, s, axis=0), s, axis=1)[:h, :w]
             out.append(Detection(box=box_of(m), score=1.0, mask=m, label="object"))

@@ -25,7 +25,11 @@ class PerceptionSettings(BaseModel):
     iou_threshold: float = Field(0.6, gt=0.0, lt=1.0)
     min_overlap: float = Field(0.5, ge=0.0, le=1.0, description="reject poses whose mean overlap ratio is lower")
     align_views: bool = Field(True, description="register the views onto the first one (ICP, coarse FPFH if needed)")
+    use_cell: Literal["auto", "always", "never"] = Field(
+        "auto", description="the cell description: auto = use it where it fits what the cameras see (else find "
+        "supports and walls in the scan, with a warning); always; never (surfaces from the data only)")
     align_to_cell: bool = Field(True, description="register the scan onto the known cell geometry (sink floor, walls)")
     cache_dir: str = Field("~/.cache/kitchenbot/cad", description="where the CAD feature database is cached")
     residual_tolerance: float = Field(0.8, gt=0, le=3, description="voxels: query points farther than this from a found pose are re-fitted as another object (a nested item's peeking rim)")
+    verify_threshold: float = Field(0.8, ge=0.0, le=1.0, description="reject poses whose verification (share of the judged model surface the depth does not see through, capped by the normals' agreement; perception/verify.py) is lower; calibrated on generated scenes with distractors")
     max_splits: int = Field(20, ge=0, le=50, description="times an instance may be split by re-fitting what a pose leaves unexplained")

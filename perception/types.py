@@ -34,3 +34,5 @@ class ObjectPose:
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # base frame, metres
     instance_id: int = -1
     visible_fraction: float = 1.0  # how much of the object the views saw (1 = unoccluded)
+    verification: float = 1.0  # how well the pose explains its segment (perception/verify.py; 1 = fully)
+    checks: dict[str, float] = field(default_factory=dict)  # the verification's parts (seen, explained, ...)

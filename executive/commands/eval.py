@@ -24,8 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overlays", type=Path, help="write PNG overlays of model contours at the estimated poses")
     p.add_argument("--overlay-scenes", type=int, nargs="+", help="scenes to draw (default: the first three)")
     p.add_argument("--cell", choices=["auto", "always", "never", "dataset"], default="auto",
-                   help="use the config's cell geometry to segment (auto: when images have world poses; "
-                        "dataset: each generated scene's own cell from its scene_sim.json)")
+                   help="the config's cell geometry: always use it; never (find supports and walls in each "
+                        "scan); auto (default: use it where it fits what the cameras see, else the surfaces "
+                        "found); dataset (each generated scene's own cell from its scene_sim.json)")
     p.add_argument("--inventory", type=Path,
                    help="BOP models folder of the dishware to find (default: the dataset's models/)")
     p.add_argument("--objects", type=int, nargs="+",
@@ -75,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"overlays: {n} images in {args.overlays}")
     print(f"ADI recall@0.1d {r['adi_recall_0.1d']:.3f}  AUC ADD-S(10cm) {r['auc_adds_10cm']:.3f}  "
           f"objects {r['objects']}  false positives {r['false_positives']}  scenes {r['scenes']}  images {r['images']}")
+    print(f"rejected instances (no inventory model explains them; obstacles) {r['rejected']}  surfaces from "
+          + ", ".join(f"{k} {v}" for k, v in r["surfaces_from"].items()) + " (scans)")
+    for mf in r["cell_misfits"]:
+        print(f"  scene {mf['scene_id']}: {mf['message']}")
     for oid, o in r["per_object"].items():
         print(f"  {oid:>3} {o['name']:<16} recall {o['recall']:.3f}  (n={o['n']})")
     print(f"false positives per image {r['false_positives_per_image']:.2f}; on distractors (objects outside the "
@@ -88,6 +93,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {name:<16} n {g['n']:3d}  pos mm {fmt(g['translation_mm_median'])} / "
                   f"{fmt(g['translation_mm_p90'])}  tilt deg {fmt(g['tilt_deg_median'])} / {fmt(g['tilt_deg_p90'])}  "
                   f"missed {g['missed']:2d}  extra {g['extra']:2d}  within {g['within']:.2f}")
+    tc = r["timing_cpu_median_ms"]
+    print("median CPU ms per scan: " + ", ".join(f"{k} {v:.0f}" for k, v in tc.items()) +
+          f"; map + segmentation {r['map_seg_cpu_ms_per_scan_median']:.0f}; slowest scan {r['scan_cpu_ms_max']:.0f}; pose per object "
+          f"{r['pose_cpu_ms_per_object_median']:.0f}")
     t = r["timing_median_ms"]
     print("median ms per scan: " + ", ".join(f"{k} {v:.0f}" for k, v in t.items())
           + f"; pose per object {r['pose_ms_per_object_median']:.0f}")

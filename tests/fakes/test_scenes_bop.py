@@ -99,3 +99,4 @@ def test_bop_ground_truth_projects_into_masks(tmp_path):
             assert mask[v[ok][front], u[ok][front]].mean() > 0.95
             checked += 1
     assert checked >= 3
+

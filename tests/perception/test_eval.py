@@ -31,8 +31,11 @@ def test_eval_cli_on_a_generated_dataset(dataset, tmp_path, monkeypatch):
     assert rc == 0
     r = json.loads(rep.read_text())
     for key in ("adi_recall_0.1d", "auc_adds_10cm", "per_object", "false_positives", "timing_median_ms",
-                "objects", "scenes"):
+                "objects", "scenes", "rejected", "surfaces_from", "cell_misfits", "timing_cpu_median_ms",
+                "pose_cpu_ms_per_object_median", "map_seg_cpu_ms_per_scan_median"):
         assert key in r
+    # --cell auto (the default): the shipped cell fits the generated scans and is used for both
+    assert r["cell"] == "auto" and r["surfaces_from"] == {"cell": 2} and r["cell_misfits"] == []
     assert r["scenes"] == 2 and r["images"] == 6 and r["objects"] >= 6
     assert r["adi_recall_0.1d"] >= 0.8, r
     assert 0.5 < r["auc_adds_10cm"] <= 1.0

@@ -100,6 +100,7 @@ def test_without_a_cell_in_the_camera_frame(perceiver, inventory, cell, placed):
     views, _ = render(inventory, placed, scan_poses(cell, height=0.35)[1:2], cell, noise=0.002)
     v = views[0]
     p = Perceiver(perceiver.settings, inventory, None, use_cell=False, database=perceiver.database)
-    r = p.perceive([View(v.rgb, v.depth, v.K, np.eye(4))])
+    r = p.perceive([View(v.rgb, v.depth, v.K, np.eye(4))], up=None)  # the camera frame: no gravity known
+    assert r.surfaces_from == "plane"
     in_cam = [(oid, inv(v.T_base_cam) @ T) for oid, T in placed]
     _check(r, in_cam, inventory)

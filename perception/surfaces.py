@@ -1,0 +1,402 @@
+"""Support surfaces and walls found in the scan itself, so that perception needs no cell description.
+
+The views are fused (base frame, gravity = base z) and planes are taken out one by one with Open3D's RANSAC
+(`segment_plane`): horizontal ones (counter, basin floor, table top, shelf) are supports, vertical ones
+(splashback, basin sides, walls) are walls; tilted planes and small ones are left alone (a plate's flat
+centre is not structure). Each surface keeps its footprint, the 2 cm grid cells of its plane its inliers
+cover (closed, small holes such as a drain or the floor under a cup filled), so a plane removes only the
+surface it was found on, not everything that happens to lie at its height.
+
+Background = points near a surface (within the margin) or behind it, inside its footprint. What a basin's
+rounded corners and bevels leave (a strip in the crease between a floor and a wall) is recognised per
+segment by `SurfaceMap.is_crease`. Objects are what stands on a support, up to `max_height` above it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+from scipy import ndimage
+
+from kitchenbot.perception.features import voxel_keys
+from kitchenbot.perception.rgbd import point_map
+from kitchenbot.perception.types import View
+
+
+@dataclass
+class SurfaceConfig:
+    voxel: float = 0.01  # m: the fused cloud's resolution for the plane search
+    stride: int = 4  # pixels: every 4th row / column of each view
+    max_range: float = 2.0  # m from the camera
+    ransac_distance: float = 0.005  # m: plane inliers (depth noise at 0.5-1 m is 1-3 mm)
+    ransac_iterations: int = 300
+    max_planes: int = 10
+    min_inliers: int = 250  # fused points (1 cm voxels: 0.025 m^2) for a plane to be looked at
+    min_extent: float = 0.32  # m along the footprint's longer side: more than any dish (a dinner plate: 27 cm)
+    max_tilt: float = np.radians(5)  # support: normal within this of up; wall: within this of horizontal
+    min_area: float = 0.03  # m^2 of footprint
+    max_overlap: float = 0.3  # a support over this share of another, lower support's footprint rests on it
+    cell: float = 0.02  # m: footprint grid
+    max_hole: float = 0.03  # m^2: footprint holes up to this are filled (a drain, an item's shadow), not the sink
+    margin: float = 0.004  # m: points this close to a surface (or behind it) are the surface
+    max_height: float = 0.30  # m above a support: what stands on it
+    crease: float = 0.05  # m: a segment within this of two surfaces (all of it) is a fillet, not an object
+    max_seen_through: float = 0.2  # points seen > 2 cm behind a plane (inside its footprint) per inlier: no surface
+
+
+@dataclass
+class Surface:
+    kind: str  # "support" (horizontal, facing up) | "wall" (vertical)
+    normal: np.ndarray  # unit, towards the free side (the cameras)
+    offset: float  # p . normal + offset = 0 on the plane
+    u: np.ndarray  # in-plane basis
+    v: np.ndarray
+    origin: np.ndarray  # (2,) plane coordinates of the footprint grid's corner
+    cell: float
+    footprint: np.ndarray  # (nu, nv) bool, small holes filled
+    inliers: int = 0
+
+    def height(self, P: np.ndarray) -> np.ndarray:
+        """Signed distance of points (..., 3) from the plane, positive on the free side."""
+        return P @ self.normal + self.offset
+
+    def covers(self, P: np.ndarray, grow: int = 0) -> np.ndarray:
+        """Whether points (N, 3) project into the footprint (grown by `grow` grid cells)."""
+        if grow == 0:
+            fp = self.footprint
+        else:  # grown footprints are asked for per view and per segment: made once
+            cache = self.__dict__.setdefault("_grown", {})
+            if grow not in cache:
+                cache[grow] = ndimage.binary_dilation(self.footprint, iterations=grow)
+            fp = cache[grow]
+        i = np.floor((P @ self.u - self.origin[0]) / self.cell).astype(np.int64)
+        j = np.floor((P @ self.v - self.origin[1]) / self.cell).astype(np.int64)
+        ok = (i >= 0) & (i < fp.shape[0]) & (j >= 0) & (j < fp.shape[1])
+        out = np.zeros(len(P), bool)
+        out[ok] = fp[i[ok], j[ok]]
+        return out
+
+    def seen_through(self, P: np.ndarray, cam: np.ndarray, grow: int = 0) -> np.ndarray:
+        """Which points (behind the plane) the camera at `cam` sees through the footprint: where the ray to
+        them crosses the plane."""
+        hc = float(self.height(cam[None])[0])
+        hp = self.height(P)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = hc / (hc - hp)
+        ok = (hc > 0) & (hp < 0) & (t > 0) & (t < 1)
+        X = cam + t[:, None] * (P - cam)
+        out = np.zeros(len(P), bool)
+        idx = np.nonzero(ok)[0]
+        out[idx] = self.covers(X[idx], grow)
+        return out
+
+    def hull(self) -> np.ndarray | None:
+        """The convex hull of the footprint (grown by one cell), as half-planes in plane coordinates."""
+        if not hasattr(self, "_hull"):
+            self._hull = _hull_of(_cell_centres(self, ndimage.binary_dilation(self.footprint)), self)
+        return self._hull
+
+    def under_hull(self, P: np.ndarray) -> np.ndarray:
+        """Which points (N, 3) project into the convex hull of the footprint (grown by one cell)."""
+        return _in(self.hull(), P, self)
+
+    def filled(self) -> "Surface":
+        """This surface with every hole of its footprint filled (what lies under the items on a floor)."""
+        return Surface(self.kind, self.normal, self.offset, self.u, self.v, self.origin, self.cell,
+                       ndimage.binary_fill_holes(self.footprint), self.inliers)
+
+    @property
+    def area(self) -> float:
+        return float(self.footprint.sum()) * self.cell**2
+
+
+@dataclass
+class SurfaceMap:
+    """The surfaces of one scan, base frame."""
+
+    surfaces: list[Surface]
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    cfg: SurfaceConfig = field(default_factory=SurfaceConfig)
+
+    @property
+    def supports(self) -> list[Surface]:
+        return [s for s in self.surfaces if s.kind == "support"]
+
+    @property
+    def walls(self) -> list[Surface]:
+        return [s for s in self.surfaces if s.kind == "wall"]
+
+    def background(self, P: np.ndarray, cam: np.ndarray, margin: float | None = None) -> np.ndarray:
+        """Which points (N, 3), seen from camera centre `cam`, are a surface: within `margin` of one inside its
+        footprint, or seen through it (behind it, the ray crossing its footprint: a drain, a gap at an edge)."""
+        margin = self.cfg.margin if margin is None else margin
+        out = np.zeros(len(P), bool)
+        for s in self.surfaces:
+            h = s.height(P)
+            near = ~out & (np.abs(h) < margin)
+            if near.any():  # the footprint grown by a cell: a counter's narrow strip beside the basin
+                idx = np.nonzero(near)[0]
+                out[idx[s.covers(P[idx], grow=1)]] = True
+            behind = ~out & (h <= -margin)
+            if behind.any():
+                idx = np.nonzero(behind)[0]
+                out[idx[s.seen_through(P[idx], cam)]] = True
+        return out
+
+    def on_support(self, P: np.ndarray) -> np.ndarray:
+        """Which points stand over a support (the convex hull of its footprint: the floor under a pile of items
+        is hidden), less than max_height above it."""
+        out = np.zeros(len(P), bool)
+        for s in self.supports:
+            h = s.height(P)
+            cand = ~out & (h > 0) & (h < self.cfg.max_height)
+            if cand.any():
+                idx = np.nonzero(cand)[0]
+                out[idx[s.under_hull(P[idx])]] = True
+        return out
+
+    def foreground(self, pts: np.ndarray, cam: np.ndarray) -> np.ndarray:
+        """(H, W) mask of a point map's pixels (seen from camera centre `cam`) that are not a surface and stand
+        on a support."""
+        shape = pts.shape[:2]
+        P = pts.reshape(-1, 3)
+        ok = np.all(np.isfinite(P), axis=1)
+        idx = np.nonzero(ok)[0]
+        Q = P[idx].astype(np.float64)
+        keep = ~self.background(Q, cam)
+        keep[keep] = self.on_support(Q[keep])
+        out = np.zeros(len(P), bool)
+        out[idx[keep]] = True
+        return out.reshape(shape)
+
+    def is_crease(self, P: np.ndarray, share: float = 0.8) -> bool:
+        """Whether a segment lies in the crease between two surfaces (within `crease` of a support and of a
+        wall, or of two walls, for `share` of its points): a basin's rounded corner or bevel, no object."""
+        if len(P) == 0 or len(self.surfaces) < 2:
+            return False
+        near = np.zeros(len(P), np.int64)
+        for s in self.surfaces:
+            near += (np.abs(s.height(P)) < self.cfg.crease) & s.covers(P, grow=2)
+        return bool(np.mean(near >= 2) >= share)
+
+    def is_wall_remnant(self, P: np.ndarray) -> bool:
+        """Whether a segment is a piece of structure too little seen to be found as a surface: a flat sheet (95 %
+        of it within 4 mm of its plane), either level and in a found support's plane (within half the margin:
+        a plate's flat centre lies one wall, 4.5 mm, above the floor; a counter's strip seen apart), or plumb at the edge of a support (its lower part within 3 cm of the hull's boundary, or outside
+        it: a basin side hidden behind a leaning plate)."""
+        if len(P) < 50 or not self.supports:
+            return False
+        c = P.mean(axis=0)
+        n = np.linalg.svd(P - c, full_matrices=False)[2][2]
+        if np.mean(np.abs((P - c) @ n) < 0.004) < 0.95:
+            return False  # not a flat sheet
+        if abs(n @ self.up) >= np.cos(self.cfg.max_tilt):
+            # Level: a strip of a found support seen apart from it (a counter's edge behind the basin).
+            return any(abs(float(s.height(c[None])[0])) < 0.5 * self.cfg.margin for s in self.supports)
+        if abs(n @ self.up) > np.sin(self.cfg.max_tilt):
+            return False
+        low = P[(P - c) @ self.up < 0]
+        for s in self.supports:
+            h = s.height(low)
+            if np.median(h) > 0.05:
+                continue  # not standing on this support
+            if np.median(hull_depth(s.hull(), low, s)) < 0.03:
+                return True
+        return False
+
+    def inside_solid(self, P: np.ndarray, depth: float = 0.01) -> np.ndarray:
+        """Points more than `depth` behind a surface, inside its footprint (a pose may not put a model there)."""
+        out = np.zeros(len(P), bool)
+        for s in self.surfaces:
+            cand = ~out & (s.height(P) < -depth)
+            if cand.any():
+                idx = np.nonzero(cand)[0]
+                out[idx[s.covers(P[idx])]] = True
+        return out
+
+
+def _basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ref = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(n, ref)
+    u /= np.linalg.norm(u)
+    return u, np.cross(n, u)
+
+
+def _footprint(I: np.ndarray, n: np.ndarray, cfg: SurfaceConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(u, v, grid origin, footprint) of inlier points I on a plane with normal n: the grid cells they cover,
+    closed (gaps of one cell) and with holes up to max_hole filled, keeping only connected parts wider than
+    min_extent; None when no part is."""
+    u, v = _basis(n)
+    a, b = I @ u, I @ v
+    origin = np.array([a.min() - 2 * cfg.cell, b.min() - 2 * cfg.cell])
+    i = ((a - origin[0]) / cfg.cell).astype(np.int64)
+    j = ((b - origin[1]) / cfg.cell).astype(np.int64)
+    grid = np.zeros((i.max() + 3, j.max() + 3), bool)
+    grid[i, j] = True
+    grid = ndimage.binary_closing(grid, iterations=1) | grid
+    # Fill small holes only: the sink opening in a counter is a hole too, and must stay one.
+    holes = ndimage.binary_fill_holes(grid) & ~grid
+    lab, n_holes = ndimage.label(holes)
+    if n_holes:
+        sizes = ndimage.sum(holes, lab, index=np.arange(1, n_holes + 1)) * cfg.cell**2
+        grid |= np.isin(lab, 1 + np.nonzero(sizes <= cfg.max_hole)[0])
+    keep = _long_parts(grid, cfg)
+    if not keep.any():
+        return None
+    return u, v, origin, keep
+
+
+def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceConfig | None = None) -> SurfaceMap:
+    """The supports and walls of a scan (views with base-frame poses; `up` = gravity's opposite, base z)."""
+    cfg = cfg or SurfaceConfig()
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, float) / np.linalg.norm(up)
+    pts, src = [], []
+    for k, v in enumerate(views):
+        p = point_map(v, cfg.stride).reshape(-1, 3)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        p = p[np.linalg.norm(p - v.T_base_cam[:3, 3], axis=1) < cfg.max_range]
+        pts.append(p)
+        src.append(np.full(len(p), k))
+    P = np.concatenate(pts).astype(np.float64) if pts else np.zeros((0, 3))
+    S = np.concatenate(src) if src else np.zeros(0, np.int64)
+    cams = np.array([v.T_base_cam[:3, 3] for v in views]).mean(axis=0) if views else np.zeros(3)
+    # 1 cm voxels, one point (and its camera) per voxel.
+    _, first = np.unique(voxel_keys(P, cfg.voxel), return_index=True)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P[first]))
+    S = S[first]
+    V = np.asarray(pc.points)  # the whole fused cloud, 1 cm voxels
+    rest = V.copy()
+    surfaces: list[Surface] = []
+    for _ in range(cfg.max_planes):
+        if len(rest) < cfg.min_inliers:
+            break
+        # RANSAC on at most 4000 of the points (the plane is then refitted on all of them, below).
+        sub = rest[:: max(1, len(rest) // 4000)]
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sub))
+        plane, _ = cloud.segment_plane(cfg.ransac_distance, 3, cfg.ransac_iterations)
+        n = np.asarray(plane[:3], float)
+        n /= np.linalg.norm(n)
+        inl = np.nonzero(np.abs(rest @ n + plane[3] / np.linalg.norm(plane[:3])) < cfg.ransac_distance)[0]
+        if len(inl) < cfg.min_inliers:
+            break
+        if n @ (cams - rest[inl].mean(axis=0)) < 0:
+            n = -n
+        cos_up = float(n @ up)
+        if cos_up >= np.cos(cfg.max_tilt):
+            kind = "support"
+        elif abs(cos_up) <= np.sin(cfg.max_tilt):
+            kind = "wall"
+        else:
+            rest = np.delete(rest, inl, axis=0)
+            continue  # tilted: a leaning plate, a ramp; not structure
+        # RANSAC's plane comes from three points and may tilt across a floor and an item lying on it. Level
+        # (support) or plumb (wall) it at the inliers' median, take the points near that, and fit them by least
+        # squares (the scan's own small tilt from pose errors stays); its inliers are those near the fit.
+        n0 = up if kind == "support" else (n - (n @ up) * up) / np.linalg.norm(n - (n @ up) * up)
+        h0 = rest @ n0
+        band = np.abs(h0 - np.median(h0[inl])) < cfg.ransac_distance
+        if band.sum() < 3:
+            rest = np.delete(rest, inl, axis=0)
+            continue
+        c = rest[band].mean(axis=0)
+        n = np.linalg.svd(rest[band] - c, full_matrices=False)[2][2]
+        n = n if n @ n0 > 0 else -n
+        d = -float(n @ c)
+        sel = np.abs(rest @ n + d) < cfg.ransac_distance
+        I = rest[sel]
+        inl = np.nonzero(sel)[0]
+        rest = rest[~sel]
+        if len(I) < cfg.min_inliers or float(n @ n0) < np.cos(cfg.max_tilt):
+            continue
+        import os; os.environ.get("SDEBUG") and print("pre", kind, np.round(n, 2), round(d, 3), len(inl))
+        fp = _footprint(I, n, cfg)
+        if fp is None:
+            continue  # a small flat patch (a plate's centre, a box's top)
+        u, v, origin, grid = fp
+        if grid.sum() * cfg.cell**2 < cfg.min_area:
+            continue
+        s = Surface(kind, n, d, u, v, origin, cfg.cell, grid, len(inl))
+        # A surface cannot be seen through: a plane that cuts across items (their rims at one height) has
+        # the floor and the items' lower parts behind it. Counted inside the footprint less its border cells
+        # (under a counter's edge the basin wall drops away).
+        inner = Surface(kind, n, d, u, v, origin, cfg.cell, ndimage.binary_erosion(grid), len(inl))
+        behind = np.nonzero(s.height(V) < -0.02)[0]
+        seen = sum(int(inner.seen_through(V[behind[S[behind] == k]], v.T_base_cam[:3, 3]).sum())
+                   for k, v in enumerate(views))
+        import os; os.environ.get("SDEBUG") and print("cand", kind, np.round(n, 2), round(d, 3), len(inl), seen)
+        if seen > cfg.max_seen_through * len(inl):
+            continue
+        surfaces.append(s)
+    # What of a support lies over a lower support is no structure: the top of a plate stack, rims of items at one
+    # height, or such rims caught in the counter's plane across the sink's opening (a glass standing on the
+    # basin floor reaches the counter's height). Those cells leave its footprint; what is left must still have
+    # a part longer than min_extent. A dish rack beside the sink is kept.
+    supports = [s for s in surfaces if s.kind == "support"]
+    out = []
+    for s in surfaces:
+        if s.kind == "support":
+            i, j = np.nonzero(s.footprint)
+            cells = _cell_centres(s)
+            over = np.zeros(len(cells), bool)
+            for t in supports:
+                if t is not s and -t.offset < -s.offset - 0.02:
+                    over |= _in(_hull_of(_cell_centres(t), t), cells, t)
+            if over.any():
+                fp = s.footprint.copy()
+                fp[i[over], j[over]] = False
+                s.footprint = _long_parts(fp, cfg)
+                s.__dict__.pop("_grown", None)
+                s.__dict__.pop("_hull", None)
+            if not s.footprint.any() or s.footprint.sum() * cfg.cell**2 < cfg.min_area:
+                continue
+        out.append(s)
+    return SurfaceMap(out, up, cfg)
+
+
+def _long_parts(grid: np.ndarray, cfg: SurfaceConfig) -> np.ndarray:
+    """The connected parts of a footprint grid longer than min_extent (along the grid's axes)."""
+    lab, _ = ndimage.label(grid, structure=np.ones((3, 3)))
+    keep = np.zeros_like(grid)
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if max(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) * cfg.cell >= cfg.min_extent:
+            keep |= lab == k
+    return keep
+
+
+def _hull_of(corners: np.ndarray, s: Surface) -> np.ndarray | None:
+    """The convex hull of points (N, 3) in a surface's plane coordinates, as half-planes (K, 3): a x + b y + c
+    <= 0 inside (None when degenerate)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return ConvexHull(np.stack([corners @ s.u, corners @ s.v], axis=1)).equations
+    except (QhullError, ValueError):
+        return None
+
+
+def hull_depth(eq: np.ndarray | None, P: np.ndarray, s: Surface) -> np.ndarray:
+    """How far inside the hull (plane coordinates, m) points (N, 3) project; negative outside."""
+    if eq is None or len(P) == 0:
+        return np.full(len(P), -np.inf)
+    uv = np.stack([P @ s.u, P @ s.v], axis=1)
+    return -np.max(uv @ eq[:, :2].T + eq[:, 2], axis=1)
+
+
+def _in(eq, P: np.ndarray, s: Surface) -> np.ndarray:
+    return hull_depth(eq, P, s) >= 0
+
+
+def _in_hull(corners: np.ndarray, P: np.ndarray, s: Surface) -> np.ndarray:
+    """Which points (N, 3) project into the convex hull of `corners` in a surface's plane (what lies under the
+    items on a floor counts as floor, even where the items hide its edge)."""
+    return _in(_hull_of(corners, s), P, s)
+
+
+def _cell_centres(s: Surface, cells: np.ndarray | None = None) -> np.ndarray:
+    """Base-frame centres of a surface's footprint cells (or of `cells`, a mask of its grid)."""
+    i, j = np.nonzero(s.footprint if cells is None else cells)
+    a = s.origin[0] + (i + 0.5) * s.cell
+    b = s.origin[1] + (j + 0.5) * s.cell
+    return a[:, None] * s.u + b[:, None] * s.v - s.offset * s.normal

@@ -1,0 +1,160 @@
+"""Surfaces from the data, the configured cell checked against the scan, and things outside the inventory:
+hand-made scenes rendered with perception/synthetic.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from kitchenbot.world.cell import Cell, CellSpec
+from kitchenbot.perception.cell_check import check_cell
+from kitchenbot.perception.metrics import adi
+from kitchenbot.perception.pipeline import Perceiver
+from kitchenbot.perception.rgbd import point_map
+from kitchenbot.perception.surfaces import find_surfaces
+from kitchenbot.perception.synthetic import render, resting_pose, scan_poses
+from kitchenbot.perception.types import View
+
+
+def _shifted(cell: Cell, dx: float) -> Cell:
+    s = cell.spec.sink
+    return Cell(cell.spec.model_copy(update={"sink": s.model_copy(update={"centre_xy": (s.centre_xy[0] + dx,
+                                                                                       s.centre_xy[1])})}))
+
+
+def _right(result, placed, inventory):
+    """Every pose is of a placed object (same model, ADI < 0.1 d, axis the right way); returns the indices found."""
+    found = set()
+    for po in result.poses:
+        errs = [adi(po.T_base_obj, T, inventory[oid].points) if oid == po.obj_id else np.inf for oid, T in placed]
+        k = int(np.argmin(errs))
+        assert errs[k] < 0.1 * inventory[po.obj_id].diameter, \
+            f"{inventory[po.obj_id].name} at {np.round(po.T_base_obj[:3, 3], 3)}: fitted to no placed object"
+        assert po.T_base_obj[:3, 2] @ placed[k][1][:3, 2] > 0.9, f"{inventory[po.obj_id].name} flipped"
+        assert k not in found, "two poses for one object"
+        found.add(k)
+    return found
+
+
+@pytest.fixture(scope="module")
+def near_walls(inventory, cell):
+    """Cups and a glass standing against the basin's walls and in its corners, a plate in the middle."""
+    lo, hi = cell.sink_interior
+    r_cup, r_glass = inventory[4].diameter * 0.36, inventory[6].diameter * 0.4
+    return [(4, resting_pose(inventory, 4, lo[0] + r_cup + 0.004, lo[1] + r_cup + 0.004, 0.0, cell)),
+            (4, resting_pose(inventory, 4, hi[0] - r_cup - 0.004, 0.02, 1.0, cell)),
+            (6, resting_pose(inventory, 6, 0.45, hi[1] - r_glass - 0.004, 0.0, cell)),
+            (2, resting_pose(inventory, 2, 0.52, -0.05, 0.0, cell))]
+
+
+def test_surfaces_of_an_empty_sink(cell, inventory):
+    """The floor and the counter are supports, the basin's sides walls; nothing else stands out."""
+    views, _ = render(inventory, [], scan_poses(cell), cell, noise=0.002)
+    sm = find_surfaces(views)
+    lo, hi = cell.sink_interior
+    heights = sorted(-s.offset for s in sm.supports)
+    assert any(abs(h - lo[2]) < 0.005 for h in heights) and any(abs(h) < 0.005 for h in heights), heights
+    assert len(sm.walls) >= 2 and all(abs(w.normal[2]) < 0.1 for w in sm.walls)
+    for v in views:  # everything seen is a surface: no foreground left
+        fg = sm.foreground(point_map(v, 2), v.T_base_cam[:3, 3])
+        assert fg.mean() < 0.002, fg.mean()
+
+
+def test_drain_is_no_object(cell, inventory):
+    """A drain (a hole in the basin floor: depth 4 cm behind it) is seen through the floor, so it is surface."""
+    views, _ = render(inventory, [], scan_poses(cell), cell, noise=0.002)
+    lo, hi = cell.sink_interior
+    centre = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+    drained = []
+    for v in views:
+        P = point_map(v)
+        hole = (np.linalg.norm(P[..., :2] - centre[:2], axis=2) < 0.04) & (np.abs(P[..., 2] - lo[2]) < 0.003)
+        d = v.depth.copy()
+        ray_z = (P[..., 2] - v.T_base_cam[2, 3])  # the depth along the ray grows as the point drops 4 cm
+        d[hole] = d[hole] * (1.0 + (-0.04) / ray_z[hole])
+        drained.append(View(v.rgb, d, v.K, v.T_base_cam))
+        assert hole.sum() > 500
+    sm = find_surfaces(drained)
+    assert any(abs(-s.offset - lo[2]) < 0.005 for s in sm.supports)
+    for v in drained:
+        assert sm.foreground(point_map(v, 2), v.T_base_cam[:3, 3]).mean() < 0.002
+
+
+def test_without_a_cell_nothing_is_fitted_to_the_walls(perceiver, inventory, cell, near_walls):
+    """No cell description: walls, floor and counter come from the scan; the items against the walls are found
+    and nothing else (the splashback and the basin sides were fitted by cups before)."""
+    views, _ = render(inventory, near_walls, scan_poses(cell), cell, noise=0.002)
+    p = Perceiver(perceiver.settings, inventory, None, use_cell=False, database=perceiver.database)
+    r = p.perceive(views)
+    assert r.surfaces_from == "data" and r.cell_check is None
+    found = _right(r, near_walls, inventory)
+    assert len(found) >= 3, f"found {len(found)} of {len(near_walls)}"
+
+
+def test_a_shifted_cell_is_flagged_and_not_used(perceiver, inventory, cell, near_walls):
+    views, _ = render(inventory, near_walls, scan_poses(cell), cell, noise=0.002)
+    ok = check_cell(views, cell)
+    off = check_cell(views, _shifted(cell, 0.10))
+    assert ok.fits and ok.behind < 0.01, ok
+    assert not off.fits and "does not fit" in off.message, off
+    p = Perceiver(perceiver.settings, inventory, _shifted(cell, 0.10), use_cell="auto", database=perceiver.database)
+    r = p.perceive(views)
+    assert r.cell_check is not None and not r.cell_check.fits and r.surfaces_from == "data"
+    assert len(_right(r, near_walls, inventory)) >= 3
+    # The right cell passes the check and is used.
+    p_ok = Perceiver(perceiver.settings, inventory, cell, use_cell="auto", database=perceiver.database)
+    r_ok = p_ok.perceive(views)
+    assert r_ok.cell_check.fits and r_ok.surfaces_from == "cell"
+    assert _right(r_ok, near_walls, inventory) == set(range(len(near_walls)))
+
+
+def _can(x: float, y: float, z: float) -> o3d.geometry.TriangleMesh:
+    m = o3d.geometry.TriangleMesh.create_cylinder(0.033, 0.122, resolution=40)
+    m.translate((x, y, z + 0.061))
+    return m
+
+
+def _box(x: float, y: float, z: float, size=(0.16, 0.06, 0.10)) -> o3d.geometry.TriangleMesh:
+    m = o3d.geometry.TriangleMesh.create_box(*size)
+    m.translate((x - size[0] / 2, y - size[1] / 2, z))
+    return m
+
+
+@pytest.mark.parametrize("use_cell", [True, False])
+def test_a_box_and_a_sponge_get_no_pose_and_stay_obstacles(perceiver, inventory, cell, use_cell):
+    """Things outside the inventory yield no pose; their points stay in the map, and the planner's collision
+    world sees them as occupied voxels (what no pose and no cell surface explains)."""
+    from kitchenbot.executive.config import load_config
+    from kitchenbot.planning.collision import CollisionWorld, SceneObject
+    from kitchenbot.planning.robot import RobotModel
+
+    lo, _ = cell.sink_interior
+    placed = [(4, resting_pose(inventory, 4, 0.38, -0.10, 0.0, cell))]
+    extra = [(_box(0.55, 0.08, lo[2]), (0.85, 0.35, 0.15)),
+             (_box(0.60, -0.10, lo[2], (0.10, 0.07, 0.03)), (0.95, 0.85, 0.2))]
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, extra=extra)
+    p = Perceiver(perceiver.settings, inventory, cell if use_cell else None, use_cell=use_cell,
+                  database=perceiver.database)
+    r = p.perceive(views)
+    assert _right(r, placed, inventory) == {0}
+    assert len(r.poses) == 1 and r.rejected >= 2
+    world = CollisionWorld(RobotModel.from_config(load_config()), cell)
+    objs = [SceneObject(f"o{k}", inventory[po.obj_id], po.T_base_obj) for k, po in enumerate(r.poses)]
+    vox = world.unexplained_voxels(r.map_points, objs, instance_points=[po.points for po in r.poses])
+    for centre in ((0.55, 0.08), (0.60, -0.10)):
+        near = np.linalg.norm(vox[:, :2] - centre, axis=1) < 0.05
+        assert near.sum() >= 3, f"no obstacle voxels at {centre}"
+
+
+@pytest.mark.xfail(reason="known limit: an upright drink can is fitted as a mug; the mug's handle puts only "
+                          "18-23 % of the judged surface in free space, near the 20 % the threshold allows",
+                   strict=False)
+def test_an_upright_can_gets_no_pose(perceiver, inventory, cell):
+    lo, _ = cell.sink_interior
+    placed = [(4, resting_pose(inventory, 4, 0.38, -0.10, 0.0, cell))]
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002,
+                      extra=[(_can(0.60, -0.10, lo[2]), (0.75, 0.1, 0.12))])
+    p = Perceiver(perceiver.settings, inventory, None, use_cell=False, database=perceiver.database)
+    r = p.perceive(views)
+    assert _right(r, placed, inventory) == {0} and len(r.poses) == 1
