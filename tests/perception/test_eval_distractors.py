@@ -31,6 +31,11 @@ class _Result:
     views: list
     pose_ms: list = field(default_factory=list)
     timings_ms: dict = field(default_factory=dict)
+    pose_cpu_ms: list = field(default_factory=list)
+    timings_cpu_ms: dict = field(default_factory=dict)
+    rejected: int = 0
+    surfaces_from: str = "cell"
+    cell_check: object = None
 
 
 def _scripted_perceiver(poses_for):
@@ -40,7 +45,7 @@ def _scripted_perceiver(poses_for):
         def __init__(self, settings, inventory, cell, database=None, use_cell=True):
             self.database, self.inventory = None, inventory
 
-        def perceive(self, views):
+        def perceive(self, views, up=None):
             return _Result(poses_for(views, self.inventory), list(views), [1.0], {"pose": 1.0})
 
     return Scripted
@@ -128,7 +133,7 @@ def test_cell_dataset_uses_each_scenes_own_cell(tmp_path, monkeypatch):
             self.database = None
             cells.append(cell)
 
-        def perceive(self, views):
+        def perceive(self, views, up=None):
             return _Result([], list(views), [], {})
 
     monkeypatch.setattr(ev, "Perceiver", Recording)
