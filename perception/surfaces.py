@@ -43,7 +43,7 @@ class SurfaceConfig:
     margin: float = 0.004  # m: points this close to a surface (or behind it) are the surface
     max_height: float = 0.30  # m above a support: what stands on it
     crease: float = 0.05  # m: a segment within this of two surfaces (all of it) is a fillet, not an object
-    max_seen_through: float = 0.2  # points seen > 2 cm behind a plane (inside its footprint) per inlier: no surface
+    max_seen_through: float = 0.2  # points seen > 2 cm behind a plane through its footprint, per inlier: no surface
 
 
 @dataclass
@@ -101,11 +101,6 @@ class Surface:
     def under_hull(self, P: np.ndarray) -> np.ndarray:
         """Which points (N, 3) project into the convex hull of the footprint (grown by one cell)."""
         return _in(self.hull(), P, self)
-
-    def filled(self) -> "Surface":
-        """This surface with every hole of its footprint filled (what lies under the items on a floor)."""
-        return Surface(self.kind, self.normal, self.offset, self.u, self.v, self.origin, self.cell,
-                       ndimage.binary_fill_holes(self.footprint), self.inliers)
 
     @property
     def area(self) -> float:
@@ -310,7 +305,6 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
         rest = rest[~sel]
         if len(I) < cfg.min_inliers or float(n @ n0) < np.cos(cfg.max_tilt):
             continue
-        import os; os.environ.get("SDEBUG") and print("pre", kind, np.round(n, 2), round(d, 3), len(inl))
         fp = _footprint(I, n, cfg)
         if fp is None:
             continue  # a small flat patch (a plate's centre, a box's top)
@@ -325,7 +319,6 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
         behind = np.nonzero(s.height(V) < -0.02)[0]
         seen = sum(int(inner.seen_through(V[behind[S[behind] == k]], v.T_base_cam[:3, 3]).sum())
                    for k, v in enumerate(views))
-        import os; os.environ.get("SDEBUG") and print("cand", kind, np.round(n, 2), round(d, 3), len(inl), seen)
         if seen > cfg.max_seen_through * len(inl):
             continue
         surfaces.append(s)
