@@ -34,6 +34,13 @@ import time
 import tty
 from dataclasses import dataclass, field
 
+if __name__ == "__main__":
+    # The child process (the servo itself) runs this file with the standard library only; the test-side
+    # handle's base class, and the package it lives in, are not needed there.
+    EmulatorProcess = object
+else:
+    from kitchenbot.fakes.emulator_process import EmulatorProcess
+
 # ==================================================================================================
 # Protocol 2.0 framing
 # ==================================================================================================
@@ -725,7 +732,9 @@ def serve(
 # ==================================================================================================
 # Parent side
 # ==================================================================================================
-class DynamixelEmulator:
+class DynamixelEmulator(EmulatorProcess):
+    name = "Dynamixel emulator"
+
     """Handle on an emulator process. Use as a context manager (or call :meth:`stop`) so it never outlives
     the test: ``with DynamixelEmulator(object_width=0.04) as emu: gripper = DynamixelGripper(emu.port, ...)``.
     """
@@ -757,35 +766,11 @@ class DynamixelEmulator:
         self.pid = 0
 
     def start(self, timeout: float = 10.0) -> "DynamixelEmulator":
-        self.proc = subprocess.Popen(
-            [sys.executable, "-u", os.path.abspath(__file__), *self.args],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-            bufsize=1,
-        )
-        sel = selectors.DefaultSelector()
-        sel.register(self.proc.stdout, selectors.EVENT_READ)
-        if not sel.select(timeout):
-            self.stop()
-            raise RuntimeError(f"Dynamixel emulator did not start within {timeout} s")
-        line = self.proc.stdout.readline()
-        if not line:
-            self.stop()
+        hello = self._spawn([os.path.abspath(__file__), *self.args], timeout)
+        if hello is None:
             raise RuntimeError("Dynamixel emulator exited at start")
-        hello = json.loads(line)
         self.port, self.pid = hello["port"], hello["pid"]
         return self
-
-    def _call(self, **msg) -> dict:
-        if self.proc is None or self.proc.poll() is not None:
-            raise RuntimeError("Dynamixel emulator is not running")
-        self.proc.stdin.write(json.dumps(msg) + "\n")
-        self.proc.stdin.flush()
-        out = json.loads(self.proc.stdout.readline())
-        if not out.get("ok"):
-            raise ValueError(out.get("error"))
-        return out
 
     def set_object(self, width: float | None) -> None:
         """Put an object of `width` metres between the fingers (None: nothing)."""
@@ -816,34 +801,6 @@ class DynamixelEmulator:
 
     def packets_seen(self) -> int:
         return self._call(cmd="state")["packets"]
-
-    def stop(self) -> None:
-        proc, self.proc = self.proc, None
-        if proc is None:
-            return
-        for stream in (proc.stdin, proc.stdout):
-            try:
-                stream.close()
-            except OSError:
-                pass
-        proc.terminate()
-        try:
-            proc.wait(timeout=2.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=2.0)
-
-    def __enter__(self) -> "DynamixelEmulator":
-        return self.start() if self.proc is None else self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-    def __del__(self) -> None:
-        try:
-            self.stop()
-        except Exception:  # noqa: BLE001 - interpreter shutdown; the child exits on stdin EOF anyway
-            pass
 
 
 def main(argv: list[str] | None = None) -> None:

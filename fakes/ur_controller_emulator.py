@@ -22,16 +22,18 @@ from __future__ import annotations
 import json
 import os
 import random
-import selectors
 import subprocess
-import sys
 import time
+
+from kitchenbot.fakes.emulator_process import EmulatorProcess
 
 # Run by path, not with -m: importing the package would import `kitchenbot.fakes` (the whole simulator).
 CONTROLLER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ur_controller", "controller.py")
 
 
-class URControllerEmulator:
+class URControllerEmulator(EmulatorProcess):
+    name = "UR controller emulator"
+
     def __init__(self, *, model: str = "ur5e", polyscope: str = "5.15.0", q0=None,
                  installation_tcp=(0, 0, 0, 0, 0, 0), unlock_delay: float = 0.0, host: str | None = None):
         """`unlock_delay`: seconds after a protective stop before the dashboard accepts an unlock (the real
@@ -49,19 +51,11 @@ class URControllerEmulator:
         return f"127.{random.randint(2, 254)}.{random.randint(1, 254)}.{random.randint(2, 254)}"
 
     def start(self, timeout: float = 20.0) -> URControllerEmulator:
+        hello: dict = {}
         for _ in range(5):
             host = self.fixed_host or self._random_host()
-            self.proc = subprocess.Popen(
-                [sys.executable, "-u", CONTROLLER, "--host", host, *self.args],
-                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1,
-            )
-            sel = selectors.DefaultSelector()
-            sel.register(self.proc.stdout, selectors.EVENT_READ)
-            if not sel.select(timeout):
-                self.stop()
-                raise RuntimeError(f"UR controller emulator did not start within {timeout} s")
-            line = self.proc.stdout.readline()
-            hello = json.loads(line) if line else {"ok": False, "error": "exited at start"}
+            hello = self._spawn([CONTROLLER, "--host", host, *self.args], timeout) or {"ok": False,
+                                                                                      "error": "exited at start"}
             if hello.get("ok"):
                 self.host = host
                 return self
@@ -69,16 +63,6 @@ class URControllerEmulator:
             if self.fixed_host:
                 break
         raise RuntimeError(f"UR controller emulator: {hello.get('error')}")
-
-    def _call(self, **msg) -> dict:
-        if self.proc is None or self.proc.poll() is not None:
-            raise RuntimeError("UR controller emulator is not running")
-        self.proc.stdin.write(json.dumps(msg) + "\n")
-        self.proc.stdin.flush()
-        out = json.loads(self.proc.stdout.readline())
-        if not out.get("ok"):
-            raise ValueError(out.get("error"))
-        return out
 
     # ---- state and settings ----------------------------------------------------------------------------
     def state(self) -> dict:
@@ -124,35 +108,6 @@ class URControllerEmulator:
         """Close the current connections: all, rtde, rtde_receive (RTDE clients without input recipes),
         rtde_control (with input recipes), dashboard or script."""
         self._call(cmd="fault", kind="disconnect", which=which)
-
-    # ---- lifetime -------------------------------------------------------------------------------------
-    def stop(self) -> None:
-        proc, self.proc = self.proc, None
-        if proc is None:
-            return
-        for stream in (proc.stdin, proc.stdout):
-            try:
-                stream.close()
-            except OSError:
-                pass
-        proc.terminate()
-        try:
-            proc.wait(timeout=2.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=2.0)
-
-    def __enter__(self) -> URControllerEmulator:
-        return self.start() if self.proc is None else self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-    def __del__(self) -> None:
-        try:
-            self.stop()
-        except Exception:  # noqa: BLE001 - interpreter shutdown; the child exits on stdin EOF anyway
-            pass
 
 
 if __name__ == "__main__":  # pragma: no cover - manual use: run one and print its address
