@@ -60,11 +60,3 @@ def _jsonable(o):
     if isinstance(o, (np.floating, np.integer)):
         return o.item()
     return str(o)
-
-
-def _jsonable(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    return str(o)
