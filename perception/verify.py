@@ -6,16 +6,23 @@ The checks, each a share in [0, 1]:
 - explained: of the segment's points, how many lie on the model (within one voxel);
 - free space: of that visible model surface, how much lies clearly in front of the measured depth, where the
   camera saw through it (render-and-compare: the model says "surface here", the depth says "empty");
-- normals: of the explained points, how many lie on a side of the model facing the same way (within ~60 deg).
+- normals: of the explained points, how many lie on a side of the model facing the same way (within ~60 deg);
+- fine: of the segment's points that no other pose claims, how many lie on the model's surface, facing the same
+  way, at the sensor's precision (`fine_tolerance`: 3 mm, more where the map's surfaces are rougher).
 
-verification = min(1 - free / (seen + free), normals): of the model surface the depth can judge, the share it
-does not see through, capped by the normals' agreement. Coverage both ways (seen, explained) is gated before
-this by the registration's own thresholds (`min_overlap`, model->query >= 0.15, query->model >= 0.2): at this
-point the segment may still hold several touching items, so a low `explained` is no evidence against a pose,
-and a low `seen` is what an item half hidden under its neighbours looks like. What tells a box, a can or a
-sponge fitted by a mug or a bowl from dishware fitted right is the free space: the dishware model puts
-surface where the camera saw past the distractor. Calibrated on generated scenes with distractors
-(`python -m kitchenbot.perception.calibrate_verify`, docs/perception.md "Verification").
+verification = min(1 - free / (seen + free), normals, fine). Coverage both ways (seen, explained at one voxel)
+is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15, query->model
+>= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no evidence
+against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
+
+Two kinds of wrong pose are caught. Dishware put where the camera saw past a distractor (a bowl over a lying
+bottle, a plate over a box's edge): free space. Dishware fitted to something of about its size and shape (a
+drink can or a bottle taken for a cup or a glass, a piece of a box for a plate): at one voxel (1 cm) such a fit
+"explains" its points, but a can is straight where a cup tapers, its lid is flat where a glass has a base ring,
+a box's faces are flat where a bowl curves: millimetres off over much of the segment. Right poses put most of
+their points within ~2 noise levels of the surface (the fits are refined to the millimetre); `fine` measures
+that. Calibrated on generated scenes with distractors (`python -m kitchenbot.perception.calibrate_verify`,
+docs/perception.md "Verification").
 """
 
 from __future__ import annotations
@@ -23,9 +30,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
 
 from kitchenbot.perception.database import ModelEntry
 from kitchenbot.perception.register import on_surface
+
+# The fine tolerance: at least this (metres; a model's facets and the fit's own error are ~1 mm, the depth
+# quantisation 1 mm), and this many times the map's surface noise (`surface_noise`).
+FINE_TOL_MIN = 0.003
+FINE_TOL_NOISE = 4.0
 
 
 @dataclass
@@ -34,15 +48,17 @@ class Verification:
     explained: float
     free_space: float
     normals: float
+    fine: float = 1.0  # set by the pipeline on the final poses (fine_share)
 
     def parts(self) -> dict[str, float]:
-        return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals}
+        return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
+                "fine": self.fine}
 
     @property
     def score(self) -> float:
         judged = self.seen + self.free_space
         through = self.free_space / judged if judged > 0 else 1.0
-        return max(0.0, min(1.0 - through, self.normals))
+        return max(0.0, min(1.0 - through, self.normals, self.fine))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
@@ -57,3 +73,74 @@ def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_ob
         return Verification(seen, 0.0, free_space, 0.0)
     facing = on_surface(points[near], normals[near], entry, T_base_obj, voxel)
     return Verification(seen, explained, free_space, float(facing.mean()))
+
+
+def surface_noise(points: np.ndarray, n: int = 300, radius: float = 0.008) -> float:
+    """How rough the map's surfaces are: the median RMS distance of points to their local plane (neighbourhoods
+    of `radius` around `n` sampled points; dishware, boxes and sinks are smooth at this scale, so what is left is
+    the depth noise). Metres; 0 when there are too few points."""
+    if len(points) < 50:
+        return 0.0
+    rng = np.random.default_rng(0)
+    tree = cKDTree(points)
+    rms = []
+    for i in rng.choice(len(points), min(n, len(points)), replace=False):
+        idx = tree.query_ball_point(points[i], radius)
+        if len(idx) < 10:
+            continue
+        X = points[idx] - points[idx].mean(axis=0)
+        rms.append(np.sqrt(max(np.linalg.eigvalsh(X.T @ X / len(X))[0], 0.0)))
+    return float(np.median(rms)) if rms else 0.0
+
+
+def fine_tolerance(noise: float) -> float:
+    """Distance (metres) within which a point lies on a right pose's surface, given the map's surface noise."""
+    return max(FINE_TOL_MIN, FINE_TOL_NOISE * noise)
+
+
+def patch_normals(points: np.ndarray, cam_centres: np.ndarray, radius: float = 0.006,
+                  flatness: float = 4.0) -> np.ndarray:
+    """Normals of points (base frame) from their neighbours within `radius`, facing the camera that saw each
+    (`cam_centres`, one per point). NaN where the neighbourhood has no surface direction: fewer than 5
+    neighbours, or a strip rather than a patch (its middle spread under `flatness` x its smallest: a thin rim or
+    an edge, whose normal is any direction across it)."""
+    out = np.full(points.shape, np.nan)
+    if len(points) < 5:
+        return out
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pc.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=16))
+    C = np.asarray(pc.covariances)
+    w, v = np.linalg.eigh(C)  # ascending
+    n = v[:, :, 0]
+    flip = np.einsum("ij,ij->i", n, cam_centres - points) < 0
+    n[flip] *= -1
+    ok = (w[:, 1] > flatness * np.maximum(w[:, 0], 1e-12)) & np.isfinite(w).all(axis=1)
+    out[ok] = n[ok]
+    return out
+
+
+def _on(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray, tol: float) -> np.ndarray:
+    """on_surface with a normal where there is one (NaN rows: by position only)."""
+    has = np.isfinite(normals).all(axis=1)
+    out = np.zeros(len(points), bool)
+    if has.any():
+        out[has] = on_surface(points[has], normals[has], entry, T_base_obj, tol)
+    if (~has).any():
+        out[~has] = on_surface(points[~has], None, entry, T_base_obj, tol)
+    return out
+
+
+def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray, tol: float,
+               others: list[tuple[ModelEntry, np.ndarray]] = ()) -> float:
+    """Of the segment's points (camera-facing normals, NaN rows where there is no surface direction:
+    `patch_normals`) that no other pose (`others`: (entry, T_base_obj)) has on its surface within `tol`, the
+    share on this pose's surface within `tol`, facing the same way. A neighbour's points in the segment
+    (touching items) thus do not count against a pose."""
+    if len(points) == 0:
+        return 0.0
+    on = _on(points, normals, entry, T_base_obj, tol)
+    claimed = np.zeros(len(points), bool)
+    for e, T in others:
+        claimed |= _on(points, normals, e, T, tol)
+    keep = on | ~claimed
+    return float(on[keep].mean()) if keep.any() else 0.0
