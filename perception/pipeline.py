@@ -360,7 +360,8 @@ class Perceiver:
                       np.linalg.norm(h.T_base_obj[:3, 3] - hyp.T_base_obj[:3, 3]) <
                       0.5 * (reach + self.inventory[h.obj_id].diameter)]
             normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
-            hyp.verification.fine = fine_share(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol, others)
+            hyp.verification.fine = fine_share(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol, others,
+                                               self.inventory[hyp.obj_id].is_rotationally_symmetric)
 
     def _up(self) -> np.ndarray | None:
         """The gravity prior for this scan: None with a cell (the base frame's z), the base frame's up with

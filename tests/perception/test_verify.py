@@ -35,7 +35,7 @@ def _cup_surface(entry, T, sigma: float, seed: int = 0):
     return P + rng.normal(0, sigma, P.shape) * N, N
 
 
-def test_fine_share_tells_a_right_fit_from_a_millimetres_off_one(perceiver):
+def test_fine_share_tells_the_right_shape_from_one_millimetres_off(perceiver):
     entry = perceiver.database[4]  # the cup
     T = make_T(np.eye(3), np.array([0.4, 0.0, 0.05]))
     P, N = _cup_surface(entry, T, 0.001)
@@ -45,9 +45,10 @@ def test_fine_share_tells_a_right_fit_from_a_millimetres_off_one(perceiver):
     Q = P.copy()
     Q[:, :2] = T[:2, 3] + 1.15 * (P[:, :2] - T[:2, 3])
     assert fine_share(Q, N, entry, T, tol) < 0.5
-    # A pose tilted 10 degrees about its centre (rim and base up to 8 mm off): a 1 cm fit, not a millimetre one.
-    T_tilt = T @ make_T(rot_x(np.radians(10))[:3, :3], np.zeros(3))
-    assert fine_share(P, N, entry, T_tilt, tol) < fine_share(P, N, entry, T, tol) - 0.2
+    # A pose tilted 6 degrees about its centre (rim and base up to 5 mm off) is judged as the segment's best
+    # fit near it (a short ICP): an occluded item's fit a few millimetres off is not taken for a wrong shape.
+    T_tilt = T @ make_T(rot_x(np.radians(6))[:3, :3], np.zeros(3))
+    assert fine_share(P, N, entry, T_tilt, tol) > 0.9
 
 
 def test_points_another_pose_explains_do_not_count(perceiver):
