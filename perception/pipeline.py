@@ -286,7 +286,8 @@ class Perceiver:
             # e.g. a mug fitted with the wrong yaw and its unexplained handle fitted again: both are re-scored
             # on their joint points and the better one stays.
             # Verification (perception/verify.py): a pose must not put model surface where the cameras saw
-            # through it, and must agree with its points' normals; one threshold. A pose that fails yields
+            # through it, must agree with its points' normals and put them on its surface at the sensor's
+            # precision (a can is not a cup, a box corner not a mug); one threshold. A pose that fails yields
             # nothing, before duplicates are resolved (it cannot make a right pose a "duplicate"); its points stay
             # in the map, an obstacle for the planner.
             self._fine_check(m, found)

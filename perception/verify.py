@@ -8,12 +8,13 @@ The checks, each a share in [0, 1]:
   camera saw through it (render-and-compare: the model says "surface here", the depth says "empty");
 - normals: of the explained points, how many lie on a side of the model facing the same way (within ~60 deg);
 - fine: of the segment's points that no other pose claims, how many lie on the model's surface, facing the same
-  way, at the sensor's precision (`fine_tolerance`: 3 mm, more where the map's surfaces are rougher).
+  way, at the sensor's precision (`fine_tolerance`: 3 mm, more where the map's surfaces are rougher), the pose
+  nudged first onto them by a short ICP (`fine_share`).
 
-verification = min(1 - free / (seen + free), normals, fine / FINE_FULL). Coverage both ways (seen, explained at one voxel)
-is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15, query->model
->= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no evidence
-against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
+verification = min(1 - free / (seen + free), normals, fine / FINE_FULL). Coverage both ways at one voxel (seen,
+explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
+query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
+evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
 
 Two kinds of wrong pose are caught. Dishware put where the camera saw past a distractor (a bowl over a lying
 bottle, a plate over a box's edge): free space. Dishware fitted to something of about its size and shape (a
