@@ -33,7 +33,7 @@ from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import verify
+from kitchenbot.perception.verify import fine_share, fine_tolerance, patch_normals, surface_noise, verify
 from kitchenbot.transforms import inv
 
 log = logging.getLogger(__name__)
@@ -286,9 +286,11 @@ class Perceiver:
             # e.g. a mug fitted with the wrong yaw and its unexplained handle fitted again: both are re-scored
             # on their joint points and the better one stays.
             # Verification (perception/verify.py): a pose must not put model surface where the cameras saw
-            # through it, and must agree with its points' normals; one threshold. A pose that fails yields
+            # through it, must agree with its points' normals and put them on its surface at the sensor's
+            # precision (a can is not a cup, a box corner not a mug); one threshold. A pose that fails yields
             # nothing, before duplicates are resolved (it cannot make a right pose a "duplicate"); its points stay
             # in the map, an obstacle for the planner.
+            self._fine_check(m, found)
             verified = []
             for f in found:
                 ver = f[0].verification
@@ -344,6 +346,23 @@ class Perceiver:
         source = "cell" if self._active_cell is not None else ("data" if self._surfaces is not None else "plane")
         return PerceptionResult(poses, m, dets, timings, pose_ms, rejected, list(views), cpu, pose_cpu_ms,
                                 source, check, self._surfaces)
+
+    def _fine_check(self, m: InstanceMap, found: list[tuple[Hypothesis, int, np.ndarray]]) -> None:
+        """Each found pose's `fine` verification part (perception/verify.py): the share of its own map points,
+        less those a nearby pose has on its surface, that lie on its surface at the sensor's precision."""
+        tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
+        log.debug("perception: fine tolerance %.1f mm", 1000 * tol)
+        db = self.database
+        for hyp, _, own in found:
+            if hyp.verification is None or len(own) == 0:
+                continue
+            reach = self.inventory[hyp.obj_id].diameter
+            others = [(db[h.obj_id], h.T_base_obj) for h, _, _ in found if h is not hyp and
+                      np.linalg.norm(h.T_base_obj[:3, 3] - hyp.T_base_obj[:3, 3]) <
+                      0.5 * (reach + self.inventory[h.obj_id].diameter)]
+            normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
+            hyp.verification.fine = fine_share(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol, others,
+                                               self.inventory[hyp.obj_id].is_rotationally_symmetric)
 
     def _up(self) -> np.ndarray | None:
         """The gravity prior for this scan: None with a cell (the base frame's z), the base frame's up with

@@ -31,5 +31,5 @@ class PerceptionSettings(BaseModel):
     align_to_cell: bool = Field(True, description="register the scan onto the known cell geometry (sink floor, walls)")
     cache_dir: str = Field("~/.cache/kitchenbot/cad", description="where the CAD feature database is cached")
     residual_tolerance: float = Field(0.8, gt=0, le=3, description="voxels: query points farther than this from a found pose are re-fitted as another object (a nested item's peeking rim)")
-    verify_threshold: float = Field(0.8, ge=0.0, le=1.0, description="reject poses whose verification (share of the judged model surface the depth does not see through, capped by the normals' agreement; perception/verify.py) is lower; calibrated on generated scenes with distractors")
+    verify_threshold: float = Field(0.85, ge=0.0, le=1.0, description="reject poses whose verification (share of the judged model surface the depth does not see through, capped by the normals' agreement and by the share of the segment on the model at the sensor's precision; perception/verify.py) is lower; calibrated on generated scenes with distractors (dev seeds)")
     max_splits: int = Field(20, ge=0, le=50, description="times an instance may be split by re-fitting what a pose leaves unexplained")

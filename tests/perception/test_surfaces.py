@@ -147,14 +147,21 @@ def test_a_box_and_a_sponge_get_no_pose_and_stay_obstacles(perceiver, inventory,
         assert near.sum() >= 3, f"no obstacle voxels at {centre}"
 
 
-@pytest.mark.xfail(reason="known limit: an upright drink can is fitted as a mug; the mug's handle puts only "
-                          "18-23 % of the judged surface in free space, near the 20 % the threshold allows",
-                   strict=False)
-def test_an_upright_can_gets_no_pose(perceiver, inventory, cell):
+@pytest.mark.parametrize("lying", [False, pytest.param(True, marks=pytest.mark.xfail(
+    reason="known limit: a can lying on its side is fitted as a mug lying on its side; its fine share passes "
+           "the chosen fine / 0.6 form (the strict min(..., fine) rejects it but also occluded items' fits)",
+    strict=False))])
+def test_a_drink_can_gets_no_pose(perceiver, inventory, cell, lying):
+    """A can is a cylinder of about a cup's, a mug's or a glass's size: at one voxel a cup or a glass upside down
+    explains it (the lid where the base is), so the coarse checks passed it as a mug. At the sensor's precision
+    the straight can is millimetres off the tapered cup and glass over much of its surface (verify.py, fine)."""
     lo, _ = cell.sink_interior
     placed = [(4, resting_pose(inventory, 4, 0.38, -0.10, 0.0, cell))]
-    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002,
-                      extra=[(_can(0.60, -0.10, lo[2]), (0.75, 0.1, 0.12))])
+    can = _can(0.60, -0.10, lo[2])
+    if lying:
+        can.rotate(o3d.geometry.get_rotation_matrix_from_xyz((np.pi / 2, 0.0, 0.4)), center=can.get_center())
+        can.translate((0.0, 0.0, lo[2] - can.get_min_bound()[2]))
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, extra=[(can, (0.75, 0.1, 0.12))])
     p = Perceiver(perceiver.settings, inventory, None, use_cell=False, database=perceiver.database)
     r = p.perceive(views)
     assert _right(r, placed, inventory) == {0} and len(r.poses) == 1
