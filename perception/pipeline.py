@@ -522,9 +522,8 @@ class Perceiver:
             Tz = np.eye(4)
             Tz[:3, :3] = Rz
             Tz[:3, 3] = c - Rz @ c  # about the vertical line through c (object frame)
-            Ta = T @ Tz
-            cands.append((scorer(Ta, coarse=True)[0], Ta))
-        cands.sort(key=lambda t: -t[0])
+            cands.append(T @ Tz)
+        cands = sorted(zip(scorer.batch(np.array(cands), coarse=True)[0].tolist(), cands), key=lambda t: -t[0])
         for _, Ta in cands[:1]:
             h = refine(query, entry, scorer, Ta, self.reg_cfg, best.source + "-yaw", symmetric=False)
             h.score *= best.score / max(scorer(best.T_base_obj)[0], 1e-9)  # the same colour weight
