@@ -119,7 +119,7 @@ class Perceiver:
         self.pt_enc = backends.make_point_encoder(self.settings.point_encoder)  # fpfh | plug-ins
         self._db = database
         self._depths: list[np.ndarray] | None = None  # per scan: depth with unknown = 0, shared by the scorers
-        self._normals: tuple[int, np.ndarray] | None = None  # per scan: (id of the map's points, their normals)
+        self._normals: tuple[int, dict] | None = None  # per scan: (id of the map's points, {point set: normals})
         self.settings_seed = 0
         st = self.settings
         self.reg_cfg = RegistrationConfig(voxel=st.voxel_size, top_k=st.top_k, candidate_threshold=st.candidate_threshold,
@@ -456,27 +456,25 @@ class Perceiver:
                           voxels * self.settings.voxel_size)
 
     def _map_normals(self, m: InstanceMap, idx: np.ndarray) -> np.ndarray:
-        """Normals of map points m.points[idx], from their neighbours within 6 mm of the same instance of the
-        map (finer than a voxel: a rim peeking 2 mm under another item keeps its own normal), facing the
-        camera that saw each point. Computed once per instance and scan (the pose stage asks for the same
-        points again and again: what a pose leaves over, duplicates, stacked copies)."""
+        """Normals of map points m.points[idx], from their neighbours within 6 mm (finer than a voxel: a rim
+        peeking 2 mm under another item keeps its own normal), facing the camera that saw each point.
+        Remembered per scan and point set (the duplicate checks ask for the same points once per other pose)."""
         if self._normals is None or self._normals[0] != id(m.points):
-            self._normals = (id(m.points), np.full((len(m.points), 3), np.nan))
-        cache = self._normals[1]
-        for iid in np.unique(m.ids[idx]):
-            sel = np.nonzero(m.ids == iid)[0]
-            if not np.isnan(cache[sel[0], 0]):
-                continue
-            P = m.points[sel]
-            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
-            pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.006, max_nn=16))
-            n = np.asarray(pc.normals)
-            if len(n) != len(P):
-                n = np.tile([0.0, 0.0, 1.0], (len(P), 1))
-            flip = np.einsum("ij,ij->i", n, m.cam_centres[m.view[sel]] - P) < 0
+            self._normals = (id(m.points), {})
+        key = np.asarray(idx).tobytes()
+        if key in self._normals[1]:
+            return self._normals[1][key]
+        P = m.points[idx]
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.006, max_nn=16))
+        n = np.asarray(pc.normals)
+        if len(n) != len(P):
+            n = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+        else:
+            flip = np.einsum("ij,ij->i", n, m.cam_centres[m.view[idx]] - P) < 0
             n[flip] *= -1
-            cache[sel] = n
-        return cache[idx]
+        self._normals[1][key] = n
+        return n
 
     def _near_upright(self, query: FusedCloud, oid: int, scorer: Scorer, T_base_obj: np.ndarray, source: str,
                       up: np.ndarray) -> Hypothesis:
