@@ -215,8 +215,6 @@ def _exp_se3_small(x: np.ndarray) -> np.ndarray:
 ICP_STEP_TOL = 0.01
 
 
-# refine(): the ICP levels at a voxel and coarser run on about this many query points, the finer levels on all.
-REFINE_COARSE_POINTS = 200
 # ... and when the number of matches and their mean squared residual stay within this share of the last step's.
 STALL_TOL = 0.01
 
@@ -485,16 +483,7 @@ def refine(query: FusedCloud, entry: ModelEntry, scorer: Scorer, T_base_obj: np.
     step = max(1, len(query.points) // 600)
     q, qn = query.points[::step], query.normals[::step]
     dists = (3 * v, 1.5 * v, v, 0.6 * v, 0.3 * v) if upright else (2 * v, v, 0.6 * v, 0.3 * v)
-    # Coarse to fine in the points too, for surfaces of revolution: the levels at a voxel and above run on
-    # <= ~200 of them (they only bring the pose within a voxel; each point costs a 6-D KD-tree query per
-    # iteration), the finer levels on all. Not for a model with a part that fixes its turn (a mug's handle:
-    # a subsample keeps few handle points, and a mug lying on two others was fitted half round).
-    sub = max(1, len(q) // REFINE_COARSE_POINTS) if symmetric else 1
-    T = icp_to_model(q[::sub], entry, inv(T_base_obj), tuple(d for d in dists if d >= v), iters=10,
-                     upright=upright, qn=qn[::sub], symmetric=symmetric)
-    T = icp_to_model(q, entry, T, tuple(d for d in dists if d < v), iters=10, upright=upright, qn=qn,
-                     symmetric=symmetric)
-    Tb = inv(T)
+    Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=10, upright=upright, qn=qn, symmetric=symmetric))
     return Hypothesis(entry.obj_id, Tb, *scorer(Tb), source=source + ("-upright" if upright else ""))
 
 
