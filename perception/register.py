@@ -215,8 +215,6 @@ def _exp_se3_small(x: np.ndarray) -> np.ndarray:
 ICP_STEP_TOL = 0.01
 
 
-# ... and when the number of matches and their mean squared residual stay within this share of the last step's.
-STALL_TOL = 0.01
 
 
 def _converged(x: np.ndarray, dmax: float) -> np.ndarray:
@@ -253,7 +251,6 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
     else:
         tree, mp, mn = entry.tree, entry.dense_points, entry.dense_normals
     for dmax in dists:
-        last = (-1, np.inf)  # (matches, mean squared residual) of the previous iteration at this level
         for _ in range(iters):
             p = q @ T[:3, :3].T + T[:3, 3]
             if qn is None:
@@ -273,12 +270,6 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
                 break
             p, m, n = p[ok], mp[j[ok]].astype(np.float64), mn[j[ok]].astype(np.float64)
             r = np.einsum("ij,ij->i", p - m, n)
-            # Stalled: the same matches and the same residual as after the last step (the step moved the pose
-            # along a direction the matches hardly constrain, e.g. along a cup's wall; further steps repeat it).
-            cost = float(r @ r) / len(r)
-            if len(r) == last[0] and abs(cost - last[1]) <= STALL_TOL * last[1]:
-                break
-            last = (len(r), cost)
             J = np.empty((len(p), 6))
             J[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]  # p x n, written out (np.cross is slow on small arrays)
             J[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
