@@ -209,19 +209,12 @@ def _exp_se3_small(x: np.ndarray) -> np.ndarray:
     return T
 
 
-# ICP stops at a distance level when its step is under this share of the level's correspondence distance (a
-# point 5 cm from the centre moving that much for the rotation): 0.3 mm at a 3 cm level, 0.03 mm at the
-# finest (3 mm). A fixed 0.01 mm / 0.006 deg test ran most levels to their iteration cap.
-ICP_STEP_TOL = 0.01
-
-
-
-
 def _converged(x: np.ndarray, dmax: float) -> np.ndarray:
-    """Whether ICP steps x (rotation vector, translation; (6,) or (H, 6)) are small at correspondence
-    distance dmax."""
-    tol = ICP_STEP_TOL * dmax
-    return (np.linalg.norm(x[..., :3], axis=-1) < tol / 0.05) & (np.linalg.norm(x[..., 3:], axis=-1) < tol)
+    """Whether ICP steps x (rotation vector, translation; (6,) or (H, 6)) are small enough to stop the level:
+    under 1e-4 rad and 0.01 mm. (A test relative to the level's distance, 1 %, saved ~15 % of the refinement's
+    iterations; with it, held-out scenes with distractors had 12 more false positives in 24 images: fits in
+    piles follow any change in the ICP.)"""
+    return (np.linalg.norm(x[..., :3], axis=-1) < 1e-4) & (np.linalg.norm(x[..., 3:], axis=-1) < 1e-5)
 
 
 def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...],
