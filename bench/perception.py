@@ -55,6 +55,8 @@ def bench_perception(args: argparse.Namespace) -> int:
     p.database
     db_s = time.perf_counter() - t0
     seg_wall, seg_cpu, pose_wall, pose_cpu, n_views = [], [], [], [], []
+    stage_cpu: dict[str, list[float]] = {}
+    scan_cpu: list[float] = []
     for sd in bop.scene_dirs(root)[: args.scenes]:
         images = bop.read_scene(sd)
         r = p.perceive([im.view for im in images])
@@ -64,18 +66,33 @@ def bench_perception(args: argparse.Namespace) -> int:
         seg_cpu.append(sum(v for k, v in r.timings_cpu_ms.items() if k != "pose"))
         pose_wall += r.pose_ms
         pose_cpu += r.pose_cpu_ms
+        for k, v in r.timings_cpu_ms.items():
+            stage_cpu.setdefault(k, []).append(v)
+        scan_cpu.append(sum(r.timings_cpu_ms.values()))
     med = statistics.median
+
+    def p90(x: list[float]) -> float:
+        return float(np.percentile(x, 90)) if x else float("nan")
+
     data = {
         "scans": len(seg_wall), "views_per_scan": med(n_views), "objects_estimated": len(pose_wall),
         "cores": len(os.sched_getaffinity(0)), "load_avg_1min": os.getloadavg()[0],
         "cad_database_s": db_s,
         "map_segmentation_ms_median": med(seg_wall), "map_segmentation_cpu_ms_median": med(seg_cpu),
         "pose_ms_per_object_median": med(pose_wall), "pose_cpu_ms_per_object_median": med(pose_cpu),
+        "map_segmentation_cpu_ms_p90": p90(seg_cpu), "pose_cpu_ms_per_object_p90": p90(pose_cpu),
+        "stage_cpu_ms_per_scan": {k: {"median": med(v), "p90": p90(v)} for k, v in stage_cpu.items()},
+        "scan_cpu_ms_max": max(scan_cpu), "scan_cpu_ms_per_image_max": max(c / n for c, n in zip(scan_cpu, n_views)),
     }
     print(f"{data['scans']} scans x {data['views_per_scan']} views on {data['cores']} cores "
           f"(load {data['load_avg_1min']:.1f}): map + segmentation {data['map_segmentation_ms_median']:.0f} ms "
           f"(CPU {data['map_segmentation_cpu_ms_median']:.0f} ms) per scan; pose {data['pose_ms_per_object_median']:.0f} ms "
           f"(CPU {data['pose_cpu_ms_per_object_median']:.0f} ms) per object over {len(pose_wall)} objects")
+    print("CPU ms per scan, median / p90: " + ", ".join(
+        f"{k} {v['median']:.0f} / {v['p90']:.0f}" for k, v in data["stage_cpu_ms_per_scan"].items()) +
+        f"; map + segmentation {data['map_segmentation_cpu_ms_median']:.0f} / {data['map_segmentation_cpu_ms_p90']:.0f}"
+        f"; pose per object {data['pose_cpu_ms_per_object_median']:.0f} / {data['pose_cpu_ms_per_object_p90']:.0f}"
+        f"; slowest scan {data['scan_cpu_ms_max']:.0f} ({data['scan_cpu_ms_per_image_max']:.0f} per image)")
     if args.report:
         args.report.write_text(json.dumps(data, indent=1))
     if tmp is not None:

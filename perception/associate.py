@@ -42,13 +42,18 @@ def projected_iou(src: View, src_dets: list[Detection], dst: View, dst_dets: lis
         # Visible in dst: depth agrees, or dst has no depth there (holes do not veto).
         vis = (obs <= 0) | (np.abs(obs - z) < depth_tol)
         rc = rc[vis]
-        proj = np.zeros((h, w), bool)
-        proj[rc[:, 0], rc[:, 1]] = True
+        if len(rc) == 0:
+            continue
+        # The splat and its dilation live in the points' bounding box grown by `stride` pixels (dilating the
+        # whole image per mask cost more than everything else here; the result is the same).
+        r0, c0 = np.maximum(rc.min(axis=0) - stride, 0)
+        r1, c1 = np.minimum(rc.max(axis=0) + stride + 1, (h, w))
+        proj = np.zeros((r1 - r0, c1 - c0), bool)
+        proj[rc[:, 0] - r0, rc[:, 1] - c0] = True
         proj = binary_dilation(proj, iterations=stride)  # fill the gaps of the subsampled, resampled splat
         area = proj.sum()
-        if area == 0:
-            continue
-        inter = np.bincount(dst_lab[proj & (dst_lab >= 0)], minlength=nb).astype(float)
+        lab = dst_lab[r0:r1, c0:c1]
+        inter = np.bincount(lab[proj & (lab >= 0)], minlength=nb).astype(float)
         iou[i] = inter / (area + dst_area - inter)
     return iou
 

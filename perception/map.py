@@ -117,7 +117,10 @@ def align_to_cell(views: list[View], cell, max_trans: float = 0.03, max_rot_deg:
     key = (id(cell), cell.spec.model_dump_json())
     if key not in _CELL_CLOUDS:
         _CELL_CLOUDS.clear()
-        _CELL_CLOUDS[key] = _cell_cloud(cell, lo, hi, 0.006)
+        # 1 cm apart: the cell is flat boxes, so point-to-plane residuals do not depend on the spacing, and
+        # Open3D rebuilds the target's KD-tree on every call (at 6 mm: 50k points, 40 % more time per view;
+        # corrections the same within 0.1 mm on dev scans with 6 mm / 1 deg pose errors).
+        _CELL_CLOUDS[key] = _cell_cloud(cell, lo, hi, 0.01)
     target = _CELL_CLOUDS[key]
     pts = []
     for v in views:

@@ -119,6 +119,7 @@ class Perceiver:
         self.pt_enc = backends.make_point_encoder(self.settings.point_encoder)  # fpfh | plug-ins
         self._db = database
         self._depths: list[np.ndarray] | None = None  # per scan: depth with unknown = 0, shared by the scorers
+        self._normals: tuple[int, dict] | None = None  # per scan: (id of the map's points, {point set: normals})
         self.settings_seed = 0
         st = self.settings
         self.reg_cfg = RegistrationConfig(voxel=st.voxel_size, top_k=st.top_k, candidate_threshold=st.candidate_threshold,
@@ -158,6 +159,7 @@ class Perceiver:
             check_view(v, f"views[{k}]")
         o3d.utility.random.seed(self.settings_seed)  # Open3D's RANSAC: same views, same answer
         self._depths = None
+        self._normals = None
         db = self.database
         # Scan poses off (arm repeatability, hand-eye error): with a known cell each view is registered onto the
         # cell's sink (absolute and relative errors at once); without one, the views onto the first view.
@@ -474,15 +476,23 @@ class Perceiver:
 
     def _map_normals(self, m: InstanceMap, idx: np.ndarray) -> np.ndarray:
         """Normals of map points m.points[idx], from their neighbours within 6 mm (finer than a voxel: a rim
-        peeking 2 mm under another item keeps its own normal), facing the camera that saw each point."""
+        peeking 2 mm under another item keeps its own normal), facing the camera that saw each point.
+        Remembered per scan and point set (the duplicate checks ask for the same points once per other pose)."""
+        if self._normals is None or self._normals[0] != id(m.points):
+            self._normals = (id(m.points), {})
+        key = np.asarray(idx).tobytes()
+        if key in self._normals[1]:
+            return self._normals[1][key]
         P = m.points[idx]
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
         pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.006, max_nn=16))
         n = np.asarray(pc.normals)
         if len(n) != len(P):
-            return np.tile([0.0, 0.0, 1.0], (len(P), 1))
-        flip = np.einsum("ij,ij->i", n, m.cam_centres[m.view[idx]] - P) < 0
-        n[flip] *= -1
+            n = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+        else:
+            flip = np.einsum("ij,ij->i", n, m.cam_centres[m.view[idx]] - P) < 0
+            n[flip] *= -1
+        self._normals[1][key] = n
         return n
 
     def _near_upright(self, query: FusedCloud, oid: int, scorer: Scorer, T_base_obj: np.ndarray, source: str,
@@ -541,9 +551,8 @@ class Perceiver:
             Tz = np.eye(4)
             Tz[:3, :3] = Rz
             Tz[:3, 3] = c - Rz @ c  # about the vertical line through c (object frame)
-            Ta = T @ Tz
-            cands.append((scorer(Ta, coarse=True)[0], Ta))
-        cands.sort(key=lambda t: -t[0])
+            cands.append(T @ Tz)
+        cands = sorted(zip(scorer.batch(np.array(cands), coarse=True)[0].tolist(), cands), key=lambda t: -t[0])
         for _, Ta in cands[:1]:
             h = refine(query, entry, scorer, Ta, self.reg_cfg, best.source + "-yaw", symmetric=False)
             h.score *= best.score / max(scorer(best.T_base_obj)[0], 1e-9)  # the same colour weight

@@ -94,10 +94,10 @@ def _feature(f: np.ndarray) -> reg.Feature:
 def _rot_from_z(axis: np.ndarray) -> np.ndarray:
     """A rotation taking the object z axis onto `axis`."""
     a = axis / np.linalg.norm(axis)
-    ref = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
-    x = np.cross(ref, a)
+    # ref x a and a x x written out (np.cross costs ~20 us per call on 3-vectors; this runs per hypothesis)
+    x = np.array([0.0, -a[2], a[1]]) if abs(a[0]) < 0.9 else np.array([a[2], 0.0, -a[0]])
     x /= np.linalg.norm(x)
-    y = np.cross(a, x)
+    y = np.array([a[1] * x[2] - a[2] * x[1], a[2] * x[0] - a[0] * x[2], a[0] * x[1] - a[1] * x[0]])
     return np.stack([x, y, a], axis=1)
 
 
@@ -131,14 +131,30 @@ class Scorer:
 
     def __call__(self, T_base_obj: np.ndarray, coarse: bool = False) -> tuple[float, float, float, float, float]:
         """(score, or_query, or_model, free_space, visible_fraction); `coarse` uses a third of the points."""
+        return tuple(float(x[0]) for x in self.batch(np.asarray(T_base_obj)[None], coarse))
+
+    def batch(self, T_base_obj: np.ndarray, coarse: bool = False) -> tuple[np.ndarray, ...]:
+        """`__call__` for H poses at once ((H, 4, 4) -> five (H,) arrays): every point of every pose goes
+        through one KD-tree query and one projection per view (per-pose calls were dominated by numpy's
+        per-call overhead: ~270 points each, dozens of small array operations)."""
+        T = np.asarray(T_base_obj, float)
+        H = len(T)
         k = 3 if coarse else 1
-        Ti = inv(T_base_obj)
+        R, t = T[:, :3, :3], T[:, :3, 3]
         q = self.q[::k]
-        q_obj = q @ Ti[:3, :3].T + Ti[:3, 3]
-        d, _ = self.model_tree.query(q_obj, distance_upper_bound=self.eps)
-        or_q = float(np.mean(np.isfinite(d))) if len(d) else 0.0
-        P = self.mp[::k] @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
-        N = self.mn[::k] @ T_base_obj[:3, :3].T
+        nq = len(q)
+        # query points into each pose's object frame: R^T (q - t)
+        q_obj = (q[None] - t[:, None]) @ R  # (batched matmul; einsum is slow here)
+        if nq:
+            d, _ = self.model_tree.query(q_obj.reshape(-1, 3), distance_upper_bound=self.eps)
+            or_q = np.isfinite(d).reshape(H, nq).mean(axis=1)
+        else:
+            or_q = np.zeros(H)
+        mp, mn = self.mp[::k], self.mn[::k]
+        n = len(mp)
+        Rt = R.transpose(0, 2, 1)
+        P = (mp @ Rt + t[:, None]).reshape(-1, 3)
+        N = (mn @ Rt).reshape(-1, 3)
         support = np.zeros(len(P), bool)
         violate = np.zeros(len(P), bool)
         in_view = np.zeros(len(P), bool)
@@ -155,20 +171,27 @@ class Scorer:
             support[idx[known & (np.abs(z - obs) <= tol)]] = True
             violate[idx[known & (z < obs - 2 * tol)]] = True  # clearly in front of what the camera saw
         violate &= ~support
-        n_vis = support.sum() + violate.sum()
-        if n_vis == 0:
-            return 0.0, or_q, 0.0, 0.0, 0.0
+        n_sup = support.reshape(H, n).sum(axis=1)
+        n_vio = violate.reshape(H, n).sum(axis=1)
+        n_vis = n_sup + n_vio
         # Model points confirmed by the depth must also be near the query (not just any surface).
-        dq, _ = self.q_tree.query(P[support], distance_upper_bound=2 * self.eps)
-        near = np.isfinite(dq).sum()
-        or_m = float(near / n_vis)
-        fs = float(violate.sum() / n_vis)
+        sup_idx = np.nonzero(support)[0]
+        near = np.zeros(H)
+        if len(sup_idx):
+            dq, _ = self.q_tree.query(P[sup_idx], distance_upper_bound=2 * self.eps)
+            near = np.bincount(sup_idx[np.isfinite(dq)] // n, minlength=H).astype(float)
+        has = n_vis > 0
+        den = np.maximum(n_vis, 1)
+        or_m = np.where(has, near / den, 0.0)
+        fs = np.where(has, n_vio / den, 0.0)
         score = 0.5 * (or_q + or_m)
         # A pose mostly outside every image is weakly supported (its unseen part could be anywhere).
-        score *= min(1.0, float(in_view.mean()) / 0.7)
+        score *= np.minimum(1.0, in_view.reshape(H, n).mean(axis=1) / 0.7)
         if self.inside_solid is not None:
-            score -= 2.0 * float(np.mean(self.inside_solid(P)))
-        return max(score, 0.0), or_q, or_m, fs, float(near / len(P))
+            score -= 2.0 * self.inside_solid(P).reshape(H, n).mean(axis=1)
+        score = np.where(has, np.maximum(score, 0.0), 0.0)
+        vis = np.where(has, near / max(n, 1), 0.0)
+        return score, or_q, or_m, fs, vis
 
 
 def _exp_se3_small(x: np.ndarray) -> np.ndarray:
@@ -184,6 +207,14 @@ def _exp_se3_small(x: np.ndarray) -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = x[3:]
     return T
+
+
+def _converged(x: np.ndarray, dmax: float) -> np.ndarray:
+    """Whether ICP steps x (rotation vector, translation; (6,) or (H, 6)) are small enough to stop the level:
+    under 1e-4 rad and 0.01 mm. (A test relative to the level's distance, 1 %, saved ~15 % of the refinement's
+    iterations; with it, held-out scenes with distractors had 12 more false positives in 24 images: fits in
+    piles follow any change in the ICP.)"""
+    return (np.linalg.norm(x[..., :3], axis=-1) < 1e-4) & (np.linalg.norm(x[..., 3:], axis=-1) < 1e-5)
 
 
 def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...],
@@ -242,7 +273,7 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
             x[free] = -np.linalg.solve(Jf.T @ Jf + 1e-6 * np.eye(len(free)), Jf.T @ r)
             dT = _exp_se3_small(x)
             T = dT @ T
-            if np.linalg.norm(x[:3]) < 1e-4 and np.linalg.norm(x[3:]) < 1e-5:
+            if _converged(x, dmax):
                 break
     return T
 
@@ -284,15 +315,15 @@ def icp_batch(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: t
             if len(idx) == 0:
                 break
             Ta = T[idx]
-            p = np.einsum("hij,nj->hni", Ta[:, :3, :3], q) + Ta[:, None, :3, 3]
+            p = q @ Ta[:, :3, :3].transpose(0, 2, 1) + Ta[:, None, :3, 3]  # (batched matmul: einsum is slow here)
             d, j = tree.query(p.reshape(-1, 3), distance_upper_bound=dmax)
             ok = np.isfinite(d).reshape(len(idx), n)
             jj = np.where(ok, j.reshape(len(idx), n), 0)
             m, nn = mp[jj], mn[jj]
             r = np.einsum("hni,hni->hn", p - m, nn) * ok
             J = np.concatenate([np.cross(p, nn), nn], axis=2) * ok[..., None]
-            A = np.einsum("hni,hnj->hij", J, J) + eye6
-            bvec = np.einsum("hni,hn->hi", J, r)
+            A = J.transpose(0, 2, 1) @ J + eye6
+            bvec = (J.transpose(0, 2, 1) @ r[..., None])[..., 0]
             lk = lock[idx]
             for c in (0, 1):  # locked axis: no rotation about the object's x and y
                 A[lk, c, :] = 0.0
@@ -307,8 +338,7 @@ def icp_batch(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: t
             x = -np.linalg.solve(A, bvec[..., None])[..., 0]
             x[ok.sum(axis=1) < 6] = 0.0
             T[idx] = _exp_se3_batch(x) @ Ta
-            small = (np.linalg.norm(x[:, :3], axis=1) < 1e-4) & (np.linalg.norm(x[:, 3:], axis=1) < 1e-5)
-            active[idx[small]] = False
+            active[idx[_converged(x, dmax)]] = False
     return T
 
 
@@ -372,9 +402,9 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
         T0 = np.array([inv(T) for _, T, _ in starts])
         Ts = icp_batch(qs, entry, T0, (4 * v, 1.5 * v), iters=5, coarse=True,
                        keep_axis=np.array([k for _, _, k in starts]), symmetric=model.is_rotationally_symmetric)
-        for (name, _, _), T_ob in zip(starts, Ts):
-            Tb = inv(T_ob)
-            scored.append((scorer(Tb, coarse=True)[0], name, Tb))
+        Tbs = np.array([inv(T_ob) for T_ob in Ts])
+        for (name, _, _), sc, Tb in zip(starts, scorer.batch(Tbs, coarse=True)[0], Tbs):
+            scored.append((float(sc), name, Tb))
         starts.clear()
 
     # (0) stacking: the same model nested in / stacked on one already found, shifted along its axis (by its

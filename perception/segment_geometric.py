@@ -51,6 +51,8 @@ def foreground_mask(view: View, cell: Cell, cfg: GeometricSegmenterConfig, pts: 
     p = pts[idx]
     keep = np.ones(len(p), bool)
     for b in cell.boxes:
+        if np.any(b.lower - hi > cfg.surface_margin) or np.any(lo - b.upper > cfg.surface_margin):
+            continue  # farther than the margin from the whole region kept: removes nothing
         # Distance to an axis-aligned box (0 inside).
         d = np.linalg.norm(np.maximum(np.maximum(b.lower - p, p - b.upper), 0.0), axis=1)
         keep &= d > cfg.surface_margin
