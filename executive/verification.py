@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from kitchenbot.executive.failures import StepFailed
+from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.world.gripper import DROP_HEIGHT
@@ -67,8 +68,9 @@ class Verification:
         return [q for q in self.belief.poses if q.cls == obj.cls and
                 np.linalg.norm(q.T_base_obj[:3, 3] - obj.T_base_obj[:3, 3]) < self.opt.gone_radius]
 
-    def _verify_pending(self) -> None:
-        """Verify the last placement against fresh poses: gone from the sink, present at its target."""
+    def _verify_pending(self, presence=None) -> None:
+        """Verify the last placement against fresh poses: gone from the sink, present at its target (`presence`:
+        already measured in its view)."""
         b = self.belief
         p = b.take_released()
         if p is None:
@@ -77,8 +79,7 @@ class Verification:
         # leaves the one nested below it within gone_radius.
         near = self._same_class_near(p.obj)
         still = near if len(near) >= p.near_before else []
-        presence = None
-        if p.target_view is not None:
+        if presence is None and p.target_view is not None:
             presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
         self._log("result", "verify", still_in_sink=len(still), presence=presence.as_dict() if presence else None)
         seen_there = presence is not None and presence.decided and presence.present
@@ -119,10 +120,16 @@ class Verification:
     def _cycle_done(self, cls: str) -> None:
         """A placement was verified: one placement cycle's wall and compute time into the report."""
         w0, m0, s0 = self.clock.cycle_t0
+        st0, cpu0 = self.clock.cycle_stages0
         wall, sim = time.perf_counter(), self._sim_now()
+        st, cpu = self.stages.totals(), self.stages.cpu_totals()
+        by_stage, by_stage_cpu = stage_diff(st, st0), stage_diff(cpu, cpu0)
         self.report.cycles.append({"object": cls, "wall_s": round(wall - w0, 3),
                                    "compute_s": round((wall - w0) - (self.tracks.wall - m0), 3),
-                                   "motion_sim_s": round(sim - s0, 3) if sim is not None else None})
+                                   "compute_cpu_s": round(sum(by_stage_cpu.values()), 3),
+                                   "motion_sim_s": round(sim - s0, 3) if sim is not None else None,
+                                   "stages_s": by_stage, "stages_cpu_s": by_stage_cpu})
         self.clock.cycle_t0 = (wall, self.tracks.wall, sim)
+        self.clock.cycle_stages0 = (st, cpu)
         self._emit({"type": "placed", "object": cls, "objects_done": self.report.objects_done,
                     "objects_total": self.report.objects_total})
