@@ -56,6 +56,8 @@ class RunOptions:
     gone_radius: float = 0.02  # m: a same-class object this close to the picked one means it is still there
     max_reconnects: int = 3
     verify_target_view: bool = True  # capture at the retreat pose and check the object at its target
+    # no re-scan after a placement its retreat view settles (executive/verification.py); False: always re-scan
+    verify_without_rescan: bool = True
     confirm_empty_scans: int = M.CONFIRM_EMPTY_SCANS  # consecutive scans that must agree the sink is done
 
 
