@@ -26,10 +26,15 @@ from kitchenbot.world.gripper import DROP_HEIGHT
 
 
 class Verification:
-    # m: another item whose model surface (at its perceived pose) comes this close to the picked item's may have
-    # rested on it, leaned on it or been nudged by it: the sink is scanned again after such a pick. Perceived poses
-    # are within ~1-2 cm, so the distance is measured generously.
-    TOUCH_DISTANCE = 0.025
+    # What a pick can move is what rested or leaned on the item: items beside it on the same support, or under it,
+    # stay where they were. An item touching the picked one (model surfaces at their perceived poses within
+    # TOUCH_DISTANCE: poses are within ~1-2 cm, so measured generously) is taken to have moved with it when its
+    # lowest point is above the picked one's (it rested on it), when it stands tilted (leaning: it may have leant
+    # on it), or when it was seen only in part (perhaps hidden by the picked item: a new view may place it better).
+    TOUCH_DISTANCE = 0.025  # m
+    SAME_SUPPORT = 0.01  # m: lowest points this close rest on the same support
+    LEANING = np.radians(20.0)  # tilt of the model's axis from vertical (upright or upside down)
+    SEEN_IN_PART = 0.8  # visible_fraction below this share of a fully visible item's
 
     def _do_verify(self) -> str:
         """Verify the placement from its view where that settles it; else re-scan (the first perception after a
@@ -92,10 +97,10 @@ class Verification:
         if not (presence.decided and presence.present):
             return False  # not seen there (or the view cannot tell): the re-scan looks at the sink too
         others = [q for q in b.poses if q is not p.obj]
-        touching = self._touching(p.obj, others)
-        if touching is not None:
-            self._log("note", "re-scan: an item touched the one picked", cls=touching.cls,
-                      xyz=touching.T_base_obj[:3, 3])
+        moved = self._may_have_moved(p.obj, others)
+        if moved is not None:
+            self._log("note", "re-scan: an item may have moved with the one picked", cls=moved[0].cls,
+                      xyz=moved[0].T_base_obj[:3, 3], why=moved[1])
             return False
         if not self.task.remaining(others) and not p.staging:
             return False  # nothing left as perceived: scans confirm the sink is empty
@@ -105,12 +110,14 @@ class Verification:
         self.counts.empty_scans = 0
         return True
 
-    def _touching(self, obj: ObjectPose, others: list[ObjectPose]) -> ObjectPose | None:
-        """The first of `others` whose model surface comes within TOUCH_DISTANCE of `obj`'s (at their poses)."""
+    def _may_have_moved(self, obj: ObjectPose, others: list[ObjectPose]) -> tuple[ObjectPose, str] | None:
+        """The first of `others` that may have moved when `obj` was picked, and why (see TOUCH_DISTANCE)."""
         inv = self.robot.inventory
         m = inv[obj.obj_id]
         P = m.points[::4] @ obj.T_base_obj[:3, :3].T + obj.T_base_obj[:3, 3]
         tree = cKDTree(P)
+        seen_whole = self.SEEN_IN_PART * self.planner.settings.visible_fraction_unoccluded \
+            if self.planner is not None else 0.0
         for q in others:
             mq = inv[q.obj_id]
             gap = np.linalg.norm(q.T_base_obj[:3, 3] - obj.T_base_obj[:3, 3]) - m.diameter - mq.diameter
@@ -118,8 +125,14 @@ class Verification:
                 continue
             Q = mq.points[::4] @ q.T_base_obj[:3, :3].T + q.T_base_obj[:3, 3]
             d, _ = tree.query(Q, distance_upper_bound=self.TOUCH_DISTANCE)
-            if np.isfinite(d).any():
-                return q
+            if not np.isfinite(d).any():
+                continue
+            if Q[:, 2].min() > P[:, 2].min() + self.SAME_SUPPORT:
+                return q, "rested on it"
+            if np.arccos(min(1.0, abs(float(q.T_base_obj[2, 2])))) > self.LEANING:
+                return q, "leaning"
+            if q.visible_fraction < seen_whole:
+                return q, "seen in part"
         return None
 
     def _same_class_near(self, obj: ObjectPose) -> list[ObjectPose]:
