@@ -137,8 +137,10 @@ def blended(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -
     return np.arange(n + 1) * dt, q
 
 
-def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
-    """One trapezoid in the polyline parameter u (vertex k at u = k) over a dense, smooth joint path."""
+def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT,
+               accel_share: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """One trapezoid in the polyline parameter u (vertex k at u = k) over a dense, smooth joint path.
+    `accel_share` of the acceleration goes to the trapezoid; the rest is left for the path's own curvature."""
     Q = np.asarray(Q, float)
     if len(Q) < 2:
         return stop_at_vertices(np.vstack([Q, Q]), vmax, amax, dt)
@@ -146,7 +148,7 @@ def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT
     Dm = np.maximum(D.max(axis=0), 1e-12)
     L = float(len(Q) - 1)
     v = float(np.min(vmax / Dm))
-    a = float(np.min(amax / Dm)) * 0.5  # half: leaves room for the path's own curvature
+    a = float(np.min(amax / Dm)) * accel_share
     if v * v / a > L:
         v = float(np.sqrt(a * L))
     T = L / v + v / a
@@ -160,6 +162,19 @@ def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT
     f = (u - k)[:, None]
     q = Q[k] * (1 - f) + Q[k + 1] * f
     return t, q
+
+
+def within(times: np.ndarray, q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, tol: float = 1.02) -> bool:
+    """Finite-difference joint velocities and accelerations within `vmax` / `amax` (as the safety check
+    estimates them, with its 2 % tolerance)."""
+    dt = np.diff(times)
+    vel = np.diff(q, axis=0) / dt[:, None]
+    if np.any(np.abs(vel) > vmax * tol):
+        return False
+    if len(q) < 3:
+        return True
+    acc = np.diff(vel, axis=0) / ((dt[1:] + dt[:-1]) / 2)[:, None]
+    return not np.any(np.abs(acc) > amax * tol)
 
 
 def time_parameterise(
@@ -194,6 +209,18 @@ def time_parameterise(
         except LimitViolation:
             pass
         mode = "stop_at_vertices"
+    if mode == "along_path":
+        # More of the acceleration for the trapezoid first: a straight line's joint path curves little, and a
+        # short line (most: approach, lift, lower, retreat) never reaches full speed, so its duration goes with
+        # 1 / sqrt(acceleration). Kept only if it stays within the scaled limits too; else half, as below.
+        for share in (1.0, 0.85, 0.7):
+            times, q = along_path(Q, vmax, amax, dt, accel_share=share)
+            if within(times, q, vmax, amax):
+                try:
+                    limits.check_trajectory(ur, times, q)
+                    return Trajectory(times, q, name)
+                except LimitViolation:
+                    break
     fn = stop_at_vertices if mode == "stop_at_vertices" else along_path
     slow = 1.0
     last: LimitViolation | None = None

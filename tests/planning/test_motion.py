@@ -187,3 +187,23 @@ def test_planned_transfers_blend_only_along_a_free_path(planner, wall_case):
     r = reach_bounds(scene)
     assert check_segment(scene, traj.q, r, 0.004) < 0  # what is executed is free, blended or not
     assert timings["move_blended"] in (0.0, 1.0)
+
+
+def test_straight_lines_use_more_of_the_acceleration_within_the_scaled_limits(planner, home):
+    """A short Cartesian line (an approach, a lift) is timed with more of the scaled acceleration than the half
+    share kept for curvature, only where its finite differences stay within the scaled limits."""
+    from kitchenbot.planning.timing import along_path, within
+
+    line = cartesian_line(planner.robot, planner.world.scene(), home, trans(0.0, 0.0, -0.1) @ planner.robot.fk_tcp(home))
+    assert not hasattr(line, "kind"), line
+    vmax, amax = planner.limits.max_joint_speed * 0.5, planner.limits.max_joint_accel * 0.5
+    half_t, _ = along_path(line, vmax, amax, accel_share=0.5)
+    traj = time_parameterise(line, planner.limits, planner.robot.ur, velocity_scale=0.5, acceleration_scale=0.5,
+                             mode="along_path")
+    assert traj.duration < 0.9 * half_t[-1]
+    assert within(traj.times, traj.q, vmax, amax)
+    planner.limits.check_trajectory(planner.robot.ur, traj.times, traj.q)
+    np.testing.assert_allclose(traj.q[-1], line[-1])
+    # a share that the path's curvature would push over the scaled limits is not kept
+    full_t, full_q = along_path(line, vmax, amax, accel_share=1.0)
+    assert not within(full_t, full_q, vmax, amax) or traj.duration <= full_t[-1] + 1e-9
