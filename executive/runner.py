@@ -32,7 +32,6 @@ from kitchenbot.executive.motion import MotionTracks, Motions, spot_measured  # 
 from kitchenbot.executive.recovery import RecoveryActions
 from kitchenbot.executive.report import RunReport
 from kitchenbot.executive.stage_times import StageTimes
-from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.strategies import strategies_for
 from kitchenbot.executive.verification import Verification
 from kitchenbot.perception.types import ObjectPose, View
