@@ -2,9 +2,12 @@
 
 Per run: objects the task wants in the sink at the start (simulator truth), how many ended at their target
 area (truth), collisions, protective stops and refused commands counted by the fake arm, recoveries, the
-strategies tried / planned (executive/strategies.py) and the recovery actions taken, and the compute time per
-placement cycle (wall time minus time spent waiting for simulated motions). Prints a table and a summary;
-``--json`` writes every run. Perception is the real pipeline unless ``--oracle-perception`` (then labelled).
+strategies tried / planned (executive/strategies.py) and the recovery actions taken, the compute time per
+placement cycle (wall time minus time spent waiting for simulated motions; also as process CPU time, which a
+loaded machine distorts less) split by stage (executive/stage_times.py), and items per minute: objects placed
+(truth) per minute of simulated time (motions, gripper, camera frames) plus compute, what a robot with this
+computer would take. Prints a table and a summary; ``--json`` writes every run. Perception is the real pipeline
+unless ``--oracle-perception`` (then labelled).
 """
 
 from __future__ import annotations
@@ -76,6 +79,12 @@ def one(args: tuple) -> dict:
         "collisions": rep.collisions, "limit_violations": rep.limit_violations, "slips": rep.slips,
         "recoveries": rep.recoveries, "attempts": rep.attempts, "protective_stops": rep.protective_stops,
         "strategies": rep.strategies, "recovery_actions": rep.recovery_actions, "compute_per_cycle_s": cyc,
+        "compute_cpu_per_cycle_s": [c.get("compute_cpu_s") for c in rep.cycles],
+        "cycle_stages_s": [c.get("stages_s", {}) for c in rep.cycles],
+        "cycle_stages_cpu_s": [c.get("stages_cpu_s", {}) for c in rep.cycles],
+        "compute_by_stage_s": rep.compute_by_stage_s, "compute_cpu_by_stage_s": rep.compute_cpu_by_stage_s,
+        "compute_cpu_s": rep.compute_cpu_time_s, "items_per_minute": rep.items_per_minute,
+        "state_sim_time_s": rep.state_sim_time_s,
         "compute_s": rep.compute_time_s, "sim_s": rep.sim_time_s, "wall_s": time.perf_counter() - t0,
         "message": rep.message, "perception": rep.perception,
         "failures": [f"{f['state']}:{f['kind']}" + (f":{f['details']['planning_kind']}"
@@ -95,6 +104,22 @@ def _strategy_totals(runs: list[dict]) -> dict:
     return out
 
 
+def items_per_minute(runs: list[dict], compute_key: str = "compute_s") -> float | None:
+    """Objects placed (truth) per minute over `runs`: simulated time plus compute (`compute_key`: wall or CPU)."""
+    t = sum((r.get("sim_s") or 0.0) + (r.get(compute_key) or 0.0) for r in runs if r.get("sim_s") is not None)
+    n = sum(r["delivered"] for r in runs if r.get("sim_s") is not None)
+    return 60.0 * n / t if t > 0 else None
+
+
+def stage_means(runs: list[dict], key: str = "cycle_stages_s") -> dict[str, float]:
+    """Mean compute seconds per placement cycle, by stage (the stages add up to the mean cycle)."""
+    cycles = [c for r in runs for c in r.get(key) or []]
+    out: Counter = Counter()
+    for c in cycles:
+        out.update(c)
+    return {k: v / len(cycles) for k, v in sorted(out.items(), key=lambda kv: -kv[1])} if cycles else {}
+
+
 def _sum_counts(runs: list[dict], key: str) -> dict:
     out: Counter = Counter()
     for r in runs:
@@ -111,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     seeds = args.seed_list if args.seed_list else range(args.start, args.start + args.seeds)
     jobs = [(args.config, t, s, args.slip, args.objects, args.oracle_perception, args.models)
             for t in args.tasks for s in seeds]
-    console = Console(width=160)
+    console = Console(width=230)
     results = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as ex:
         for r in ex.map(one, jobs):
@@ -124,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
     t = Table(title=f"kitchenbot bench tasks ({'oracle' if args.oracle_perception else 'pipeline'} perception, "
                     f"slip {args.slip:.0%} per transport)")
     for col in ("task", "runs", "succeeded", "objects placed", "collisions", "protective stops", "limit violations",
-                "slips", "compute/cycle median s", "p90 s"):
+                "slips", "compute/cycle median s", "p90 s", "CPU median s", "CPU p90 s", "items/min"):
         t.add_column(col)
     summary = {}
     for task in args.tasks + ["all"]:
@@ -134,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
         wanted = sum(r["wanted"] for r in rs)
         placed = sum(r["delivered"] for r in rs)
         cyc = [c for r in rs for c in r.get("compute_per_cycle_s", [])]
+        cpu = [c for r in rs for c in r.get("compute_cpu_per_cycle_s", []) if c is not None]
         s = {"runs": len(rs), "succeeded": sum(r["status"] == "succeeded" for r in rs), "wanted": wanted,
              "placed": placed, "placed_pct": 100.0 * placed / wanted if wanted else float("nan"),
              "collisions": sum(r.get("collisions") or 0 for r in rs),
@@ -142,13 +168,30 @@ def run(args: argparse.Namespace) -> int:
              "strategies": _strategy_totals(rs), "recovery_actions": _sum_counts(rs, "recovery_actions"),
              "slips": sum(r.get("slips") or 0 for r in rs),
              "compute_per_cycle_median_s": float(np.median(cyc)) if cyc else None,
-             "compute_per_cycle_p90_s": float(np.percentile(cyc, 90)) if cyc else None}
+             "compute_per_cycle_p90_s": float(np.percentile(cyc, 90)) if cyc else None,
+             "compute_cpu_per_cycle_median_s": float(np.median(cpu)) if cpu else None,
+             "compute_cpu_per_cycle_p90_s": float(np.percentile(cpu, 90)) if cpu else None,
+             "cycle_stage_means_s": stage_means(rs), "cycle_stage_cpu_means_s": stage_means(rs, "cycle_stages_cpu_s"),
+             "items_per_minute": items_per_minute(rs), "items_per_minute_cpu": items_per_minute(rs, "compute_cpu_s"),
+             "sim_s": sum(r.get("sim_s") or 0.0 for r in rs), "compute_s": sum(r.get("compute_s") or 0.0 for r in rs)}
         summary[task] = s
         t.add_row(task, str(s["runs"]), str(s["succeeded"]), f"{placed}/{wanted} ({s['placed_pct']:.1f} %)",
                   str(s["collisions"]), str(s["protective_stops"]), str(s["limit_violations"]), str(s["slips"]),
                   f"{s['compute_per_cycle_median_s']:.2f}" if cyc else "-",
-                  f"{s['compute_per_cycle_p90_s']:.2f}" if cyc else "-")
+                  f"{s['compute_per_cycle_p90_s']:.2f}" if cyc else "-",
+                  f"{s['compute_cpu_per_cycle_median_s']:.2f}" if cpu else "-",
+                  f"{s['compute_cpu_per_cycle_p90_s']:.2f}" if cpu else "-",
+                  f"{s['items_per_minute']:.2f}" if s["items_per_minute"] is not None else "-")
     console.print(t)
+    for task, s in summary.items():
+        if s["cycle_stage_means_s"]:
+            console.print(f"compute per cycle by stage ({task}, mean s, wall / CPU): " + ", ".join(
+                f"{k} {v:.2f}/{s['cycle_stage_cpu_means_s'].get(k, 0.0):.2f}"
+                for k, v in s["cycle_stage_means_s"].items()))
+        if s["items_per_minute"] is not None:
+            console.print(f"items per minute ({task}): {s['items_per_minute']:.2f} with wall compute, "
+                          f"{s['items_per_minute_cpu']:.2f} with CPU compute (simulated time {s['sim_s']:.0f} s, "
+                          f"compute {s['compute_s']:.0f} s)")
     for task, s in summary.items():
         if s["strategies"]:
             console.print(f"strategies ({task}; planned/tried): " + ", ".join(

@@ -150,6 +150,14 @@ class Belief:
         old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
         self.map.keep_contacts(~old)
 
+    def picked_away(self, obj: ObjectPose, pending: list) -> None:
+        """The perceived item `obj` was picked and placed, and no new perception followed (the placement view
+        settled it, executive/verification.py): the other poses and the map stay as perceived; `pending` = the
+        models the task still has to move. What failed to plan with the old scene is tried again."""
+        self.poses = [p for p in self.poses if p is not obj]
+        self.unplannable = []
+        self.pending = list(pending)
+
     @property
     def map_points(self) -> np.ndarray | None:
         """The map plans keep clear of (BeliefMap.points)."""

@@ -26,6 +26,12 @@ class MotionTracks:
     stopped: Trajectory | None = None  # the motion the last protective stop cut short
     searching: bool = False  # looking for a fallen item (see RecoveryActions._search_drop_site)
     wall: float = 0.0  # wall seconds spent waiting for motions
+    cpu: float = 0.0  # process CPU seconds spent meanwhile (in simulation: stepping the simulated arm)
+
+    def waited(self, t0: float, c0: float) -> None:
+        """Count the wait since perf_counter() `t0` / process_time() `c0` as waiting for a motion."""
+        self.wall += time.perf_counter() - t0
+        self.cpu += time.process_time() - c0
 
 
 def spot_measured(view: View, p_base: np.ndarray, half: int = 20) -> float:
@@ -48,7 +54,7 @@ class Motions:
     def _wait_motion(self, what: str, expected_s: float, carrying: bool = False) -> None:
         """Poll a running motion until it ends (stop requests, time budget; `carrying`: the gripper too, so that an
         object slipping out stops the arm right above where it fell)."""
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         s0 = self._sim_now()
         limit = 2.0 * expected_s + 5.0  # driver seconds
         while True:
@@ -63,7 +69,7 @@ class Motions:
                 self._cmd("arm.stop", reason=f"the held object slipped out during {what}")
                 with self._arm_lock:
                     self.arm.stop()
-                self.tracks.wall += time.perf_counter() - t0
+                self.tracks.waited(t0, c0)
                 raise slipped
             if self.advance is time.sleep:
                 time.sleep(self.opt.poll_period)
@@ -78,7 +84,7 @@ class Motions:
                 raise StateTimeout(f"{what}: still moving after {el:.1f} s (expected {expected_s:.1f} s)")
         with self._arm_lock:
             self.arm.wait(0.0)  # raises ProtectiveStopError / DeviceNotConnectedError if it ended badly
-        self.tracks.wall += time.perf_counter() - t0
+        self.tracks.waited(t0, c0)
         self._check_deadline()
 
     def _run_trajectory(self, traj: Trajectory, carrying: bool = False, guarded: bool = False) -> None:
@@ -88,10 +94,10 @@ class Motions:
         self.tracks.last = traj
         self._cmd("arm.execute_trajectory", name=traj.name, n=len(traj), duration=traj.duration,
                   q_start=traj.q[0], q_end=traj.q[-1], **({"guarded": True} if guarded else {}))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         with self._arm_lock:
             self.arm.execute_trajectory(traj.times, traj.q, asynchronous=True, guarded=guarded)
-        self.tracks.wall += time.perf_counter() - t0  # the (simulated) controller's work, not ours
+        self.tracks.waited(t0, c0)  # the (simulated) controller's work, not ours
         try:
             self._wait_motion(f"trajectory {traj.name}", traj.duration, carrying)
         except ProtectiveStopError:
@@ -205,7 +211,8 @@ class Motions:
             self._check_deadline()
             self._cmd("camera.capture", where=where, attempt=k)
             try:
-                f = self.camera.capture()
+                with self.stages.within("capture"):  # in simulation: rendering the simulated camera
+                    f = self.camera.capture()
             except DriverTimeoutError as e:
                 last = e
                 self._log("fault", "camera_timeout", where=where, message=str(e))

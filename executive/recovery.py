@@ -265,7 +265,8 @@ class RecoveryActions:
                 # the item lies somewhere under there, unseen: plans keep clear of it for the rest of the run
                 # (what is in the sink is dropped once an item has been placed: the scans see the sink)
                 self._add_contact_marks(keep_out)
-        res = self._drop_perceiver().perceive([view])
+        with self.stages.within("perceive"):
+            res = self._drop_perceiver().perceive([view])
         placed = [o for o in b.obstacles() if unseen_rec is None or o.instance_id != unseen_rec.instance_id]
         found = [p for p in res.poses if p.cls == cls
                  and np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]) < self.SEARCH_RADIUS

@@ -33,6 +33,10 @@ class RunReport:
     slips: int | None = None
     cycles: list = field(default_factory=list)  # per placement: compute_s, motion_s, object
     compute_time_s: float = 0.0  # wall seconds of everything but waiting for motions
+    compute_cpu_time_s: float = 0.0  # process CPU seconds of the same (less distorted by a loaded machine)
+    compute_by_stage_s: dict = field(default_factory=dict)  # compute wall seconds per stage (executive/stage_times.py)
+    compute_cpu_by_stage_s: dict = field(default_factory=dict)  # compute CPU seconds per stage
+    items_per_minute: float | None = None  # objects done per minute of simulated motion + compute (see rate)
     wall_time_s: float = 0.0
     sim_time_s: float | None = None
     seed: int | None = None
@@ -41,6 +45,13 @@ class RunReport:
     truth: dict | None = None  # simulation: what really happened
     message: str = ""
     safe: bool = True  # ended with the arm at a known safe pose
+
+    def rate(self, items: int) -> float | None:
+        """`items` per minute of this run's time: in simulation simulated time (motions, gripper, camera frames)
+        plus compute (a robot's run would take both: the simulator's motions do not wait for the computer, so
+        wall time would count the simulator's own stepping); on real devices wall time."""
+        t = (self.sim_time_s + self.compute_time_s) if self.sim_time_s is not None else self.wall_time_s
+        return round(60.0 * items / t, 3) if t > 0 else None
 
     def as_dict(self) -> dict:
         return asdict(self)

@@ -31,6 +31,7 @@ from kitchenbot.executive.journal import Journal
 from kitchenbot.executive.motion import MotionTracks, Motions, spot_measured  # noqa: F401
 from kitchenbot.executive.recovery import RecoveryActions
 from kitchenbot.executive.report import RunReport
+from kitchenbot.executive.stage_times import StageTimes
 from kitchenbot.executive.strategies import strategies_for
 from kitchenbot.executive.verification import Verification
 from kitchenbot.perception.types import ObjectPose, View
@@ -54,6 +55,8 @@ class RunOptions:
     gone_radius: float = 0.02  # m: a same-class object this close to the picked one means it is still there
     max_reconnects: int = 3
     verify_target_view: bool = True  # capture at the retreat pose and check the object at its target
+    # no re-scan after a placement its retreat view settles (executive/verification.py); False: always re-scan
+    verify_without_rescan: bool = True
     confirm_empty_scans: int = M.CONFIRM_EMPTY_SCANS  # consecutive scans that must agree the sink is done
 
 
@@ -77,6 +80,7 @@ class RunClock:
     state_sim0: float | None = None
     state_cpu0: float = field(default_factory=time.thread_time)  # the runner thread's CPU time at the state's start
     cycle_t0: tuple = (0.0, 0.0, None)  # (wall, motion wall, sim) at the start of the placement cycle
+    cycle_stages0: tuple = ({}, {})  # compute (wall, CPU) per stage at the start of the placement cycle
     deadline: float | None = None  # s the current state may take
 
 
@@ -110,6 +114,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self.latest_images: dict[str, np.ndarray] = {}
         self.counts = Counters()
         self.tracks = MotionTracks()
+        self.stages = StageTimes(self.tracks, "idle")  # compute per stage (executive/stage_times.py)
         self.clock = RunClock(state_sim0=self._sim_now())
         self.clock.cycle_t0 = (time.perf_counter(), 0.0, self._sim_now())
         self.table_perceiver = None  # perception without the cell (the counter as a table top), for drop sites
@@ -184,6 +189,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self._log("transition", trigger, source=src, dest=dest)  # journaled before it happens
         getattr(self.machine_model, trigger)()
         rt.transitions.append(rec)
+        self.stages.enter(dest)
         ck.state_t0, ck.state_sim0, ck.state_cpu0 = now, sim, time.thread_time()
         ck.deadline = M.timeout_of(dest)
         if self.recorder is not None:
@@ -213,6 +219,9 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
     def run(self) -> RunReport:
         self.clock.t_start = time.perf_counter()
         self.clock.deadline = None
+        self.stages = StageTimes(self.tracks, self.state)
+        self.clock.cycle_t0 = (self.clock.t_start, self.tracks.wall, self._sim_now())
+        self.clock.cycle_stages0 = ({}, {})
         sim0 = self._sim_now()
         if self.journal is not None:
             if self.run_id is None:  # the daemon begins the journal's run itself, to answer with its id
@@ -282,8 +291,12 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         rt.state_time_s[st] = rt.state_time_s.get(st, 0.0) + now - self.clock.state_t0
         rt.wall_time_s = now - self.clock.t_start
         rt.compute_time_s = rt.wall_time_s - self.tracks.wall
+        rt.compute_by_stage_s = {k: round(v, 4) for k, v in self.stages.totals().items() if v > 0}
+        rt.compute_cpu_by_stage_s = {k: round(v, 4) for k, v in self.stages.cpu_totals().items() if v > 0}
+        rt.compute_cpu_time_s = round(sum(rt.compute_cpu_by_stage_s.values()), 4)
         if sim0 is not None:
             rt.sim_time_s = self._sim_now() - sim0
+        rt.items_per_minute = rt.rate(rt.objects_done)
         log = getattr(self.arm, "log", None)  # the fake arm's audit counters (simulation only)
         if log is not None:
             rt.collisions, rt.limit_violations = log.collisions, log.refused
@@ -327,7 +340,8 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
 
     def _perceive(self) -> None:
         self._cmd("perceive", views=len(self.views))
-        res = self.perceiver.perceive(self.views)
+        with self.stages.within("perceive"):
+            res = self.perceiver.perceive(self.views)
         self._check_deadline()  # perception cannot be interrupted: its timeout is checked when it returns
         poses = list(res.poses)
         if self.fault_hook is not None:

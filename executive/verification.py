@@ -1,6 +1,12 @@
-"""The verify state of the task runner: the first perception after a placement checks it (gone from the sink,
-present at its target: executive/verify.py) and records it in the belief; then the run goes on, is complete, or
-gives up with what is left and why.
+"""The verify state of the task runner: a placement is checked (gone from the sink, present at its target:
+executive/verify.py) and recorded in the belief; then the run goes on, is complete, or gives up with what is left
+and why.
+
+Where the view taken at the retreat pose settles it (the item seen at its target: then it is no longer where it
+was picked, and nothing else in the sink touched it, so nothing else there moved) the sink is not scanned again:
+the other poses and the map stay as perceived. Otherwise (the view does not decide, the item is not seen there,
+a neighbour may have moved with it, a stack, nothing left to do) a re-scan and a new perception decide, as the
+first perception after a placement.
 
 A mixin of TaskRunner (executive/runner.py).
 """
@@ -10,16 +16,31 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from kitchenbot.executive.failures import StepFailed
+from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.world.gripper import DROP_HEIGHT
 
 
 class Verification:
+    # What a pick can move is what rested or leaned on the item: items beside it on the same support, or under it,
+    # stay where they were. An item touching the picked one (model surfaces at their perceived poses within
+    # TOUCH_DISTANCE: poses are within ~1-2 cm, so measured generously) is taken to have moved with it when its
+    # lowest point is above the picked one's (it rested on it), when it stands tilted (leaning: it may have leant
+    # on it), or when it was seen only in part (perhaps hidden by the picked item: a new view may place it better).
+    TOUCH_DISTANCE = 0.025  # m
+    SAME_SUPPORT = 0.01  # m: lowest points this close rest on the same support
+    LEANING = np.radians(20.0)  # tilt of the model's axis from vertical (upright or upside down)
+    SEEN_IN_PART = 0.8  # visible_fraction below this share of a fully visible item's
+
     def _do_verify(self) -> str:
-        """Re-scan (the first perception after a placement verifies it) and decide: next object, done, give up."""
+        """Verify the placement from its view where that settles it; else re-scan (the first perception after a
+        placement verifies it). Then decide: next object, done, give up."""
+        if self._verified_from_target_view():
+            return "next_object"
         self.views = self._scan()
         self._perceive()
         b = self.belief
@@ -63,12 +84,64 @@ class Verification:
             return "give_up"
         return "complete"
 
+    def _verified_from_target_view(self) -> bool:
+        """The released item is seen at its target in its retreat view, it was picked from the latest
+        perception alone (no copy of its class within gone_radius: not off a stack), nothing else perceived
+        touched it, and the task has items left: recorded as placed without a re-scan. False (nothing changed)
+        when a re-scan must decide."""
+        b, p = self.belief, self.belief.released
+        if (not self.opt.verify_without_rescan or p is None or p.target_view is None or p.near_before > 1
+                or p.staged is not None or not any(q is p.obj for q in b.poses)):
+            return False
+        presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
+        if not (presence.decided and presence.present):
+            return False  # not seen there (or the view cannot tell): the re-scan looks at the sink too
+        others = [q for q in b.poses if q is not p.obj]
+        moved = self._may_have_moved(p.obj, others)
+        if moved is not None:
+            self._log("note", "re-scan: an item may have moved with the one picked", cls=moved[0].cls,
+                      xyz=moved[0].T_base_obj[:3, 3], why=moved[1])
+            return False
+        if not self.task.remaining(others) and not p.staging:
+            return False  # nothing left as perceived: scans confirm the sink is empty
+        b.picked_away(p.obj, self.task.pending_models(others))
+        self._verify_pending(presence)
+        self._log("note", "verified from the placement view, no re-scan", cls=p.obj.cls)
+        self.counts.empty_scans = 0
+        return True
+
+    def _may_have_moved(self, obj: ObjectPose, others: list[ObjectPose]) -> tuple[ObjectPose, str] | None:
+        """The first of `others` that may have moved when `obj` was picked, and why (see TOUCH_DISTANCE)."""
+        inv = self.robot.inventory
+        m = inv[obj.obj_id]
+        P = m.points[::4] @ obj.T_base_obj[:3, :3].T + obj.T_base_obj[:3, 3]
+        tree = cKDTree(P)
+        seen_whole = self.SEEN_IN_PART * self.planner.settings.visible_fraction_unoccluded \
+            if self.planner is not None else 0.0
+        for q in others:
+            mq = inv[q.obj_id]
+            gap = np.linalg.norm(q.T_base_obj[:3, 3] - obj.T_base_obj[:3, 3]) - m.diameter - mq.diameter
+            if gap > self.TOUCH_DISTANCE:  # far apart (an origin lies within its model, within a diameter of it)
+                continue
+            Q = mq.points[::4] @ q.T_base_obj[:3, :3].T + q.T_base_obj[:3, 3]
+            d, _ = tree.query(Q, distance_upper_bound=self.TOUCH_DISTANCE)
+            if not np.isfinite(d).any():
+                continue
+            if Q[:, 2].min() > P[:, 2].min() + self.SAME_SUPPORT:
+                return q, "rested on it"
+            if np.arccos(min(1.0, abs(float(q.T_base_obj[2, 2])))) > self.LEANING:
+                return q, "leaning"
+            if q.visible_fraction < seen_whole:
+                return q, "seen in part"
+        return None
+
     def _same_class_near(self, obj: ObjectPose) -> list[ObjectPose]:
         return [q for q in self.belief.poses if q.cls == obj.cls and
                 np.linalg.norm(q.T_base_obj[:3, 3] - obj.T_base_obj[:3, 3]) < self.opt.gone_radius]
 
-    def _verify_pending(self) -> None:
-        """Verify the last placement against fresh poses: gone from the sink, present at its target."""
+    def _verify_pending(self, presence=None) -> None:
+        """Verify the last placement against fresh poses: gone from the sink, present at its target (`presence`:
+        already measured in its view)."""
         b = self.belief
         p = b.take_released()
         if p is None:
@@ -77,8 +150,7 @@ class Verification:
         # leaves the one nested below it within gone_radius.
         near = self._same_class_near(p.obj)
         still = near if len(near) >= p.near_before else []
-        presence = None
-        if p.target_view is not None:
+        if presence is None and p.target_view is not None:
             presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
         self._log("result", "verify", still_in_sink=len(still), presence=presence.as_dict() if presence else None)
         seen_there = presence is not None and presence.decided and presence.present
@@ -119,10 +191,16 @@ class Verification:
     def _cycle_done(self, cls: str) -> None:
         """A placement was verified: one placement cycle's wall and compute time into the report."""
         w0, m0, s0 = self.clock.cycle_t0
+        st0, cpu0 = self.clock.cycle_stages0
         wall, sim = time.perf_counter(), self._sim_now()
+        st, cpu = self.stages.totals(), self.stages.cpu_totals()
+        by_stage, by_stage_cpu = stage_diff(st, st0), stage_diff(cpu, cpu0)
         self.report.cycles.append({"object": cls, "wall_s": round(wall - w0, 3),
                                    "compute_s": round((wall - w0) - (self.tracks.wall - m0), 3),
-                                   "motion_sim_s": round(sim - s0, 3) if sim is not None else None})
+                                   "compute_cpu_s": round(sum(by_stage_cpu.values()), 3),
+                                   "motion_sim_s": round(sim - s0, 3) if sim is not None else None,
+                                   "stages_s": by_stage, "stages_cpu_s": by_stage_cpu})
         self.clock.cycle_t0 = (wall, self.tracks.wall, sim)
+        self.clock.cycle_stages0 = (st, cpu)
         self._emit({"type": "placed", "object": cls, "objects_done": self.report.objects_done,
                     "objects_total": self.report.objects_total})

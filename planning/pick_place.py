@@ -26,7 +26,7 @@ from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scen
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks
-from kitchenbot.planning.motion import cartesian_line, plan_joint_path
+from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.settings import PlanningSettings
 from kitchenbot.planning.timing import time_parameterise
@@ -164,11 +164,11 @@ class Planner:
             return InvalidInput(f"{name}: expected 6 finite joint values, got shape {q.shape}")
         return q
 
-    def _time(self, Q: np.ndarray, name: str, mode: str) -> Trajectory | PlanningFailure:
+    def _time(self, Q: np.ndarray, name: str, mode: str, free=None) -> Trajectory | PlanningFailure:
         try:
             return time_parameterise(
                 Q, self.limits, self.robot.ur, velocity_scale=self.settings.velocity_scale,
-                acceleration_scale=self.settings.acceleration_scale, mode=mode, name=name,
+                acceleration_scale=self.settings.acceleration_scale, mode=mode, name=name, free=free,
             )
         except LimitViolation as e:
             return CartesianPathFailed(f"{name}: {e}")
@@ -190,7 +190,22 @@ class Planner:
         timings[f"{name}_simplify_ms"] = res.simplify_ms
         timings[f"{name}_recheck_ms"] = res.recheck_ms
         timings[f"{name}_rrt"] = float(res.used_rrt)
-        return self._time(res.path, name, "stop_at_vertices")
+        if len(res.path) < 3:
+            return self._time(res.path, name, "stop_at_vertices")
+        # Through the path's vertices without stopping where the blended path is proven free at the planner's
+        # dense re-check resolution (planning/timing.py); else it stops at each vertex, on the checked polyline.
+        t1 = time.perf_counter()
+        r = reach_bounds(scene)
+        proof: dict = {}
+
+        def free(q: np.ndarray) -> bool:
+            proof["free"] = check_segment(scene, q, r, s.validity_resolution) < 0
+            return proof["free"]
+
+        traj = self._time(res.path, name, "blended", free=free)
+        timings[f"{name}_blend_ms"] = (time.perf_counter() - t1) * 1e3
+        timings[f"{name}_blended"] = float(proof.get("free", False))
+        return traj
 
     def _line(self, scene: Scene, q0, T_goal, name: str, *, check_start: bool = True, start_scene: Scene | None = None,
               start_travel: float = 0.0, clear_within: float = 0.0, clear_scene: Scene | None = None,

@@ -9,6 +9,11 @@ never checked; toppra is also not installed and would be one more compiled depen
   vertices of a simplified RRT-Connect path.
 - ``along_path``: one trapezoid in the path parameter over a dense polyline (straight Cartesian approach,
   retreat and lift segments whose joint path is smooth), slowed until the finite-difference check passes.
+- ``blended``: the vertices of a joint polyline are passed without stopping: straight segments at constant
+  joint velocity joined by parabolic blends (the linear-segments-with-parabolic-blends scheme for via points,
+  Craig, *Introduction to Robotics*, ch. 7). A blend cuts its corner (by at most |dv| * b / 8 per joint), so
+  the blended path is not the checked polyline: the caller must prove it free (``free``) and otherwise falls
+  back to ``stop_at_vertices``. Start and end are at rest on the first / last segment's line (no corner cut).
 
 Samples are uniform in time (``dt``); in the stop-at-vertices profile each segment lasts a whole number of
 samples, so every vertex is a sample and linear interpolation between samples never leaves the polyline.
@@ -85,8 +90,57 @@ def stop_at_vertices(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: floa
     return np.asarray(times), np.asarray(qs)
 
 
-def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
-    """One trapezoid in the polyline parameter u (vertex k at u = k) over a dense, smooth joint path."""
+def _blend_schedule(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, max_rounds: int = 60):
+    """Segment durations T (knot to knot), segment velocities V and blend durations B (one per vertex, the ends
+    included) such that every joint stays within vmax / amax and neighbouring blends do not overlap."""
+    D = np.diff(Q, axis=0)  # (n, 6)
+    T = np.max(np.abs(D) / vmax, axis=1)  # fastest: the slowest joint at full speed
+    T = np.maximum(T, 1e-3)
+    for _ in range(max_rounds):
+        V = D / T[:, None]
+        Vx = np.vstack([np.zeros((1, Q.shape[1])), V, np.zeros((1, Q.shape[1]))])  # at rest before and after
+        B = np.max(np.abs(np.diff(Vx, axis=0)) / amax, axis=1)  # (n + 1,) per vertex
+        over = B[:-1] / 2 + B[1:] / 2 > T + 1e-12  # the blends at both ends of a segment overlap
+        if not over.any():
+            return T, V, B
+        T = np.where(over, T * 1.15, T)
+    raise LimitViolation("blended profile: the blends could not be separated")
+
+
+def blended(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
+    """Through the vertices of Q without stopping: constant-velocity segments joined by parabolic blends of
+    bounded acceleration, at rest at both ends. Returns (times, q), uniform in time (``dt``)."""
+    Q = np.asarray(Q, float)
+    keep = np.r_[True, np.any(np.abs(np.diff(Q, axis=0)) > 1e-12, axis=1)]
+    Q = Q[keep]
+    if len(Q) < 3:
+        return stop_at_vertices(Q if len(Q) > 1 else np.vstack([Q, Q]), vmax, amax, dt)
+    T, V, B = _blend_schedule(Q, vmax, amax)
+    knots = np.r_[0.0, np.cumsum(T)]  # when the straight lines pass the vertices
+    t_end = knots[-1] + B[-1] / 2
+    t0 = -B[0] / 2
+    n = max(2, int(np.ceil((t_end - t0) / dt - 1e-9)))
+    # n samples dt apart over the profile's duration: slightly slower than the schedule (never faster)
+    t = t0 + np.arange(n + 1) * ((t_end - t0) / n)
+    Vx = np.vstack([np.zeros((1, Q.shape[1])), V, np.zeros((1, Q.shape[1]))])
+    q = np.empty((len(t), Q.shape[1]))
+    k = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, len(T) - 1)  # segment whose knot interval holds t
+    for i, (ti, ki) in enumerate(zip(t, k)):
+        # inside the blend of the vertex at either end of segment ki: the parabola; else segment ki's line
+        j = ki if abs(ti - knots[ki]) <= B[ki] / 2 else ki + 1
+        if abs(ti - knots[j]) <= B[j] / 2 and B[j] > 0:
+            v_in, v_out, tau = Vx[j], Vx[j + 1], ti - knots[j] + B[j] / 2
+            q[i] = Q[j] + v_in * (ti - knots[j]) + (v_out - v_in) / (2 * B[j]) * tau**2
+        else:
+            q[i] = Q[ki] + V[ki] * (ti - knots[ki])
+    q[0], q[-1] = Q[0], Q[-1]
+    return np.arange(n + 1) * dt, q
+
+
+def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT,
+               accel_share: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """One trapezoid in the polyline parameter u (vertex k at u = k) over a dense, smooth joint path.
+    `accel_share` of the acceleration goes to the trapezoid; the rest is left for the path's own curvature."""
     Q = np.asarray(Q, float)
     if len(Q) < 2:
         return stop_at_vertices(np.vstack([Q, Q]), vmax, amax, dt)
@@ -94,7 +148,7 @@ def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT
     Dm = np.maximum(D.max(axis=0), 1e-12)
     L = float(len(Q) - 1)
     v = float(np.min(vmax / Dm))
-    a = float(np.min(amax / Dm)) * 0.5  # half: leaves room for the path's own curvature
+    a = float(np.min(amax / Dm)) * accel_share
     if v * v / a > L:
         v = float(np.sqrt(a * L))
     T = L / v + v / a
@@ -110,6 +164,19 @@ def along_path(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT
     return t, q
 
 
+def within(times: np.ndarray, q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, tol: float = 1.02) -> bool:
+    """Finite-difference joint velocities and accelerations within `vmax` / `amax` (as the safety check
+    estimates them, with its 2 % tolerance)."""
+    dt = np.diff(times)
+    vel = np.diff(q, axis=0) / dt[:, None]
+    if np.any(np.abs(vel) > vmax * tol):
+        return False
+    if len(q) < 3:
+        return True
+    acc = np.diff(vel, axis=0) / ((dt[1:] + dt[:-1]) / 2)[:, None]
+    return not np.any(np.abs(acc) > amax * tol)
+
+
 def time_parameterise(
     Q: np.ndarray,
     limits: SafetyLimits,
@@ -120,14 +187,40 @@ def time_parameterise(
     mode: str = "stop_at_vertices",
     name: str = "",
     dt: float = DT,
+    free=None,
 ) -> Trajectory:
     """A Trajectory through the joint polyline Q that passes ``limits.check_trajectory``.
 
     Scales are fractions of the configured limits (PlanningSettings.velocity_scale / acceleration_scale).
+    ``mode="blended"`` needs ``free(q_samples) -> bool``, the proof that the blended path is collision-free;
+    where it is not (or the blends cannot be timed), the vertices are stopped at.
     Raises LimitViolation only if a waypoint itself is outside the joint limits or workspace.
     """
     vmax = np.asarray(limits.max_joint_speed, float) * velocity_scale
     amax = np.asarray(limits.max_joint_accel, float) * acceleration_scale
+    if mode == "blended":
+        if free is None:
+            raise ValueError("time_parameterise(mode='blended'): needs free=, the collision check of the blended path")
+        try:
+            times, q = blended(Q, vmax, amax, dt)
+            limits.check_trajectory(ur, times, q)
+            if free(q):
+                return Trajectory(times, q, name)
+        except LimitViolation:
+            pass
+        mode = "stop_at_vertices"
+    if mode == "along_path":
+        # More of the acceleration for the trapezoid first: a straight line's joint path curves little, and a
+        # short line (most: approach, lift, lower, retreat) never reaches full speed, so its duration goes with
+        # 1 / sqrt(acceleration). Kept only if it stays within the scaled limits too; else half, as below.
+        for share in (1.0, 0.85, 0.7):
+            times, q = along_path(Q, vmax, amax, dt, accel_share=share)
+            if within(times, q, vmax, amax):
+                try:
+                    limits.check_trajectory(ur, times, q)
+                    return Trajectory(times, q, name)
+                except LimitViolation:
+                    break
     fn = stop_at_vertices if mode == "stop_at_vertices" else along_path
     slow = 1.0
     last: LimitViolation | None = None

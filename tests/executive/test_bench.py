@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from kitchenbot.executive.cli import main
 
 
@@ -23,3 +25,8 @@ def test_bench_tasks_writes_summary(tmp_path, state_dir, capsys):
     assert sum(c["planned"] for c in s["strategies"].values()) >= run["attempts"]
     out = capsys.readouterr().out
     assert "objects placed" in out and "strategies (cup-stacking; planned/tried): direct_pick" in out
+    # items per minute: placed (truth) per minute of simulated time plus compute, and compute split by stage
+    assert s["items_per_minute"] == pytest.approx(60.0 * run["delivered"] / (run["sim_s"] + run["compute_s"]))
+    assert "items per minute (cup-stacking)" in out and "compute per cycle by stage (cup-stacking" in out
+    if run["delivered"]:
+        assert set(s["cycle_stage_means_s"]) >= {"plan", "execute"}

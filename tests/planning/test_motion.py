@@ -144,3 +144,66 @@ def test_planner_work_budget_settings_come_from_the_config_or_the_environment(mo
     monkeypatch.setenv("KITCHENBOT_PLANNER_SEED", "soon")
     with pytest.raises(ValueError, match="KITCHENBOT_PLANNER_SEED='soon': expected an integer"):
         PlanningSettings()
+
+
+def test_blended_timing_passes_vertices_without_stopping_only_where_proven_free(planner, home):
+    """mode="blended": faster than stopping at each vertex, within the limits, at rest at both ends; the caller's
+    collision proof decides, and without it the vertices are stopped at (the checked polyline)."""
+    Q = np.vstack([home, home + [0.6, -0.2, 0.3, 0.1, 0.4, -1.0], home + [0.2, 0.1, 0.0, 0.0, 0.0, 0.5],
+                   home + [-0.3, 0.1, 0.2, 0.0, 0.3, 0.2]])
+    kw = dict(velocity_scale=0.5, acceleration_scale=0.5)
+    stop = time_parameterise(Q, planner.limits, planner.robot.ur, mode="stop_at_vertices", **kw)
+    seen = []
+
+    def free(q):
+        seen.append(q)
+        return True
+
+    blend = time_parameterise(Q, planner.limits, planner.robot.ur, mode="blended", free=free, **kw)
+    assert len(seen) == 1 and seen[0] is blend.q  # the proof was asked for exactly the path returned
+    planner.limits.check_trajectory(planner.robot.ur, blend.times, blend.q)
+    assert blend.duration < 0.9 * stop.duration
+    np.testing.assert_allclose(blend.q[0], Q[0])
+    np.testing.assert_allclose(blend.q[-1], Q[-1])
+    vmax = planner.limits.max_joint_speed * 0.5
+    vel = np.diff(blend.q, axis=0) / np.diff(blend.times)[:, None]
+    assert np.all(np.abs(vel) <= vmax * 1.001)
+    assert np.abs(vel[0]).max() < 0.05 and np.abs(vel[-1]).max() < 0.05  # at rest at both ends
+    # the blend leaves the polyline near the inner vertices (the reason for the proof) ...
+    assert np.min(np.max(np.abs(blend.q - Q[1]), axis=1)) > 1e-3
+    # ... and when the proof fails, the trajectory stops at every vertex, as the polyline was checked
+    refused = time_parameterise(Q, planner.limits, planner.robot.ur, mode="blended", free=lambda q: False, **kw)
+    np.testing.assert_array_equal(refused.q, stop.q)
+    with pytest.raises(ValueError, match="free="):
+        time_parameterise(Q, planner.limits, planner.robot.ur, mode="blended")
+
+
+def test_planned_transfers_blend_only_along_a_free_path(planner, wall_case):
+    """Around the wall: the planner's path blended where the dense re-check passes on the blended samples."""
+    qa, qb, wall, scene = wall_case
+    timings: dict = {}
+    traj = planner._joint_motion(scene, qa, qb, "move", timings)
+    assert not hasattr(traj, "kind"), traj
+    r = reach_bounds(scene)
+    assert check_segment(scene, traj.q, r, 0.004) < 0  # what is executed is free, blended or not
+    assert timings["move_blended"] in (0.0, 1.0)
+
+
+def test_straight_lines_use_more_of_the_acceleration_within_the_scaled_limits(planner, home):
+    """A short Cartesian line (an approach, a lift) is timed with more of the scaled acceleration than the half
+    share kept for curvature, only where its finite differences stay within the scaled limits."""
+    from kitchenbot.planning.timing import along_path, within
+
+    line = cartesian_line(planner.robot, planner.world.scene(), home, trans(0.0, 0.0, -0.1) @ planner.robot.fk_tcp(home))
+    assert not hasattr(line, "kind"), line
+    vmax, amax = planner.limits.max_joint_speed * 0.5, planner.limits.max_joint_accel * 0.5
+    half_t, _ = along_path(line, vmax, amax, accel_share=0.5)
+    traj = time_parameterise(line, planner.limits, planner.robot.ur, velocity_scale=0.5, acceleration_scale=0.5,
+                             mode="along_path")
+    assert traj.duration < 0.9 * half_t[-1]
+    assert within(traj.times, traj.q, vmax, amax)
+    planner.limits.check_trajectory(planner.robot.ur, traj.times, traj.q)
+    np.testing.assert_allclose(traj.q[-1], line[-1])
+    # a share that the path's curvature would push over the scaled limits is not kept
+    full_t, full_q = along_path(line, vmax, amax, accel_share=1.0)
+    assert not within(full_t, full_q, vmax, amax) or traj.duration <= full_t[-1] + 1e-9
