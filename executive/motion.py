@@ -172,8 +172,10 @@ class Motions:
         pick = self.item.pick
         held = pick.grasp if (pick is not None and self._holding()) else None
         b = self.belief
+        # the pads where they are (open at the last grasp's opening after a release), not fully open as plans assume
+        opening = None if held is not None else self._opening()
         plan = self.planner.plan_escape(self.arm.joint_positions(), b.scene_objects(), map_points=b.map_points,
-                                        held=held)
+                                        held=held, opening=opening)
         if not plan.ok:
             # Inside something as perceived (a pose error: the arm was stopped before real contact): back along
             # the motion that brought it here (not when looking for a fallen item: it may lie on that way now).
@@ -189,6 +191,13 @@ class Motions:
         self._run_trajectory(plan.trajectory)
         self.report.escapes += 1
         return True
+
+    def _opening(self) -> float | None:
+        """The gripper's pad distance (m), None when it cannot be read."""
+        try:
+            return float(self.gripper.opening())
+        except DriverError:
+            return None
 
     def _holding(self) -> bool:
         try:

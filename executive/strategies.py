@@ -23,6 +23,7 @@ from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot
+from kitchenbot.world.attitude import is_lying
 
 SLIDABLE = ("plate",)  # classes that nest flat in stacks and are slid sideways to free them
 
@@ -125,12 +126,16 @@ class EscapeThenPick(Strategy):
 
 class StageForRegrasp(Strategy):
     """Set the item down on the counter (in a pose the task chooses for its targets) and grasp it again from
-    there, where its next pick offers other grasps. Not for an item already staged, nor one its targets do not
-    turn (Task.needs_regrasp)."""
+    there, where its next pick offers other grasps. Not for one its targets do not turn (Task.needs_regrasp).
+    An item already staged standing (upright or upside down) is staged once more only on its side, where the
+    task offers that: from standing, a level side grasp reaches a rack's near part only, and when that is full
+    its targets stay out of reach; from its side a grasp from above turns it mouth-down anywhere. One staged on
+    its side is not staged again (at most two stagings per item)."""
 
     name = "stage_for_regrasp"
     when = "no grasp of the item as it lies reaches a target (`no_feasible_placement` in the pick), the targets " \
-           "turn it over (`Task.needs_regrasp`) and it is not already staged"
+           "turn it over (`Task.needs_regrasp`) and it is not already staged (staged standing: once more, on its " \
+           "side)"
     does = "a pick and a place onto the counter (`Task.staging_targets`: upright, upside down or on its side), " \
            "from where the next pick offers other grasps; verified there and picked again first"
 
@@ -138,13 +143,25 @@ class StageForRegrasp(Strategy):
         return failure is not None and failure.stage == "pick" and failure.kind == "no_feasible_placement"
 
     def plan(self, req):
-        if req.staged is not None or not req.task.needs_regrasp(req.targets, req.obj):
+        if not req.task.needs_regrasp(req.targets, req.obj):
+            return None
+        if req.staged is not None and not _staged_standing(req.staged):
             return None
         stage = req.task.staging_targets(req.obj, req.belief, req.targets)
         if isinstance(stage, NoFreeSlot):
             return None
+        if req.staged is not None:
+            stage = [t for t in stage if is_lying(t.T_base_obj)]
+            if not stage:
+                return None
         r = _direct(req, self.name, stage, staging=True)
         return None if isinstance(r, PlanFailure) and r.stage == "pick" else r
+
+
+def _staged_standing(staged) -> bool:
+    """Whether a staged item's record (tasks.base.Placed) has it standing on the counter, not on its side."""
+    T = getattr(staged, "T_base_obj", None)
+    return T is not None and not is_lying(np.asarray(T, float))
 
 
 class StageWhenBlocked(StageForRegrasp):

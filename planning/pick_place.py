@@ -692,14 +692,16 @@ class Planner:
         return plan_slide(self, q0, list(objects), target, map_points=map_points, distance=distance)
 
     def plan_escape(self, q_start: np.ndarray, objects: Sequence[ObjectPose] = (), *,
-                    map_points: np.ndarray | None = None, held: Grasp | None = None) -> MovePlan | PlanningFailure:
-        """A short straight TCP line out of a stop within the collision margin: see planning.escape."""
+                    map_points: np.ndarray | None = None, held: Grasp | None = None,
+                    opening: float | None = None) -> MovePlan | PlanningFailure:
+        """A short straight TCP line out of a stop within the collision margin (`opening`: the open gripper's pad
+        distance, when known): see planning.escape."""
         from kitchenbot.planning.escape import plan_escape
 
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
             return q0
-        return plan_escape(self, q0, list(objects), map_points=map_points, held=held)
+        return plan_escape(self, q0, list(objects), map_points=map_points, held=held, opening=opening)
 
     def plan_move(
         self,

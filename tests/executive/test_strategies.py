@@ -138,6 +138,43 @@ def test_an_item_already_staged_is_not_staged_again(inv):
     assert e.value.details["planning_kind"] == "no_feasible_placement" and "pick:stage" not in planner.calls
 
 
+def test_a_cup_staged_upright_out_of_reach_of_its_racks_is_staged_once_more_on_its_side(inv):
+    """sink-to-dishwasher: a cup staged upright on the counter whose grasps reach none of its rack spots (a level
+    side grasp reaches the upper rack's near part only, and that is full) is staged again, on its side only (from
+    there a grasp from above turns it mouth-down anywhere); one staged on its side is not staged a third time."""
+    from kitchenbot.tasks.base import Placed
+
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    asked: list = []
+
+    def pick(staging, n):
+        return _Ok() if staging else NoFeasiblePlacement("test: no grasp reaches a rack spot")
+
+    planner = Situation(pick)
+    real_pick = planner.plan_pick
+
+    def plan_pick(q, objects, *, target=None, map_points=None, place_target=None):
+        asked.append(list(place_target))
+        return real_pick(q, objects, target=target, map_points=map_points, place_target=place_target)
+
+    planner.plan_pick = plan_pick
+    m = inv.by_name("cup")
+    up = ObjectPose(m.obj_id, m.cls, make_T(np.eye(3), (0.0, 0.45, 0.05)), 1.0, instance_id=10_000)
+    staged = Placed(m.obj_id, m.cls, up.T_base_obj, np.zeros(2), np.zeros(2), 0.1, None, 10_000)
+    plan = plan_item(request(task, b, up, planner, staged=staged), strategies_for(task), counts := {})
+    assert plan.strategy == "stage_for_regrasp" and plan.staging
+    stage = asked[-1]
+    assert stage and all(t.kind == "stage" and abs(t.T_base_obj[2, 2]) < 1e-6 for t in stage)  # on its side only
+    assert counts["stage_for_regrasp"]["planned"] == 1
+    lying = stage[0].T_base_obj
+    on_side = ObjectPose(m.obj_id, m.cls, lying, 1.0, instance_id=10_001)
+    staged2 = Placed(m.obj_id, m.cls, lying, np.zeros(2), np.zeros(2), 0.1, None, 10_001)
+    planner.calls.clear()
+    with pytest.raises(StepFailed):
+        plan_item(request(task, b, on_side, planner, staged=staged2), strategies_for(task), {})
+    assert "pick:stage" not in planner.calls
+
+
 def test_a_stop_within_the_margin_is_escaped_then_the_pick_planned_again(inv):
     task, b = make_task("sink-pick", inv, Cell()), Belief()
     planner = Situation(lambda staging, n: StartInCollision("test: stopped there") if n == 1 else _Ok())
