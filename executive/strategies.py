@@ -63,25 +63,41 @@ class PlanRequest:
     scene_objs: list = field(default_factory=list)
 
 
+# Grasps tried per direct attempt: the grasp filter checks that a grasp reaches a release pose of a target (and
+# its pre-place pose), not the whole place plan (the transfer search, the lowering, the retreat past the
+# neighbours); when that fails for the grasp picked, the next grasp that reaches a target is tried.
+PLACE_GRASPS = 3
+
+
 def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) -> ItemPlan | PlanFailure:
-    """Pick (only grasps that can also reach one of `targets`) then place (the first feasible target)."""
+    """Pick (only grasps that can also reach one of `targets`) then place (the first feasible target); when the
+    place does not plan, the pick again without that grasp (at most PLACE_GRASPS grasps)."""
     targets = req.targets if targets is None else targets
     obj, b = req.obj, req.belief
     q = req.joints()
-    req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
-             **({"staging": True} if staging else {}))
-    pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets)
-    req.check_deadline()
-    if not pick.ok:
-        return PlanFailure(pick.kind, f"no pick plan for the {obj.cls}: {pick}", "pick", name,
-                           pick.details.get("blocking"))
     others = [p for p in req.scene_objs
               if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
-    req.note("command", "plan_place", grasp=pick.grasp.spec.name, staging=staging)
-    place = req.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=b.map_points)
-    if not place.ok:
-        return PlanFailure(place.kind, f"no place plan for the {obj.cls}: {place}", "place", name)
-    return ItemPlan(name, pick=pick, place=place, staging=staging)
+    failed: list[str] = []  # grasps whose place did not plan
+    first: PlanFailure | None = None
+    for _ in range(PLACE_GRASPS):
+        req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
+                 **({"staging": True} if staging else {}), **({"without": list(failed)} if failed else {}))
+        pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets,
+                                     **({"exclude_grasps": tuple(failed)} if failed else {}))
+        req.check_deadline()
+        if not pick.ok:
+            # the first place failure says more than "no other grasp" after it
+            return first or PlanFailure(pick.kind, f"no pick plan for the {obj.cls}: {pick}", "pick", name,
+                                        pick.details.get("blocking"))
+        req.note("command", "plan_place", grasp=pick.grasp.spec.name, staging=staging)
+        place = req.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=b.map_points)
+        req.check_deadline()
+        if place.ok:
+            return ItemPlan(name, pick=pick, place=place, staging=staging)
+        req.note("note", "no place plan with this grasp", grasp=pick.grasp.spec.name, reason=str(place))
+        first = first or PlanFailure(place.kind, f"no place plan for the {obj.cls}: {place}", "place", name)
+        failed.append(pick.grasp.spec.name)
+    return first
 
 
 class Strategy:

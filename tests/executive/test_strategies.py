@@ -74,10 +74,13 @@ class Situation:
         self.pick, self.place, self.slide_ok = pick, place, slide_ok
         self.calls: list[str] = []
 
-    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None):
+    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None, exclude_grasps=()):
         staging = all(t.kind == "stage" for t in place_target)
         self.calls.append("pick:stage" if staging else "pick")
-        return self.pick(staging, self.calls.count("pick"))
+        r = self.pick(staging, self.calls.count("pick"))
+        if r.ok and r.grasp.spec.name in exclude_grasps:  # a real planner offers the next grasp, if any
+            return NoFeasiblePlacement("test: no other grasp reaches a target")
+        return r
 
     def plan_place(self, q, grasp, targets, *, objects=None, map_points=None):
         self.calls.append("place")
@@ -116,6 +119,28 @@ def test_direct_pick_plans_when_it_can(inv):
     plan = plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), counts)
     assert plan.strategy == "direct_pick" and not plan.staging
     assert counts == {"direct_pick": {"tried": 1, "planned": 1}} and planner.calls == ["pick", "place"]
+
+
+def test_when_the_place_fails_for_the_grasp_picked_the_next_grasp_is_tried(inv):
+    """The grasp filter checks a release pose, not the whole place (transfer, lowering, retreat past the
+    neighbours): a grasp it kept may give no place plan while the next one does."""
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    names = iter(["rim_01", "rim_02", "rim_03"])
+    planner = Situation(lambda staging, n: _Ok(grasp=_Grasp(_Spec(next(names)))),
+                        place=lambda targets: CartesianPathFailed("test: retreat blocked") if
+                        planner.calls.count("place") < 2 else _Ok())
+    plan = plan_item(request(task, b, item(inv, "side_plate"), planner), strategies_for(task), counts := {})
+    assert plan.strategy == "direct_pick" and plan.pick.grasp.spec.name == "rim_02"
+    assert planner.calls == ["pick", "place", "pick", "place"] and counts["direct_pick"] == {"tried": 1, "planned": 1}
+    # no grasp places: the place failure is what is reported, not "no other grasp"
+    names = iter(["rim_01", "rim_02", "rim_03"])
+    planner = Situation(lambda staging, n: _Ok(grasp=_Grasp(_Spec(next(names)))),
+                        place=lambda targets: CartesianPathFailed("test: retreat blocked"))
+    sp = make_task("sink-pick", inv, Cell())
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(sp, b, item(inv, "side_plate"), planner), strategies_for(sp), {})
+    assert e.value.details["planning_kind"] == "cartesian_path_failed" and "retreat" in str(e.value)
+    assert planner.calls.count("place") == 3
 
 
 def test_an_upside_down_cup_for_a_stack_is_staged_for_a_regrasp(inv):
