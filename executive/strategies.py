@@ -116,7 +116,8 @@ class DirectPick(Strategy):
     name = "direct_pick"
     when = "first, always"
     does = "a pick whose grasp also reaches one of the targets (the grasp filter), then the place at the first " \
-           "target that plans"
+           "target that plans; when none plans with that grasp, the pick again without it (at most " \
+           f"{PLACE_GRASPS} grasps)"
 
     def applies(self, failure, obj, belief, req):
         return failure is None
