@@ -177,10 +177,13 @@ class Planner:
                       timeout_scale: float = 1.0) -> Trajectory | PlanningFailure:
         s = self.settings
         t0 = time.perf_counter()
+        # a work budget (max_iterations) grows with the time budget: a repeatable search given the same budget
+        # again fails the same way
+        iterations = None if s.planner_max_iterations is None else max(1, round(s.planner_max_iterations * timeout_scale))
         res = plan_joint_path(
             scene, q0, q1, timeout=s.planner_timeout * timeout_scale, simplify_timeout=s.simplify_timeout,
             planning_resolution=self.planning_resolution, validity_resolution=s.validity_resolution,
-            max_iterations=s.planner_max_iterations, seed=s.planner_seed,
+            max_iterations=iterations, seed=s.planner_seed,
         )
         timings[f"{name}_plan_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(res, PlanningFailure):

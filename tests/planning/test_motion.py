@@ -144,3 +144,23 @@ def test_planner_work_budget_settings_come_from_the_config_or_the_environment(mo
     monkeypatch.setenv("KITCHENBOT_PLANNER_SEED", "soon")
     with pytest.raises(ValueError, match="KITCHENBOT_PLANNER_SEED='soon': expected an integer"):
         PlanningSettings()
+
+
+def test_a_work_budget_grows_with_the_time_budget(planner, home, monkeypatch):
+    """With max_iterations set (repeatable searches), a move planned again after a timeout gets more iterations,
+    not the same search again."""
+    import kitchenbot.planning.pick_place as pp
+
+    seen = []
+    real = pp.plan_joint_path
+
+    def spy(*a, **kw):
+        seen.append(kw["max_iterations"])
+        return real(*a, **kw)
+
+    monkeypatch.setattr(pp, "plan_joint_path", spy)
+    monkeypatch.setattr(planner.settings, "planner_max_iterations", 200)
+    q1 = home + np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
+    planner.plan_move(home, q1)
+    planner.plan_move(home, q1, timeout_scale=4.0)
+    assert seen == [200, 800]
