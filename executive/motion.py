@@ -147,6 +147,19 @@ class Motions:
         dist = float(np.max(np.abs(q - q_now)))
         self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
 
+    def _move_joints_via(self, q: np.ndarray, what: str, via: np.ndarray) -> None:
+        """_move_joints; when it finds no path, by way of `via` (home: a pose the planner connects easily to the
+        rest). A place can leave the arm on another IK branch (elbow flipped, wrists turned by a full turn), from
+        where a search with a bounded budget finds no way to a scan waypoint while one to home exists."""
+        try:
+            self._move_joints(q, what)
+        except StepFailed as e:
+            if e.kind != "no_path" or np.max(np.abs(self.arm.joint_positions() - via)) < 1e-3:
+                raise
+            self._log("note", "no path; going by way of home", what=what, reason=str(e))
+            self._move_joints(via, f"home (on the way to {what})")
+            self._move_joints(q, what)
+
     def _index_on(self, traj: Trajectory | None) -> int | None:
         """The sample of `traj` the arm stands at (within 0.01 rad per joint), or None if it is not on it."""
         if traj is None:
@@ -178,8 +191,10 @@ class Motions:
         pick = self.item.pick
         held = pick.grasp if (pick is not None and self._holding()) else None
         b = self.belief
+        # the pads where they are (open at the last grasp's opening after a release), not fully open as plans assume
+        opening = None if held is not None else self._opening()
         plan = self.planner.plan_escape(self.arm.joint_positions(), b.scene_objects(), map_points=b.map_points,
-                                        held=held)
+                                        held=held, opening=opening)
         if not plan.ok:
             # Inside something as perceived (a pose error: the arm was stopped before real contact): back along
             # the motion that brought it here (not when looking for a fallen item: it may lie on that way now).
@@ -195,6 +210,13 @@ class Motions:
         self._run_trajectory(plan.trajectory)
         self.report.escapes += 1
         return True
+
+    def _opening(self) -> float | None:
+        """The gripper's pad distance (m), None when it cannot be read."""
+        try:
+            return float(self.gripper.opening())
+        except DriverError:
+            return None
 
     def _holding(self) -> bool:
         try:

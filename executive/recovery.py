@@ -214,8 +214,13 @@ class RecoveryActions:
                 self.gripper.open(pick.grasp.spec.opening)
             if self._retrace(pick.grasp_in, "back_out"):  # it was on the grasp-in line
                 return
-        # (no pick: a slide was cut short, the fingers may still press on the item: straight up)
-        if self.arm.tcp_pose()[2, 3] < 0.05:  # deep in the sink elsewhere: straight up a little
+        # (no pick: a slide was cut short, the fingers may still press on the item: straight up). Only in the sink:
+        # this move is not planned, and elsewhere low down (a rack) the tool is not around a sink item; a stop
+        # there is left to the planned escape of the next motion (Motions._escape).
+        lo, hi = self.robot.cell.sink_interior
+        tcp = self.arm.tcp_pose()[:3, 3]
+        in_sink = bool(np.all(tcp[:2] >= np.asarray(lo)[:2]) and np.all(tcp[:2] <= np.asarray(hi)[:2]))
+        if in_sink and tcp[2] < 0.05:  # deep in the sink elsewhere: straight up a little
             T = self.arm.tcp_pose()
             T[2, 3] += 0.08
             self._cmd("arm.move_linear", up=0.08)

@@ -320,9 +320,10 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
     def _scan(self) -> list[View]:
         views = []
         skipped: list[StepFailed] = []
+        home = np.asarray(self.robot.config.robot.home, float)
         for k, q in enumerate(self.robot.config.scan_waypoints):
             try:
-                self._move_joints(np.asarray(q, float), f"scan waypoint {k}")
+                self._move_joints_via(np.asarray(q, float), f"scan waypoint {k}", home)
             except StepFailed as e:  # blocked (e.g. by a pile on the counter): the other views still cover the sink
                 if e.kind != "no_path":
                     raise

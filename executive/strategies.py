@@ -23,6 +23,7 @@ from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot
+from kitchenbot.world.attitude import is_lying
 
 SLIDABLE = ("plate",)  # classes that nest flat in stacks and are slid sideways to free them
 
@@ -62,25 +63,41 @@ class PlanRequest:
     scene_objs: list = field(default_factory=list)
 
 
+# Grasps tried per direct attempt: the grasp filter checks that a grasp reaches a release pose of a target (and
+# its pre-place pose), not the whole place plan (the transfer search, the lowering, the retreat past the
+# neighbours); when that fails for the grasp picked, the next grasp that reaches a target is tried.
+PLACE_GRASPS = 3
+
+
 def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) -> ItemPlan | PlanFailure:
-    """Pick (only grasps that can also reach one of `targets`) then place (the first feasible target)."""
+    """Pick (only grasps that can also reach one of `targets`) then place (the first feasible target); when the
+    place does not plan, the pick again without that grasp (at most PLACE_GRASPS grasps)."""
     targets = req.targets if targets is None else targets
     obj, b = req.obj, req.belief
     q = req.joints()
-    req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
-             **({"staging": True} if staging else {}))
-    pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets)
-    req.check_deadline()
-    if not pick.ok:
-        return PlanFailure(pick.kind, f"no pick plan for the {obj.cls}: {pick}", "pick", name,
-                           pick.details.get("blocking"))
     others = [p for p in req.scene_objs
               if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
-    req.note("command", "plan_place", grasp=pick.grasp.spec.name, staging=staging)
-    place = req.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=b.map_points)
-    if not place.ok:
-        return PlanFailure(place.kind, f"no place plan for the {obj.cls}: {place}", "place", name)
-    return ItemPlan(name, pick=pick, place=place, staging=staging)
+    failed: list[str] = []  # grasps whose place did not plan
+    first: PlanFailure | None = None
+    for _ in range(PLACE_GRASPS):
+        req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
+                 **({"staging": True} if staging else {}), **({"without": list(failed)} if failed else {}))
+        pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets,
+                                     **({"exclude_grasps": tuple(failed)} if failed else {}))
+        req.check_deadline()
+        if not pick.ok:
+            # the first place failure says more than "no other grasp" after it
+            return first or PlanFailure(pick.kind, f"no pick plan for the {obj.cls}: {pick}", "pick", name,
+                                        pick.details.get("blocking"))
+        req.note("command", "plan_place", grasp=pick.grasp.spec.name, staging=staging)
+        place = req.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=b.map_points)
+        req.check_deadline()
+        if place.ok:
+            return ItemPlan(name, pick=pick, place=place, staging=staging)
+        req.note("note", "no place plan with this grasp", grasp=pick.grasp.spec.name, reason=str(place))
+        first = first or PlanFailure(place.kind, f"no place plan for the {obj.cls}: {place}", "place", name)
+        failed.append(pick.grasp.spec.name)
+    return first
 
 
 class Strategy:
@@ -99,7 +116,8 @@ class DirectPick(Strategy):
     name = "direct_pick"
     when = "first, always"
     does = "a pick whose grasp also reaches one of the targets (the grasp filter), then the place at the first " \
-           "target that plans"
+           "target that plans; when none plans with that grasp, the pick again without it (at most " \
+           f"{PLACE_GRASPS} grasps)"
 
     def applies(self, failure, obj, belief, req):
         return failure is None
@@ -125,12 +143,16 @@ class EscapeThenPick(Strategy):
 
 class StageForRegrasp(Strategy):
     """Set the item down on the counter (in a pose the task chooses for its targets) and grasp it again from
-    there, where its next pick offers other grasps. Not for an item already staged, nor one its targets do not
-    turn (Task.needs_regrasp)."""
+    there, where its next pick offers other grasps. Not for one its targets do not turn (Task.needs_regrasp).
+    An item already staged standing (upright or upside down) is staged once more only on its side, where the
+    task offers that: from standing, a level side grasp reaches a rack's near part only, and when that is full
+    its targets stay out of reach; from its side a grasp from above turns it mouth-down anywhere. One staged on
+    its side is not staged again (at most two stagings per item)."""
 
     name = "stage_for_regrasp"
     when = "no grasp of the item as it lies reaches a target (`no_feasible_placement` in the pick), the targets " \
-           "turn it over (`Task.needs_regrasp`) and it is not already staged"
+           "turn it over (`Task.needs_regrasp`) and it is not already staged (staged standing: once more, on its " \
+           "side)"
     does = "a pick and a place onto the counter (`Task.staging_targets`: upright, upside down or on its side), " \
            "from where the next pick offers other grasps; verified there and picked again first"
 
@@ -138,13 +160,25 @@ class StageForRegrasp(Strategy):
         return failure is not None and failure.stage == "pick" and failure.kind == "no_feasible_placement"
 
     def plan(self, req):
-        if req.staged is not None or not req.task.needs_regrasp(req.targets, req.obj):
+        if not req.task.needs_regrasp(req.targets, req.obj):
+            return None
+        if req.staged is not None and not _staged_standing(req.staged):
             return None
         stage = req.task.staging_targets(req.obj, req.belief, req.targets)
         if isinstance(stage, NoFreeSlot):
             return None
+        if req.staged is not None:
+            stage = [t for t in stage if is_lying(t.T_base_obj)]
+            if not stage:
+                return None
         r = _direct(req, self.name, stage, staging=True)
         return None if isinstance(r, PlanFailure) and r.stage == "pick" else r
+
+
+def _staged_standing(staged) -> bool:
+    """Whether a staged item's record (tasks.base.Placed) has it standing on the counter, not on its side."""
+    T = getattr(staged, "T_base_obj", None)
+    return T is not None and not is_lying(np.asarray(T, float))
 
 
 class StageWhenBlocked(StageForRegrasp):

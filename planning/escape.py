@@ -7,6 +7,11 @@ teach pendant does is jog the tool straight out; this plans the same: a short st
 first, then up and sideways, on which the pairs that are within the margin at the start may stay closer than the
 margin but never touch (zero margin), and everything else keeps its usual margin. It must end with every margin
 kept, so the next planned motion starts valid.
+
+Where the open pads touch one item (the arm stands where it let an item go, e.g. after backing off a retreat that
+was stopped, or a grasp cut short), no line keeps them from touching at the start; they leave it as a planned
+retreat does: straight back along the tool's approach axis (else straight up), the pads allowed to touch that
+item only within the grasp's contact zone (``Scene.for_grasp``), with the gripper at its real opening.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.collision import PADS
 from kitchenbot.planning.types import CartesianPathFailed, Grasp, MovePlan, PlanningFailure, StartInCollision
 from kitchenbot.transforms import trans
 
@@ -32,11 +38,26 @@ def escape_directions() -> list[np.ndarray]:
     return out
 
 
+def pad_touched(touching: Sequence[tuple[str, str]]) -> str | None:
+    """The one object (its collision name, without "obj:") that only the finger pads touch when nothing else is
+    touched, else None."""
+    names = set()
+    for a, b in touching:
+        pad, other = (a, b) if a in PADS else (b, a)
+        if pad not in PADS or not other.startswith("obj:"):
+            return None
+        names.add(other[4:])
+    return names.pop() if len(names) == 1 else None
+
+
 def plan_escape(planner, q_start: np.ndarray, objects: Sequence[ObjectPose] = (), *,
-                map_points: np.ndarray | None = None, held: Grasp | None = None) -> MovePlan | PlanningFailure:
+                map_points: np.ndarray | None = None, held: Grasp | None = None,
+                opening: float | None = None) -> MovePlan | PlanningFailure:
     """A short straight TCP line from `q_start` (within the margin of something) to a configuration that keeps
     every margin, in the scene `Planner.plan_move` plans in (the gripper fully open, or around `held`), so that the
-    next planned motion can start there. `StartInCollision` when q_start touches something (zero margin)."""
+    next planned motion can start there. Where only the open pads touch one item (`opening`: where they are; by
+    default fully open), they back out of it (see the module's docstring); `StartInCollision` when anything
+    else touches something (zero margin)."""
     q0 = np.asarray(q_start, float)
     scene = planner.scene(objects, map_points, exclude=held.obj if held is not None else None, held=held)
     pairs = scene.colliding_pairs(q0)
@@ -44,7 +65,11 @@ def plan_escape(planner, q_start: np.ndarray, objects: Sequence[ObjectPose] = ()
         return StartInCollision("nothing to escape from: the start keeps every margin", {"q": q0.tolist()})
     close = scene.touching_only(pairs)
     if not close.valid(q0):
-        return StartInCollision(f"the start touches {pairs}: no straight way out is safe", {"pairs": pairs})
+        touching = close.colliding_pairs(q0)
+        name = pad_touched(touching) if held is None else None
+        if name is None:
+            return StartInCollision(f"the start touches {touching}: no straight way out is safe", {"pairs": touching})
+        return _back_out(planner, scene, q0, name, objects, map_points, opening)
     T0 = planner.robot.fk_tcp(q0)
     last: PlanningFailure | None = None
     for dist in ESCAPE_DISTANCES:
@@ -62,4 +87,30 @@ def plan_escape(planner, q_start: np.ndarray, objects: Sequence[ObjectPose] = ()
             return MovePlan(traj, {"escape_m": dist, "direction": d.round(3).tolist()})
     assert last is not None
     last.message = f"escape from {pairs}: {last.message}"
+    return last
+
+
+def _back_out(planner, scene, q0: np.ndarray, name: str, objects: Sequence[ObjectPose],
+              map_points: np.ndarray | None, opening: float | None) -> MovePlan | PlanningFailure:
+    """The open pads touch the object `name` only: straight back along the approach axis (else straight up), the
+    pads allowed to touch it within the grasp's contact zone, at the gripper's `opening`; the end keeps every
+    margin of `scene` (the next planned motion's)."""
+    here = planner.scene(objects, map_points, **({} if opening is None else {"opening": opening}))
+    leave = here.for_grasp(name)
+    T0 = planner.robot.fk_tcp(q0)
+    last: PlanningFailure | None = None
+    for dist in ESCAPE_DISTANCES:
+        for how, T_goal in (("back", T0 @ trans(0.0, 0.0, -dist)), ("up", trans(0.0, 0.0, dist) @ T0)):
+            r = planner._line(leave, q0, T_goal, "escape", check_start=False)
+            if isinstance(r, PlanningFailure):
+                last = r
+                continue
+            traj, q_end = r
+            if not scene.valid(q_end) or not here.valid(q_end):
+                last = CartesianPathFailed("escape: still within the margin at the end",
+                                           {"pairs": scene.colliding_pairs(q_end)})
+                continue
+            return MovePlan(traj, {"escape_m": dist, "backed_out_of": name, "direction": how})
+    assert last is not None
+    last.message = f"backing out of obj:{name}: {last.message}"
     return last

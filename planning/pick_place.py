@@ -177,10 +177,13 @@ class Planner:
                       timeout_scale: float = 1.0) -> Trajectory | PlanningFailure:
         s = self.settings
         t0 = time.perf_counter()
+        # a work budget (max_iterations) grows with the time budget: a repeatable search given the same budget
+        # again fails the same way
+        iterations = None if s.planner_max_iterations is None else max(1, round(s.planner_max_iterations * timeout_scale))
         res = plan_joint_path(
             scene, q0, q1, timeout=s.planner_timeout * timeout_scale, simplify_timeout=s.simplify_timeout,
             planning_resolution=self.planning_resolution, validity_resolution=s.validity_resolution,
-            max_iterations=s.planner_max_iterations, seed=s.planner_seed,
+            max_iterations=iterations, seed=s.planner_seed,
         )
         timings[f"{name}_plan_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(res, PlanningFailure):
@@ -237,9 +240,10 @@ class Planner:
         stats: GraspStats | None = None,
         limit: int | None = None,
         scene: Scene | None = None,
+        exclude: Sequence[str] = (),
     ) -> list[Grasp] | PlanningFailure:
         """Ranked feasible grasps (best first) over `objects` (or only `target`); `limit`: stop checking once
-        that many are feasible."""
+        that many are feasible; `exclude`: grasp names not to offer (ones whose place plan failed)."""
         q = self._check_q(q_current, "q_current")
         if isinstance(q, PlanningFailure):
             return q
@@ -275,6 +279,12 @@ class Planner:
                         self._placeable.clear()
                 return self._placeable[key]
 
+        if exclude:
+            reach = flt
+
+            def flt(obj, spec, T_base_tcp):
+                return spec.name not in exclude and (reach is None or reach(obj, spec, T_base_tcp))
+
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
                              target=target, grasp_filter=flt, stats=stats, limit=limit)
 
@@ -287,13 +297,15 @@ class Planner:
         target: ObjectPose | None = None,
         map_points: np.ndarray | None = None,
         place_target: PlaceTarget | Sequence[PlaceTarget] | None = None,
+        exclude_grasps: Sequence[str] = (),
     ) -> PickPlan | PlanningFailure:
         """Pick the best graspable object in `objects` (or `target`): approach, straight grasp-in, lift.
 
         `objects`: every perceived object (all are obstacles, candidates unless `target` is given);
         `map_points`: (N, 3) fused map points in the base frame; those no object or cell surface explains become
         voxel obstacles; `place_target`: when given, only grasps that can also reach that placement (one of
-        them, for a list) are kept (e.g. cups to be inverted into the upper rack need side grasps).
+        them, for a list) are kept (e.g. cups to be inverted into the upper rack need side grasps);
+        `exclude_grasps`: grasp names not to use (the place plan failed with them).
         """
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
@@ -302,7 +314,8 @@ class Planner:
         t0 = time.perf_counter()
         base_scene = self.scene(objects, map_points)
         grasps = self.select_grasps(q0, objects, target=target, map_points=map_points, place_target=place_target,
-                                    limit=self.settings.max_grasp_candidates, scene=base_scene)
+                                    limit=self.settings.max_grasp_candidates, scene=base_scene,
+                                    exclude=exclude_grasps)
         timings["grasp_selection_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(grasps, PlanningFailure):
             if target is not None and grasps.kind in ("no_graspable_object", "no_collision_free_grasp"):
@@ -707,14 +720,16 @@ class Planner:
         return plan_slide(self, q0, list(objects), target, map_points=map_points, distance=distance)
 
     def plan_escape(self, q_start: np.ndarray, objects: Sequence[ObjectPose] = (), *,
-                    map_points: np.ndarray | None = None, held: Grasp | None = None) -> MovePlan | PlanningFailure:
-        """A short straight TCP line out of a stop within the collision margin: see planning.escape."""
+                    map_points: np.ndarray | None = None, held: Grasp | None = None,
+                    opening: float | None = None) -> MovePlan | PlanningFailure:
+        """A short straight TCP line out of a stop within the collision margin (`opening`: the open gripper's pad
+        distance, when known): see planning.escape."""
         from kitchenbot.planning.escape import plan_escape
 
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
             return q0
-        return plan_escape(self, q0, list(objects), map_points=map_points, held=held)
+        return plan_escape(self, q0, list(objects), map_points=map_points, held=held, opening=opening)
 
     def plan_move(
         self,

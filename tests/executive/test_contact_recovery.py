@@ -77,3 +77,37 @@ def test_a_move_whose_search_timed_out_is_planned_again_with_a_longer_budget(mak
     runner._move_joints(q, "scan waypoint 0")
     assert asked == [1.0, runner.TIMEOUT_GROWTH]
     assert np.max(np.abs(runner.arm.joint_positions() - q)) < 1e-3
+
+
+def test_a_scan_waypoint_with_no_path_from_here_is_reached_by_way_of_home(make_runner):
+    """A place can leave the arm on another IK branch, from where a bounded search finds no way to a scan waypoint
+    while one to home exists: the scan goes there by way of home instead of giving up."""
+    from kitchenbot.planning.types import PlannerTimeout
+
+    runner, world = make_runner()
+    runner.arm.connect()
+    runner.gripper.connect()
+    real = runner.planner
+    home = np.asarray(runner.robot.config.robot.home, float)
+    wp = np.asarray(runner.robot.config.scan_waypoints[0], float)
+    far = wp + np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])  # somewhere else, not home
+    plan = real.plan_move(world.q.copy(), far)
+    assert plan.ok, plan
+    runner._run_trajectory(plan.trajectory)
+    legs = []
+
+    class NoWayFromHere:  # from anywhere but home, no path to the waypoint is found
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_move(self, q0, q1, **kw):
+            legs.append((np.allclose(q0, home, atol=1e-3), np.allclose(q1, wp, atol=1e-3)))
+            if np.allclose(q1, wp, atol=1e-3) and not np.allclose(q0, home, atol=1e-3):
+                return PlannerTimeout("test: no path found within the budget")
+            return real.plan_move(q0, q1, **kw)
+
+    runner.planner = NoWayFromHere()
+    runner._move_joints_via(wp, "scan waypoint 0", home)
+    assert np.max(np.abs(runner.arm.joint_positions() - wp)) < 1e-3
+    assert legs[-2:] == [(False, False), (True, True)]  # to home, then from home to the waypoint
+    assert runner.arm.log.collisions == 0

@@ -74,10 +74,13 @@ class Situation:
         self.pick, self.place, self.slide_ok = pick, place, slide_ok
         self.calls: list[str] = []
 
-    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None):
+    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None, exclude_grasps=()):
         staging = all(t.kind == "stage" for t in place_target)
         self.calls.append("pick:stage" if staging else "pick")
-        return self.pick(staging, self.calls.count("pick"))
+        r = self.pick(staging, self.calls.count("pick"))
+        if r.ok and r.grasp.spec.name in exclude_grasps:  # a real planner offers the next grasp, if any
+            return NoFeasiblePlacement("test: no other grasp reaches a target")
+        return r
 
     def plan_place(self, q, grasp, targets, *, objects=None, map_points=None):
         self.calls.append("place")
@@ -118,6 +121,28 @@ def test_direct_pick_plans_when_it_can(inv):
     assert counts == {"direct_pick": {"tried": 1, "planned": 1}} and planner.calls == ["pick", "place"]
 
 
+def test_when_the_place_fails_for_the_grasp_picked_the_next_grasp_is_tried(inv):
+    """The grasp filter checks a release pose, not the whole place (transfer, lowering, retreat past the
+    neighbours): a grasp it kept may give no place plan while the next one does."""
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    names = iter(["rim_01", "rim_02", "rim_03"])
+    planner = Situation(lambda staging, n: _Ok(grasp=_Grasp(_Spec(next(names)))),
+                        place=lambda targets: CartesianPathFailed("test: retreat blocked") if
+                        planner.calls.count("place") < 2 else _Ok())
+    plan = plan_item(request(task, b, item(inv, "side_plate"), planner), strategies_for(task), counts := {})
+    assert plan.strategy == "direct_pick" and plan.pick.grasp.spec.name == "rim_02"
+    assert planner.calls == ["pick", "place", "pick", "place"] and counts["direct_pick"] == {"tried": 1, "planned": 1}
+    # no grasp places: the place failure is what is reported, not "no other grasp"
+    names = iter(["rim_01", "rim_02", "rim_03"])
+    planner = Situation(lambda staging, n: _Ok(grasp=_Grasp(_Spec(next(names)))),
+                        place=lambda targets: CartesianPathFailed("test: retreat blocked"))
+    sp = make_task("sink-pick", inv, Cell())
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(sp, b, item(inv, "side_plate"), planner), strategies_for(sp), {})
+    assert e.value.details["planning_kind"] == "cartesian_path_failed" and "retreat" in str(e.value)
+    assert planner.calls.count("place") == 3
+
+
 def test_an_upside_down_cup_for_a_stack_is_staged_for_a_regrasp(inv):
     """No grasp of it as it lies reaches upright: the pick for its targets finds no feasible placement; the
     staging targets (on the counter) are reachable."""
@@ -136,6 +161,43 @@ def test_an_item_already_staged_is_not_staged_again(inv):
     with pytest.raises(StepFailed) as e:
         plan_item(request(task, b, item(inv, "cup", MOUTH_DOWN), planner, staged=object()), strategies_for(task), {})
     assert e.value.details["planning_kind"] == "no_feasible_placement" and "pick:stage" not in planner.calls
+
+
+def test_a_cup_staged_upright_out_of_reach_of_its_racks_is_staged_once_more_on_its_side(inv):
+    """sink-to-dishwasher: a cup staged upright on the counter whose grasps reach none of its rack spots (a level
+    side grasp reaches the upper rack's near part only, and that is full) is staged again, on its side only (from
+    there a grasp from above turns it mouth-down anywhere); one staged on its side is not staged a third time."""
+    from kitchenbot.tasks.base import Placed
+
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    asked: list = []
+
+    def pick(staging, n):
+        return _Ok() if staging else NoFeasiblePlacement("test: no grasp reaches a rack spot")
+
+    planner = Situation(pick)
+    real_pick = planner.plan_pick
+
+    def plan_pick(q, objects, *, target=None, map_points=None, place_target=None):
+        asked.append(list(place_target))
+        return real_pick(q, objects, target=target, map_points=map_points, place_target=place_target)
+
+    planner.plan_pick = plan_pick
+    m = inv.by_name("cup")
+    up = ObjectPose(m.obj_id, m.cls, make_T(np.eye(3), (0.0, 0.45, 0.05)), 1.0, instance_id=10_000)
+    staged = Placed(m.obj_id, m.cls, up.T_base_obj, np.zeros(2), np.zeros(2), 0.1, None, 10_000)
+    plan = plan_item(request(task, b, up, planner, staged=staged), strategies_for(task), counts := {})
+    assert plan.strategy == "stage_for_regrasp" and plan.staging
+    stage = asked[-1]
+    assert stage and all(t.kind == "stage" and abs(t.T_base_obj[2, 2]) < 1e-6 for t in stage)  # on its side only
+    assert counts["stage_for_regrasp"]["planned"] == 1
+    lying = stage[0].T_base_obj
+    on_side = ObjectPose(m.obj_id, m.cls, lying, 1.0, instance_id=10_001)
+    staged2 = Placed(m.obj_id, m.cls, lying, np.zeros(2), np.zeros(2), 0.1, None, 10_001)
+    planner.calls.clear()
+    with pytest.raises(StepFailed):
+        plan_item(request(task, b, on_side, planner, staged=staged2), strategies_for(task), {})
+    assert "pick:stage" not in planner.calls
 
 
 def test_a_stop_within_the_margin_is_escaped_then_the_pick_planned_again(inv):

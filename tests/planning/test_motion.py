@@ -207,3 +207,21 @@ def test_straight_lines_use_more_of_the_acceleration_within_the_scaled_limits(pl
     # a share that the path's curvature would push over the scaled limits is not kept
     full_t, full_q = along_path(line, vmax, amax, accel_share=1.0)
     assert not within(full_t, full_q, vmax, amax) or traj.duration <= full_t[-1] + 1e-9
+def test_a_work_budget_grows_with_the_time_budget(planner, home, monkeypatch):
+    """With max_iterations set (repeatable searches), a move planned again after a timeout gets more iterations,
+    not the same search again."""
+    import kitchenbot.planning.pick_place as pp
+
+    seen = []
+    real = pp.plan_joint_path
+
+    def spy(*a, **kw):
+        seen.append(kw["max_iterations"])
+        return real(*a, **kw)
+
+    monkeypatch.setattr(pp, "plan_joint_path", spy)
+    monkeypatch.setattr(planner.settings, "planner_max_iterations", 200)
+    q1 = home + np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
+    planner.plan_move(home, q1)
+    planner.plan_move(home, q1, timeout_scale=4.0)
+    assert seen == [200, 800]

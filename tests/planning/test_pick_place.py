@@ -97,3 +97,12 @@ def test_cup_staged_upright_on_the_counter_goes_inverted_into_the_rack(planner, 
     assert 0.0 <= place.release_drop <= planner.settings.max_release_drop + 1e-9
     for name, r in verify_place(checker, planner, place, pick.grasp, [cup], step=0.004):
         assert r.ok, (name, str(r))
+
+
+def test_grasps_whose_place_failed_are_not_offered_again(planner, home, resting):
+    cup = resting("cup", (0.5, 0.0), 1)
+    first = planner.plan_pick(home, [cup], target=cup)
+    assert first.ok, first
+    other = planner.plan_pick(home, [cup], target=cup, exclude_grasps=(first.grasp.spec.name,))
+    assert other.ok, other
+    assert other.grasp.spec.name != first.grasp.spec.name
