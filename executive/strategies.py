@@ -254,6 +254,25 @@ def plan_item(req: PlanRequest, strategies: list[Strategy], counts: dict) -> Ite
     raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking)
 
 
+# The last round on the items every plan failed for (Execution._try_harder): more grasps tried per pick (the
+# first few of a crowded item often all have their lifts blocked), items seen less are still candidates (one
+# hidden beside others, with nothing on it, is not seen better by waiting), and RRT-Connect gets more work.
+HARDER_GRASPS = 3  # x max_grasp_candidates
+HARDER_MAX_OCCLUSION = 0.85  # hidden fraction still planned (settings.max_occlusion is the first rounds')
+HARDER_RRT = 4  # x planner_max_iterations (or x planner_timeout on wall-clock budgets)
+
+
+def harder_settings(s):
+    """PlanningSettings for the last round (see HARDER_*): a copy, `s` is not changed."""
+    up = {"max_grasp_candidates": min(100, s.max_grasp_candidates * HARDER_GRASPS),
+          "max_occlusion": max(s.max_occlusion, HARDER_MAX_OCCLUSION)}
+    if s.planner_max_iterations is not None:
+        up["planner_max_iterations"] = s.planner_max_iterations * HARDER_RRT
+    else:
+        up["planner_timeout"] = min(60.0, s.planner_timeout * HARDER_RRT)
+    return s.model_copy(update=up)
+
+
 def strategies_markdown(tasks: dict) -> str:
     """The strategies and the tasks that use them, as a markdown table (docs/executive.md)."""
     lines = ["| strategy | applies when | plans | tasks |", "|---|---|---|---|"]
