@@ -69,7 +69,10 @@ def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) ->
     q = req.joints()
     req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
              **({"staging": True} if staging else {}))
-    pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets)
+    t = b.attempts_for(obj)
+    avoid = {"avoid_grasps": list(t.missed)} if t is not None and t.missed else {}  # they closed on nothing here
+    pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets,
+                                 **avoid)
     req.check_deadline()
     if not pick.ok:
         return PlanFailure(pick.kind, f"no pick plan for the {obj.cls}: {pick}", "pick", name,

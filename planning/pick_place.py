@@ -222,9 +222,10 @@ class Planner:
         stats: GraspStats | None = None,
         limit: int | None = None,
         scene: Scene | None = None,
+        avoid_grasps: Sequence[str] = (),
     ) -> list[Grasp] | PlanningFailure:
         """Ranked feasible grasps (best first) over `objects` (or only `target`); `limit`: stop checking once
-        that many are feasible."""
+        that many are feasible; `avoid_grasps`: grasp names not to use (planning.grasps.select_grasps)."""
         q = self._check_q(q_current, "q_current")
         if isinstance(q, PlanningFailure):
             return q
@@ -261,7 +262,7 @@ class Planner:
                 return self._placeable[key]
 
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
-                             target=target, grasp_filter=flt, stats=stats, limit=limit)
+                             target=target, grasp_filter=flt, stats=stats, limit=limit, avoid=avoid_grasps)
 
     # ---- pick ------------------------------------------------------------------------------------------------------
     def plan_pick(
@@ -272,13 +273,15 @@ class Planner:
         target: ObjectPose | None = None,
         map_points: np.ndarray | None = None,
         place_target: PlaceTarget | Sequence[PlaceTarget] | None = None,
+        avoid_grasps: Sequence[str] = (),
     ) -> PickPlan | PlanningFailure:
         """Pick the best graspable object in `objects` (or `target`): approach, straight grasp-in, lift.
 
         `objects`: every perceived object (all are obstacles, candidates unless `target` is given);
         `map_points`: (N, 3) fused map points in the base frame; those no object or cell surface explains become
         voxel obstacles; `place_target`: when given, only grasps that can also reach that placement (one of
-        them, for a list) are kept (e.g. cups to be inverted into the upper rack need side grasps).
+        them, for a list) are kept (e.g. cups to be inverted into the upper rack need side grasps);
+        `avoid_grasps`: grasp names not to use (those that closed on nothing on this item before).
         """
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
@@ -287,7 +290,8 @@ class Planner:
         t0 = time.perf_counter()
         base_scene = self.scene(objects, map_points)
         grasps = self.select_grasps(q0, objects, target=target, map_points=map_points, place_target=place_target,
-                                    limit=self.settings.max_grasp_candidates, scene=base_scene)
+                                    limit=self.settings.max_grasp_candidates, scene=base_scene,
+                                    avoid_grasps=avoid_grasps)
         timings["grasp_selection_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(grasps, PlanningFailure):
             if target is not None and grasps.kind in ("no_graspable_object", "no_collision_free_grasp"):

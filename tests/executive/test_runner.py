@@ -375,3 +375,39 @@ def test_items_every_plan_failed_for_get_one_harder_round(make_runner, safe_end,
     else:
         assert report.status == "failed" and "1 object(s) left in the sink: cup (cartesian_path_failed)" in report.message
         assert asked.count(before.max_grasp_candidates * HARDER_GRASPS) == M.MAX_PLAN_FAILURES_PER_SCENE
+
+
+def test_a_grasp_that_closed_on_nothing_is_not_tried_again(make_runner, safe_end):
+    """The gripper closes on nothing (grasp_missed): the recovery notes that grasp against the item, and the next
+    pick of it plans another one (the same poses would plan the same grasp, and miss again)."""
+    from kitchenbot.drivers.gripper import GraspResult
+
+    runner, world = make_runner(task="sink-pick")
+    real, gripper = runner.planner, runner.robot.gripper
+    real_grasp = gripper.grasp
+    asked, used = [], []
+
+    class Records:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_pick(self, q, objects, *, target=None, **kw):
+            asked.append(list(kw.get("avoid_grasps", ())))
+            res = real.plan_pick(q, objects, target=target, **kw)
+            if res.ok:
+                used.append(res.grasp.spec.name)
+            return res
+
+    def misses_once(current_limit, *a, **k):
+        if len(used) == 1:  # the first grasp closes on nothing (the item is not where that grasp expects it)
+            return GraspResult(False, 0.0, 0.04)
+        return real_grasp(current_limit, *a, **k)
+
+    runner.planner = Records()
+    gripper.grasp = misses_once
+    report = runner.run()
+    safe_end(runner, world)
+    assert any(f["kind"] == "grasp_missed" for f in report.failures)
+    assert asked[0] == [] and asked[1] == [used[0]]
+    assert used[1].split("_tilt")[0] != used[0].split("_tilt")[0]
+    assert report.truth["end"]["delivered"] == 1, report.message

@@ -74,9 +74,10 @@ class Situation:
         self.pick, self.place, self.slide_ok = pick, place, slide_ok
         self.calls: list[str] = []
 
-    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None):
+    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None, avoid_grasps=()):
         staging = all(t.kind == "stage" for t in place_target)
         self.calls.append("pick:stage" if staging else "pick")
+        self.avoided = list(avoid_grasps)
         return self.pick(staging, self.calls.count("pick"))
 
     def plan_place(self, q, grasp, targets, *, objects=None, map_points=None):
@@ -201,3 +202,18 @@ def test_an_unplaceable_grasp_is_staged_in_the_dishwasher_task(inv):
                         place=lambda targets: _Ok() if targets[0].kind == "stage" else NoFeasiblePlacement("t"))
     plan = plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), counts := {})
     assert plan.strategy == "stage_when_blocked" and counts["direct_pick"] == {"tried": 1, "planned": 0}
+
+
+def test_a_grasp_that_closed_on_nothing_is_not_planned_again_for_that_item(inv):
+    """The same poses plan the same grasp: one that closed on nothing on an item (grasp_missed) is passed to the
+    planner as a grasp to avoid for that item, and for no other."""
+    task, b = make_task("sink-pick", inv, Cell()), Belief()
+    cup, glass = item(inv, "cup"), item(inv, "glass", k=2)
+    glass.T_base_obj[:3, 3] += (0.2, 0.0, 0.0)
+    b.record_missed_grasp(cup, "side_03")
+    b.record_missed_grasp(cup, "side_03")
+    planner = Situation(lambda staging, n: _Ok())
+    plan_item(request(task, b, cup, planner), strategies_for(task), {})
+    assert planner.avoided == ["side_03"]
+    plan_item(request(task, b, glass, planner), strategies_for(task), {})
+    assert planner.avoided == []
