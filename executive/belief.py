@@ -57,6 +57,7 @@ class Attempts:
     plan_failures: int = 0
     plan_epoch: int = -1
     slides: int = 0
+    missed: list = field(default_factory=list)  # grasps (spec names) that closed on nothing here: not tried again
 
     def plan_failed(self, epoch: int) -> None:
         if self.plan_epoch != epoch:
@@ -225,6 +226,13 @@ class Belief:
     def record_failure(self, obj: ObjectPose, reason: str) -> None:
         """An executed attempt on `obj` failed (it is counted when executed)."""
         self.attempts_for(obj, create=True).reasons.append(reason)
+
+    def record_missed_grasp(self, obj: ObjectPose, grasp: str) -> None:
+        """The grasp `grasp` (its spec name) of `obj` closed on nothing: the item is not where that grasp expects
+        it, and the same poses plan the same grasp again; later picks of the item avoid it."""
+        t = self.attempts_for(obj, create=True)
+        if grasp not in t.missed:
+            t.missed.append(grasp)
 
     def give_up_on(self, obj: ObjectPose, reason: str | None = None) -> None:
         """No attempts left for `obj` (e.g. its task has no target for it)."""

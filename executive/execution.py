@@ -14,7 +14,8 @@ import numpy as np
 from kitchenbot.drivers.errors import ProtectiveStopError
 from kitchenbot.executive.belief import Released
 from kitchenbot.executive.failures import StepFailed
-from kitchenbot.executive.strategies import ItemPlan, PlanRequest, plan_item
+from kitchenbot.executive import machine as M
+from kitchenbot.executive.strategies import ItemPlan, PlanRequest, harder_settings, plan_item
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import Trajectory
 
@@ -67,6 +68,28 @@ class Execution:
         if self.recorder is not None:
             self.recorder.plan(pick.trajectories + place.trajectories, self._sim_now())
         return "planned"
+
+    def _try_harder(self, left: list[ObjectPose]) -> bool:
+        """Nothing is left to try but `left` is still in the sink: when some of it only waits because every plan
+        failed in this scene (attempts left, not given up), one more round on it with the planner working harder
+        (strategies.harder_settings), once per run. True when that round starts (the scene counts as changed, so
+        those items are candidates again); counted in the report's recovery_actions as `try_harder`."""
+        b = self.belief
+        if self.planner is None or self.settings_before_harder is not None:
+            return False
+        waiting = [q for q in left if (t := b.attempts_for(q)) is not None and t.plan_failures > 0
+                   and t.count < M.MAX_ATTEMPTS_PER_OBJECT]
+        if not waiting:
+            return False
+        self.settings_before_harder = self.planner.settings  # restored when the run ends (TaskRunner._finish)
+        self.planner.settings = harder_settings(self.planner.settings)
+        b.scene_changed()
+        acts = self.report.recovery_actions
+        acts["try_harder"] = acts.get("try_harder", 0) + 1
+        self._log("note", "one more round with the planner working harder", items=[q.cls for q in waiting],
+                  max_grasp_candidates=self.planner.settings.max_grasp_candidates,
+                  max_occlusion=self.planner.settings.max_occlusion)
+        return True
 
     def _note(self, kind: str, name: str, /, **payload) -> None:
         self._log(kind, name, **payload)

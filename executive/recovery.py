@@ -75,6 +75,8 @@ class RecoveryActions:
             self.belief.record_plan_failure(obj, f.details.get("planning_kind", f.kind))
         elif f.state in ("execute", "verify"):  # counted when executed
             self.belief.record_failure(obj, f.kind)
+            if f.kind == "grasp_missed" and self.item.pick is not None:
+                self.belief.record_missed_grasp(obj, self.item.pick.grasp.spec.name)
 
     def _act_back_off(self, f: Failure, ctx: dict) -> None:
         tr = self.tracks

@@ -118,6 +118,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self.clock = RunClock(state_sim0=self._sim_now())
         self.clock.cycle_t0 = (time.perf_counter(), 0.0, self._sim_now())
         self.table_perceiver = None  # perception without the cell (the counter as a table top), for drop sites
+        self.settings_before_harder = None  # the planner's settings before the last, harder round (Execution._try_harder)
         self.truth_start: dict | None = None
 
     @property
@@ -284,6 +285,8 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
 
     def _finish(self, sim0) -> None:
         rt, st, b = self.report, self.state, self.belief
+        if self.settings_before_harder is not None:  # a planner passed in may plan the next run
+            self.planner.settings, self.settings_before_harder = self.settings_before_harder, None
         rt.status = {"done": "succeeded", "stopped": "stopped"}.get(st, "failed")
         if st == "stopped":
             rt.message = rt.message or "stopped on request"

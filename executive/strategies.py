@@ -77,13 +77,16 @@ def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) ->
     q = req.joints()
     others = [p for p in req.scene_objs
               if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
+    t = b.attempts_for(obj)
+    missed = list(t.missed) if t is not None else []  # grasps that closed on nothing on this item
     failed: list[str] = []  # grasps whose place did not plan
     first: PlanFailure | None = None
     for _ in range(PLACE_GRASPS):
         req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
-                 **({"staging": True} if staging else {}), **({"without": list(failed)} if failed else {}))
+                 **({"staging": True} if staging else {}), **({"without": missed + failed} if missed or failed else {}))
+        avoid = missed + failed
         pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets,
-                                     **({"exclude_grasps": tuple(failed)} if failed else {}))
+                                     **({"avoid_grasps": tuple(avoid)} if avoid else {}))
         req.check_deadline()
         if not pick.ok:
             # the first place failure says more than "no other grasp" after it
@@ -286,6 +289,25 @@ def plan_item(req: PlanRequest, strategies: list[Strategy], counts: dict) -> Ite
             c["planned"] += 1
             blocking = f.blocking
     raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking)
+
+
+# The last round on the items every plan failed for (Execution._try_harder): more grasps tried per pick (the
+# first few of a crowded item often all have their lifts blocked), items seen less are still candidates (one
+# hidden beside others, with nothing on it, is not seen better by waiting), and RRT-Connect gets more work.
+HARDER_GRASPS = 3  # x max_grasp_candidates
+HARDER_MAX_OCCLUSION = 0.85  # hidden fraction still planned (settings.max_occlusion is the first rounds')
+HARDER_RRT = 4  # x planner_max_iterations (or x planner_timeout on wall-clock budgets)
+
+
+def harder_settings(s):
+    """PlanningSettings for the last round (see HARDER_*): a copy, `s` is not changed."""
+    up = {"max_grasp_candidates": min(100, s.max_grasp_candidates * HARDER_GRASPS),
+          "max_occlusion": max(s.max_occlusion, HARDER_MAX_OCCLUSION)}
+    if s.planner_max_iterations is not None:
+        up["planner_max_iterations"] = s.planner_max_iterations * HARDER_RRT
+    else:
+        up["planner_timeout"] = min(60.0, s.planner_timeout * HARDER_RRT)
+    return s.model_copy(update=up)
 
 
 def strategies_markdown(tasks: dict) -> str:

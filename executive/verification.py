@@ -48,6 +48,9 @@ class Verification:
             self.counts.empty_scans = 0
             return "next_object"
         left = self.task.remaining(b.poses)
+        if left and self._try_harder(left):
+            self.counts.empty_scans = 0
+            return "next_object"
         if left:
             why = []
             for q in left:

@@ -189,6 +189,7 @@ def select_grasps(
     grasp_filter=None,
     stats: GraspStats | None = None,
     limit: int | None = None,
+    avoid: Sequence[str] = (),
 ) -> list[Grasp] | PlanningFailure:
     """Ranked feasible grasps (best first), or the failure that explains why there are none.
 
@@ -196,7 +197,8 @@ def select_grasps(
     (the ranking is then among those).
 
     `scene` holds every perceived object as ``obj:<object_name>``; `grasp_filter(obj, spec, T_base_tcp) -> bool`
-    is an extra predicate (e.g. the placement must be reachable with this grasp).
+    is an extra predicate (e.g. the placement must be reachable with this grasp). `avoid`: grasp names not to use,
+    with their tilted variants (expand_grasps): a grasp that closed on nothing closes on nothing tilted by 5 degrees.
     """
     st = stats or GraspStats()
     gripper = scene.world.gripper
@@ -207,6 +209,7 @@ def select_grasps(
         cands = [(len(objects), target)]
         names.append(object_name(target, len(objects)))
     max_hidden = float(settings.max_occlusion)
+    avoid_base = {a.split("_tilt")[0] for a in avoid}
     out: list[Grasp] = []
     any_model = False
     req = coal.CollisionRequest()
@@ -228,6 +231,8 @@ def select_grasps(
             continue
         any_model = True
         for spec in specs:
+            if avoid and spec.name.split("_tilt")[0] in avoid_base:
+                continue
             st.considered += 1
             T = np.asarray(o.T_base_obj, float) @ spec.T_obj_tcp
             if T[2, 2] > settings.max_approach_up:

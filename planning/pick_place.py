@@ -240,10 +240,10 @@ class Planner:
         stats: GraspStats | None = None,
         limit: int | None = None,
         scene: Scene | None = None,
-        exclude: Sequence[str] = (),
+        avoid_grasps: Sequence[str] = (),
     ) -> list[Grasp] | PlanningFailure:
         """Ranked feasible grasps (best first) over `objects` (or only `target`); `limit`: stop checking once
-        that many are feasible; `exclude`: grasp names not to offer (ones whose place plan failed)."""
+        that many are feasible; `avoid_grasps`: grasp names not to use, with their tilted variants (planning.grasps.select_grasps)."""
         q = self._check_q(q_current, "q_current")
         if isinstance(q, PlanningFailure):
             return q
@@ -279,14 +279,8 @@ class Planner:
                         self._placeable.clear()
                 return self._placeable[key]
 
-        if exclude:
-            reach = flt
-
-            def flt(obj, spec, T_base_tcp):
-                return spec.name not in exclude and (reach is None or reach(obj, spec, T_base_tcp))
-
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
-                             target=target, grasp_filter=flt, stats=stats, limit=limit)
+                             target=target, grasp_filter=flt, stats=stats, limit=limit, avoid=avoid_grasps)
 
     # ---- pick ------------------------------------------------------------------------------------------------------
     def plan_pick(
@@ -297,7 +291,7 @@ class Planner:
         target: ObjectPose | None = None,
         map_points: np.ndarray | None = None,
         place_target: PlaceTarget | Sequence[PlaceTarget] | None = None,
-        exclude_grasps: Sequence[str] = (),
+        avoid_grasps: Sequence[str] = (),
     ) -> PickPlan | PlanningFailure:
         """Pick the best graspable object in `objects` (or `target`): approach, straight grasp-in, lift.
 
@@ -305,7 +299,8 @@ class Planner:
         `map_points`: (N, 3) fused map points in the base frame; those no object or cell surface explains become
         voxel obstacles; `place_target`: when given, only grasps that can also reach that placement (one of
         them, for a list) are kept (e.g. cups to be inverted into the upper rack need side grasps);
-        `exclude_grasps`: grasp names not to use (the place plan failed with them).
+        `avoid_grasps`: grasp names not to use, with their tilted variants (those that closed on nothing on this item
+        before, or whose place did not plan).
         """
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
@@ -315,7 +310,7 @@ class Planner:
         base_scene = self.scene(objects, map_points)
         grasps = self.select_grasps(q0, objects, target=target, map_points=map_points, place_target=place_target,
                                     limit=self.settings.max_grasp_candidates, scene=base_scene,
-                                    exclude=exclude_grasps)
+                                    avoid_grasps=avoid_grasps)
         timings["grasp_selection_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(grasps, PlanningFailure):
             if target is not None and grasps.kind in ("no_graspable_object", "no_collision_free_grasp"):

@@ -121,8 +121,12 @@ class SinkPick(Task):
             if T is None:
                 continue
             lo, hi, _ = footprint(model, T)
+            pile_lo, pile_hi = np.min([p.lo for p in pile], 0), np.max([p.hi for p in pile], 0)
             others = [p for p in zone_items if not any(p is q for q in pile)]
-            if any(np.all(lo < p.hi) and np.all(hi > p.lo) for p in others):
+            # an item no wider than the pile below covers nothing the pile does not already (a neighbour set down
+            # turned, its box grazing the pile's, does not close the pile to the next plate of its size)
+            wider = not (np.all(lo >= pile_lo - 1e-3) and np.all(hi <= pile_hi + 1e-3))
+            if wider and any(np.all(lo < p.hi) and np.all(hi > p.lo) for p in others):
                 continue  # a bigger item on a smaller pile would overhang its neighbours
             out.append((rank, T[2, 3], T))
         return [T for _, _, T in sorted(out, key=lambda r: (r[0], r[1]))]

@@ -33,10 +33,10 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
 
 
-def write_own_dishware(folder):
+def write_own_dishware(folder, cup: bool = False):
     """A BOP models/ folder of dishware this project has never seen, made here from parametric profiles: meshes
-    (mm) and models_info.json with diameters only (no classes, no grasps, no symmetries). Returns
-    {obj_id: (name, expected class)}."""
+    (mm) and models_info.json with diameters only (no classes, no grasps, no symmetries). `cup`: also a handle-less
+    teacup (class cup: what cup-stacking takes). Returns {obj_id: (name, expected class)}."""
     from kitchenbot.world.dishware import DishSpec, _bowl_body, _plate, _vessel, build_mesh
     from kitchenbot.world.inventory import Inventory, ObjectModel, _diameter
 
@@ -49,6 +49,9 @@ def write_own_dishware(folder):
                                        _bowl_body(0.036, 0.072, 0.088, 0.008, belly=0.006), 0.004,
                                        foot=(0.031, 0.005, 0.008))),
     ]
+    if cup:  # tapered (it nests in its own kind), wider and shorter than the builtin cup
+        specs.append(("teacup", "cup", DishSpec("teacup", "?", (0.55, 0.35, 0.60), _vessel(0.026, 0.040, 0.078),
+                                                0.003)))
     models = []
     for i, (name, _, spec) in enumerate(specs, start=1):
         mesh = build_mesh(spec)

@@ -341,3 +341,79 @@ def test_an_item_staged_where_another_was_starts_with_no_attempts(make_runner):
     assert len(b.staged) == 1
     t = b.attempts_for(as_pose(b.staged[0]))
     assert t is None or not t.exhausted(b.scene_epoch)
+
+
+@pytest.mark.parametrize("plans_harder", [True, False])
+def test_items_every_plan_failed_for_get_one_harder_round(make_runner, safe_end, plans_harder):
+    """A cup whose first grasps all have their lift blocked (the planner tries max_grasp_candidates of them) is
+    left waiting once nothing else changes the scene. Before giving up, one more round with the planner working
+    harder (more grasps, more RRT work, items seen less still planned): here the cup plans then. Where it does not,
+    the run ends once, saying what is left and why, and the planner's settings are as before."""
+    from kitchenbot.executive import machine as M
+    from kitchenbot.executive.strategies import HARDER_GRASPS
+    from kitchenbot.planning.types import CartesianPathFailed
+
+    runner, world = make_runner(task="sink-pick")
+    real = runner.planner
+    before = real.settings
+    asked = []
+
+    class FirstGraspsBlocked:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_pick(self, q, objects, *, target=None, **kw):
+            s = self.__dict__.get("settings", before)
+            asked.append(s.max_grasp_candidates)
+            if not plans_harder or s.max_grasp_candidates < before.max_grasp_candidates * HARDER_GRASPS:
+                return CartesianPathFailed("test: lift: straight line collides (held/cell:sink_wall_left)")
+            return real.plan_pick(q, objects, target=target, **kw)
+
+    runner.planner = FirstGraspsBlocked()
+    report = runner.run()
+    safe_end(runner, world)
+    assert report.recovery_actions.get("try_harder") == 1
+    assert set(asked) == {before.max_grasp_candidates, before.max_grasp_candidates * HARDER_GRASPS}
+    assert runner.planner.settings is before  # restored when the run ended
+    if plans_harder:
+        assert report.status == "succeeded", report.message
+        assert report.truth["end"]["delivered"] == 1
+    else:
+        assert report.status == "failed" and "1 object(s) left in the sink: cup (cartesian_path_failed)" in report.message
+        assert asked.count(before.max_grasp_candidates * HARDER_GRASPS) == M.MAX_PLAN_FAILURES_PER_SCENE
+
+
+def test_a_grasp_that_closed_on_nothing_is_not_tried_again(make_runner, safe_end):
+    """The gripper closes on nothing (grasp_missed): the recovery notes that grasp against the item, and the next
+    pick of it plans another one (the same poses would plan the same grasp, and miss again)."""
+    from kitchenbot.drivers.gripper import GraspResult
+
+    runner, world = make_runner(task="sink-pick")
+    real, gripper = runner.planner, runner.robot.gripper
+    real_grasp = gripper.grasp
+    asked, used = [], []
+
+    class Records:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_pick(self, q, objects, *, target=None, **kw):
+            asked.append(list(kw.get("avoid_grasps", ())))
+            res = real.plan_pick(q, objects, target=target, **kw)
+            if res.ok:
+                used.append(res.grasp.spec.name)
+            return res
+
+    def misses_once(current_limit, *a, **k):
+        if len(used) == 1:  # the first grasp closes on nothing (the item is not where that grasp expects it)
+            return GraspResult(False, 0.0, 0.04)
+        return real_grasp(current_limit, *a, **k)
+
+    runner.planner = Records()
+    gripper.grasp = misses_once
+    report = runner.run()
+    safe_end(runner, world)
+    assert any(f["kind"] == "grasp_missed" for f in report.failures)
+    assert asked[0] == [] and asked[1] == [used[0]]
+    assert used[1].split("_tilt")[0] != used[0].split("_tilt")[0]
+    assert report.truth["end"]["delivered"] == 1, report.message

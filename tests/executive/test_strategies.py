@@ -74,11 +74,12 @@ class Situation:
         self.pick, self.place, self.slide_ok = pick, place, slide_ok
         self.calls: list[str] = []
 
-    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None, exclude_grasps=()):
+    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None, avoid_grasps=()):
         staging = all(t.kind == "stage" for t in place_target)
         self.calls.append("pick:stage" if staging else "pick")
+        self.avoided = list(avoid_grasps)
         r = self.pick(staging, self.calls.count("pick"))
-        if r.ok and r.grasp.spec.name in exclude_grasps:  # a real planner offers the next grasp, if any
+        if r.ok and r.grasp.spec.name in avoid_grasps:  # a real planner offers the next grasp, if any
             return NoFeasiblePlacement("test: no other grasp reaches a target")
         return r
 
@@ -263,3 +264,18 @@ def test_an_unplaceable_grasp_is_staged_in_the_dishwasher_task(inv):
                         place=lambda targets: _Ok() if targets[0].kind == "stage" else NoFeasiblePlacement("t"))
     plan = plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), counts := {})
     assert plan.strategy == "stage_when_blocked" and counts["direct_pick"] == {"tried": 1, "planned": 0}
+
+
+def test_a_grasp_that_closed_on_nothing_is_not_planned_again_for_that_item(inv):
+    """The same poses plan the same grasp: one that closed on nothing on an item (grasp_missed) is passed to the
+    planner as a grasp to avoid for that item, and for no other."""
+    task, b = make_task("sink-pick", inv, Cell()), Belief()
+    cup, glass = item(inv, "cup"), item(inv, "glass", k=2)
+    glass.T_base_obj[:3, 3] += (0.2, 0.0, 0.0)
+    b.record_missed_grasp(cup, "side_03")
+    b.record_missed_grasp(cup, "side_03")
+    planner = Situation(lambda staging, n: _Ok())
+    plan_item(request(task, b, cup, planner), strategies_for(task), {})
+    assert planner.avoided == ["side_03"]
+    plan_item(request(task, b, glass, planner), strategies_for(task), {})
+    assert planner.avoided == []

@@ -128,3 +128,17 @@ def test_stacking_raises_by_the_nesting_height(planner, resting):
     t = stack_target(cup, base)
     np.testing.assert_allclose(t.T_base_obj[:3, :3], base.T_base_obj[:3, :3])
     assert t.T_base_obj[2, 3] - base.T_base_obj[2, 3] == pytest.approx(h + DROP_HEIGHT)
+
+
+def test_grasps_to_avoid_are_not_planned_nor_their_tilted_variants(planner, home, resting):
+    """plan_pick(avoid_grasps=...): a grasp that closed on nothing on this item is not used again, nor its tilted
+    variants (expand_grasps: the same pinch from a 5-50 degree different direction)."""
+    cup = resting("cup", (0.50, -0.02), 1)
+    first = planner.plan_pick(home, [cup], target=cup)
+    assert first.ok, first
+    name = first.grasp.spec.name.split("_tilt")[0]
+    again = planner.plan_pick(home, [cup], target=cup, avoid_grasps=[first.grasp.spec.name])
+    assert again.ok, again
+    assert again.grasp.spec.name.split("_tilt")[0] != name
+    grasps = planner.select_grasps(home, [cup], target=cup, avoid_grasps=[name])
+    assert grasps and all(g.spec.name.split("_tilt")[0] != name for g in grasps)

@@ -176,3 +176,46 @@ def test_an_item_that_fell_into_the_drop_zone_is_done_where_it_lies_elsewhere_no
     assert not task.accepts_as_it_lies(ObjectPose(cup.obj_id, "cup", beside, 1.0))
     for name in ("sink-to-dishwasher", "cup-stacking"):
         assert not make_task(name, inv, cell).accepts_as_it_lies(ObjectPose(cup.obj_id, "cup", lying, 1.0))
+
+
+def test_a_neighbour_grazing_a_pile_does_not_close_it_to_an_item_of_its_size(inv):
+    """A mug set down turned beside a dinner-plate pile: its box grazes the pile's. The next dinner plate still
+    nests on the pile (it covers nothing the pile does not), while a bigger plate on a smaller pile would overhang
+    the mug and is not offered there."""
+    task = make_task("sink-pick", inv, Cell())
+    belief = Belief()
+    dinner = [in_sink(inv, "dinner_plate", k) for k in range(2)]
+    mug = in_sink(inv, "mug", 5)
+    belief.pending = task.pending_models([*dinner, mug])
+    t = task.targets(dinner[0], belief)[0]
+    belief.record_placed(task, dinner[0], t, t.T_base_obj)
+    pile = belief.placed[0]
+    # the mug turned by 45 degrees beside the pile (in the zone), its box reaching 5 mm into the pile's
+    from kitchenbot.tasks.base import footprint
+    from kitchenbot.transforms import rot_z
+
+    m = inv.by_name("mug")
+    R = rot_z(np.pi / 4)[:3, :3]
+    half = footprint(m, make_T(R))[1]
+    T_mug = make_T(R, (pile.lo[0] - half[0] + 0.005, pile.T_base_obj[1, 3], pile.T_base_obj[2, 3]))
+    belief.record_placed(task, mug, t, T_mug)
+    assert _overlap(belief.placed[1], pile) and task._in_zone(belief.placed[1])
+    belief.pending = task.pending_models([dinner[1]])
+    on_pile = [nt for nt in task.targets(dinner[1], belief)
+               if np.allclose(nt.T_base_obj[:2, 3], pile.T_base_obj[:2, 3]) and "pile" in nt.support]
+    assert on_pile, "the dinner plate pile was closed by a neighbour that only grazes it"
+    # a side-plate pile with the same neighbour: a dinner plate on it would overhang the mug
+    task = make_task("sink-pick", inv, Cell())
+    belief = Belief()
+    side = in_sink(inv, "side_plate", 0)
+    belief.pending = task.pending_models([side])
+    t = task.targets(side, belief)[0]
+    belief.record_placed(task, side, t, t.T_base_obj)
+    pile = belief.placed[0]
+    half = footprint(m, make_T(np.eye(3)))[1]
+    T_mug = make_T(np.eye(3), (pile.lo[0] - half[0] - 0.01, pile.T_base_obj[1, 3], pile.T_base_obj[2, 3]))
+    belief.record_placed(task, mug, t, T_mug)
+    assert not _overlap(belief.placed[1], pile) and task._in_zone(belief.placed[1])
+    belief.pending = task.pending_models([dinner[0]])
+    assert not [nt for nt in task.targets(dinner[0], belief)
+                if np.allclose(nt.T_base_obj[:2, 3], pile.T_base_obj[:2, 3])]
