@@ -45,7 +45,7 @@ FINE_TOL_NOISE = 4.0
 # The fine share at which a pose counts as fully explained: right fits of items seen whole put 0.85-0.98 of
 # their points within the tolerance, slivers of occluded ones (a nested cup's rim, a stacked plate's edge)
 # 0.5-0.8 (their fits are a few millimetres off); drink cans and bottles fitted as cups and glasses 0.2-0.8,
-# boxes fitted as mugs 0.1-0.5 (dev seeds 100-107 and 200-207, docs/perception.md).
+# boxes fitted as mugs 0.1-0.5 (development scenes with distractors, docs/perception.md).
 FINE_FULL = 0.6
 
 
