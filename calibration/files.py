@@ -32,6 +32,7 @@ import yaml
 
 from kitchenbot.calibration.park_martin import MOUNTS, X_NAME
 from kitchenbot.calibration.residuals import HandEyeResult
+from kitchenbot.jsonfile import read_json
 from kitchenbot.transforms import is_rigid
 
 class CalibrationFileError(ValueError):
@@ -103,12 +104,7 @@ def load_hand_eye(path: str | Path, key: str = "T_flange_cam") -> np.ndarray:
 def load_samples(path: str | Path) -> tuple[str, list[np.ndarray], list[np.ndarray]]:
     """(mount, T_base_flange list, T_cam_board list) from a recorded-samples JSON."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as e:
-        raise CalibrationFileError(f"{path}: cannot read the samples file ({e.strerror})") from None
-    except json.JSONDecodeError as e:
-        raise CalibrationFileError(f"{path}: not valid JSON: {e}") from None
+    doc = read_json(path, CalibrationFileError, "the samples file")
     if not isinstance(doc, dict):
         raise CalibrationFileError(f"{path}: expected an object with 'mount' and 'samples'")
     mount = doc.get("mount")
@@ -164,7 +160,7 @@ def save_samples(path: str | Path, mount: str, T_base_flange: list[np.ndarray], 
 def load_corners(path: str | Path) -> Corners | None:
     """The corner measurements of a samples file, or None when it has none (`K` absent)."""
     path = Path(path)
-    doc = json.loads(path.read_text())
+    doc = read_json(path, CalibrationFileError, "the samples file")
     if not isinstance(doc, dict) or doc.get("K") is None:
         return None
     K = np.asarray(doc["K"], dtype=np.float64)

@@ -24,6 +24,7 @@ import numpy as np
 
 from kitchenbot.drivers.camera import Camera, Frame
 from kitchenbot.drivers.errors import DriverError
+from kitchenbot.jsonfile import read_json
 
 DEPTH_SCALE_M = 0.001  # one PNG unit = 1 mm
 FORMAT_VERSION = 1
@@ -74,12 +75,7 @@ def _matrix(value, shape: tuple[int, int], what: str, path: Path) -> np.ndarray:
 def load_capture(json_path: str | Path) -> Capture:
     """Read one capture (its JSON and the two PNGs it names); every problem names the file."""
     path = Path(json_path)
-    try:
-        meta = json.loads(path.read_text())
-    except OSError as e:
-        raise RecordingError(f"{path}: cannot read capture metadata ({e.strerror})") from None
-    except json.JSONDecodeError as e:
-        raise RecordingError(f"{path}: not valid JSON ({e})") from None
+    meta = read_json(path, RecordingError, "capture metadata")
     if not isinstance(meta, dict):
         raise RecordingError(f"{path}: expected a JSON object, got {type(meta).__name__}")
     for key in ("rgb", "depth", "K", "stamp"):

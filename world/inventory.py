@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from kitchenbot.jsonfile import read_json
 from kitchenbot.transforms import check_rigid, make_T
 from kitchenbot.world.dishware import BUILTIN_DISHES, DishSpec, build_mesh
 from kitchenbot.world.shape import CLASSES, classify
@@ -200,10 +201,7 @@ class Inventory:
         info_path = models_dir / "models_info.json"
         if not info_path.is_file():
             raise InventoryError(f"{info_path}: missing; a BOP models/ folder needs models_info.json")
-        try:
-            info = json.loads(info_path.read_text())
-        except json.JSONDecodeError as e:
-            raise InventoryError(f"{info_path}: not valid JSON ({e})") from None
+        info = read_json(info_path, InventoryError, "models_info.json")
         extra = _read_grasps(Path(grasps_file)) if grasps_file else {}
         models = []
         for key, rec in sorted(info.items(), key=lambda kv: int(kv[0])):
@@ -300,12 +298,7 @@ def _mesh_colour(mesh: o3d.geometry.TriangleMesh) -> tuple[float, float, float]:
 
 
 def _read_grasps(path: Path) -> dict[int, dict]:
-    try:
-        data = json.loads(path.read_text())
-    except OSError as e:
-        raise InventoryError(f"{path}: cannot read the grasps file ({e.strerror})") from None
-    except json.JSONDecodeError as e:
-        raise InventoryError(f"{path}: not valid JSON ({e})") from None
+    data = read_json(path, InventoryError, "the grasps file")
     if data.get("units", "m") != "m":
         raise InventoryError(f"{path}: 'units' must be \"m\"")
     out: dict[int, dict] = {}
