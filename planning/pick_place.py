@@ -81,6 +81,7 @@ class Planner:
         )
         self._placeable: dict = {}  # (obj_id, grasp name, targets) -> a release pose exists
         self._place_reach = PlaceReach(robot, self.world)  # release-pose geometry, kept across queries
+        self._turns_cache: dict = {}  # (obj_id, target pose, ...) -> the turns _place_turns allows
         self._voxel_cache: dict = {}
         # OMPL's check step must stay below twice the margin (see planning.motion); never above it.
         self.planning_resolution = min(s.planning_resolution, max(2 * s.collision_margin - 0.002, s.validity_resolution))
@@ -270,8 +271,8 @@ class Planner:
                 if key not in self._placeable:
                     others = self._scene_objects(objects, exclude=obj)
                     held = Held(self.inventory[obj.obj_id], inv(spec.T_obj_tcp), spec.width)
-                    release = self.world.scene(others, voxels, held).for_release(None)
                     pre = self.world.scene(others, voxels, held)  # full margins above the release (plan_place)
+                    release = pre.for_release(None)  # a variant of it: the same geometry, the grasp margins
                     self._placeable[key] = any(
                         self._place_tcp_options(t, spec.T_obj_tcp, q, release, first_only=True, obj_id=obj.obj_id,
                                                 pre_scene=pre)
@@ -542,6 +543,16 @@ class Planner:
     # ---- place -----------------------------------------------------------------------------------------------------
     def _place_turns(self, target: PlaceTarget, obj_id: int) -> list[np.ndarray]:
         """Object-frame rotations (4x4, applied as T_base_obj @ R) the planner may use for this target."""
+        key = (obj_id, np.asarray(target.T_base_obj, float).tobytes(), bool(target.free_yaw), target.flip_ok,
+               target.kind)
+        hit = self._turns_cache.get(key)
+        if hit is None:
+            if len(self._turns_cache) > 2000:
+                self._turns_cache.clear()
+            hit = self._turns_cache[key] = self._place_turns_uncached(target, obj_id)
+        return hit
+
+    def _place_turns_uncached(self, target: PlaceTarget, obj_id: int) -> list[np.ndarray]:
         model = self.inventory.models.get(obj_id)
         sym = model is not None and model.is_rotationally_symmetric
         T_obj = np.asarray(target.T_base_obj, float)
@@ -579,17 +590,19 @@ class Planner:
         one numerically found branch per pose they did not (a grasp chosen for its reachable release, then
         ``no_feasible_placement`` in plan_place)."""
         T_obj = np.asarray(target.T_base_obj, float)
-        if obj_id is not None:
-            turns = self._place_turns(target, obj_id)
-        else:
-            turns = [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if target.free_yaw else [np.eye(4)]
+
+        def turns() -> list[np.ndarray]:
+            if obj_id is not None:
+                return self._place_turns(target, obj_id)
+            return [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if target.free_yaw else [np.eye(4)]
+
         c = float(max(target.clearance, 0.0))
         raises = np.arange(c, c + self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else np.array([c])
         up = target.approach_distance if target.approach_distance is not None else self.settings.approach_distance
         # the geometry (IK branches, checks against the cell alone) is kept across queries: planning/place_reach.py
         T_obj_tcp = np.asarray(T_obj_tcp, float)
         key = (obj_id, T_obj_tcp.tobytes(), T_obj.tobytes(), bool(target.free_yaw), target.flip_ok, target.kind,
-               len(turns), raises.tobytes(), float(up), float(self.settings.max_approach_up))
+               raises.tobytes(), float(up), float(self.settings.max_approach_up))
         return self._place_reach.options(key, turns, T_obj, T_obj_tcp, raises, up, self.settings.max_approach_up,
                                          np.asarray(q_ref, float), release_scene, pre_scene, first_only)
 

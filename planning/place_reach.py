@@ -18,13 +18,14 @@ is solved numerically from the query's configuration each time, as before (rare)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from kitchenbot.planning.collision import CollisionWorld, Scene
 from kitchenbot.planning.robot import RobotModel
-from kitchenbot.planning.ur_ik import ik_flange
+from kitchenbot.planning.ur_ik import ik_flange_batch
 from kitchenbot.transforms import trans
 
 # Entries kept before the cache is emptied (one entry: one item model, grasp and target; a few kB each).
@@ -32,18 +33,28 @@ MAX_ENTRIES = 4000
 
 
 @dataclass
+class _Candidate:
+    """One IK branch of a release pose that the cell alone leaves free (canonical joints)."""
+
+    q: np.ndarray
+    pre_free: bool | None = None  # its pre-place pose reachable and free of the cell; None: not checked yet
+    q_pre: np.ndarray | None = None  # that pre-place configuration (from q)
+
+
+@dataclass
 class _Pose:
-    """One candidate release pose (one raise, one turn) and its IK branches that the cell leaves free."""
+    """One candidate release pose (one raise, one turn)."""
 
     T_obj: np.ndarray
     T_tcp: np.ndarray
-    branches: list[np.ndarray] | None = None  # canonical joints; None: not computed yet
+    branches: list[_Candidate] = field(default_factory=list)
     numeric: bool = False  # no closed-form branch but within reach: numerical IK per query
 
 
 @dataclass
 class _Entry:
-    raises: list[list[_Pose]] = field(default_factory=list)  # lowest release first; per raise, the turns
+    raises: list[list[_Pose] | None]  # lowest release first; per raise, the turns (None: not solved yet)
+    live: list[np.ndarray]  # the target's turns whose approach is from above
 
 
 class PlaceReach:
@@ -76,27 +87,39 @@ class PlaceReach:
         wrist = T_base_tcp[:3, 3] - T_base_tcp[:3, :3] @ self.robot.T_flange_tcp[:3, 3]
         return bool(np.linalg.norm(wrist - np.array([0.0, 0.0, ur.d[0]])) <= reach)
 
-    def _solve(self, pose: _Pose, cell_release: Scene | None, cell_pre: Scene | None, up: float) -> None:
-        """The pose's closed-form IK branches (canonical) that the cell leaves free, with a free pre-place."""
-        self.stats["poses_solved"] += 1
+    def _solve_row(self, entry: _Entry, i: int, dz: float, T_obj_tcp: np.ndarray, cell_release: Scene | None) -> list[_Pose]:
+        """Raise `i` of an entry: every turn's closed-form IK branches at once (planning.ur_ik.ik_flange_batch),
+        those the cell alone leaves free (one batched check)."""
         robot = self.robot
-        T_flange = pose.T_tcp @ np.linalg.inv(robot.T_flange_tcp)
-        zero = np.zeros(6)
-        raw = [q for q in (robot.wrap_near(q, zero) for q in ik_flange(robot.ur, T_flange)) if q is not None]
-        pose.numeric = not raw and self._within_reach(pose.T_tcp)
-        out = []
-        for q in raw:
-            if cell_release is not None and not cell_release.valid(q):
-                continue
-            if cell_pre is not None:
-                q_pre = robot.ik_q(trans(0.0, 0.0, up) @ pose.T_tcp, q, max_seeds=0)
-                if q_pre is None or not cell_pre.valid(q_pre):
-                    continue
-            out.append(q)
-        pose.branches = out
+        rows = [trans(0.0, 0.0, float(dz)) @ To0 for To0 in entry.live]
+        poses = [_Pose(To, To @ T_obj_tcp) for To in rows]
+        entry.raises[i] = poses
+        if not poses:
+            return poses
+        self.stats["poses_solved"] += len(poses)
+        T_flange = np.array([p.T_tcp for p in poses]) @ np.linalg.inv(robot.T_flange_tcp)
+        Q, ok = ik_flange_batch(robot.ur, T_flange)
+        idx = np.argwhere(ok)
+        Qc = Q[ok]  # canonical: angles in [-pi, pi); those outside the limits wrapped near zero
+        inside = np.all((Qc >= robot.lower - 1e-9) & (Qc <= robot.upper + 1e-9), axis=1)
+        keep = np.ones(len(Qc), bool)
+        for k in np.flatnonzero(~inside):
+            w = robot.wrap_near(Qc[k], np.zeros(6))
+            if w is None:
+                keep[k] = False
+            else:
+                Qc[k] = w
+        if cell_release is not None and keep.any():
+            keep[keep] = cell_release.valid_batch(Qc[keep])
+        for (pi, _), q, k in zip(idx, Qc, keep):
+            if k:
+                poses[pi].branches.append(_Candidate(q))
+        for pose, any_branch in zip(poses, ok.any(axis=1)):
+            pose.numeric = not any_branch and self._within_reach(pose.T_tcp)
+        return poses
 
     # ---- queries -----------------------------------------------------------------------------------------------
-    def options(self, key: tuple, turns: list[np.ndarray], T_target: np.ndarray, T_obj_tcp: np.ndarray,
+    def options(self, key: tuple, turns: Callable[[], list[np.ndarray]], T_target: np.ndarray, T_obj_tcp: np.ndarray,
                 raises: np.ndarray, up: float, max_approach_up: float, q_ref: np.ndarray,
                 release_scene: Scene | None, pre_scene: Scene | None,
                 first_only: bool) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -116,29 +139,35 @@ class PlaceReach:
         if entry is None:
             if len(self._entries) >= MAX_ENTRIES:
                 self._entries.clear()
-            entry = self._entries[key] = _Entry()
-            live = [T_target @ Rt for Rt in turns if (T_target @ Rt @ T_obj_tcp)[2, 2] <= max_approach_up]
-            for dz in raises:
-                row = []
-                for To0 in live:
-                    To = trans(0.0, 0.0, float(dz)) @ To0
-                    row.append(_Pose(To, To @ T_obj_tcp))
-                entry.raises.append(row)
+            live = [T_target @ Rt for Rt in turns() if (T_target @ Rt @ T_obj_tcp)[2, 2] <= max_approach_up]
+            entry = self._entries[key] = _Entry([None] * len(raises), live)
         out = []
-        for row in entry.raises:  # lowest release first, over all turns
+        for i, dz in enumerate(raises):  # lowest release first, over all turns
+            row = entry.raises[i]
+            if row is None:
+                row = self._solve_row(entry, i, dz, T_obj_tcp, cell_release)
             for pose in row:
-                if pose.branches is None:
-                    self._solve(pose, cell_release, cell_pre, up)
                 if pose.numeric:
                     q = robot.ik_q(pose.T_tcp, q_ref, max_seeds=2, max_iter=40)
-                    cands = [] if q is None else [q]
+                    cands = [] if q is None else [(None, q)]
+                elif pose.branches:
+                    W = _wrap_rows(robot, np.array([c.q for c in pose.branches]), q_ref)
+                    cands = list(zip(pose.branches, W))
                 else:
-                    cands = [q for q in (robot.wrap_near(q, q_ref) for q in pose.branches) if q is not None]
-                for q in cands:
-                    if release_scene is not None and not release_scene.valid(q):
+                    continue
+                for c, q in cands:
+                    if q is None or (release_scene is not None and not release_scene.valid(q)):
                         continue
                     if pre_scene is not None:
-                        q_pre = robot.ik_q(trans(0.0, 0.0, up) @ pose.T_tcp, q, max_seeds=0)
+                        if c is not None and c.pre_free is None:  # checked once against the cell alone
+                            c.q_pre = robot.ik_q(trans(0.0, 0.0, up) @ pose.T_tcp, c.q, max_seeds=0)
+                            c.pre_free = c.q_pre is not None and (cell_pre is None or cell_pre.valid(c.q_pre))
+                        if c is not None and not c.pre_free:
+                            continue
+                        if c is not None and np.array_equal(q, c.q):
+                            q_pre = c.q_pre
+                        else:
+                            q_pre = robot.ik_q(trans(0.0, 0.0, up) @ pose.T_tcp, q, max_seeds=0)
                         if q_pre is None or not pre_scene.valid(q_pre):
                             continue
                     out.append((pose.T_obj, pose.T_tcp, q))
@@ -155,3 +184,18 @@ class PlaceReach:
         h = scene.held
         held = (None,) if h is None else (id(h.model), np.asarray(h.T_tcp_obj, float).tobytes(), float(h.width))
         return held + (round(float(scene.opening), 6),)
+
+
+_TURNS = np.array([0.0, -1.0, 1.0, -2.0, 2.0])
+
+
+def _wrap_rows(robot: RobotModel, Q: np.ndarray, ref: np.ndarray) -> list[np.ndarray | None]:
+    """RobotModel.wrap_near for each row of Q (N, 6) at once (None where a joint has no value inside the limits)."""
+    k0 = np.round((ref - Q) / (2 * np.pi))
+    cand = Q[:, None, :] + 2 * np.pi * (k0[:, None, :] + _TURNS[None, :, None])  # (N, 5, 6)
+    ok = (cand >= robot.lower - 1e-9) & (cand <= robot.upper + 1e-9)
+    dist = np.where(ok, np.abs(cand - ref), np.inf)
+    out = np.take_along_axis(cand, np.argmin(dist, axis=1)[:, None, :], axis=1)[:, 0, :]
+    out = np.clip(out, robot.lower, robot.upper)
+    good = ok.any(axis=1).all(axis=1)
+    return [q if g else None for q, g in zip(out, good)]
