@@ -28,8 +28,8 @@ from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.ur_ik import ik_flange_batch
 from kitchenbot.transforms import trans
 
-# Entries kept before the cache is emptied (one entry: one item model, grasp and target; a few kB each).
-MAX_ENTRIES = 4000
+# Entries kept before the cache is emptied (one entry: one item model, grasp and target; up to ~1 kB per pose kept).
+MAX_ENTRIES = 2000
 
 
 @dataclass
@@ -116,7 +116,9 @@ class PlaceReach:
                 poses[pi].branches.append(_Candidate(q))
         for pose, any_branch in zip(poses, ok.any(axis=1)):
             pose.numeric = not any_branch and self._within_reach(pose.T_tcp)
-        return poses
+        # only poses that may still yield a release are kept (an unreachable target's entry keeps next to nothing)
+        entry.raises[i] = [p for p in poses if p.branches or p.numeric]
+        return entry.raises[i]
 
     # ---- queries -----------------------------------------------------------------------------------------------
     def options(self, key: tuple, turns: Callable[[], list[np.ndarray]], T_target: np.ndarray, T_obj_tcp: np.ndarray,
