@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from kitchenbot.drivers.errors import LimitViolation
-from kitchenbot.drivers.ur_kinematics import URModel, fk_flange
+from kitchenbot.drivers.ur_kinematics import URModel, fk_flange, fk_flange_batch
 
 
 @dataclass
@@ -93,8 +93,15 @@ class SafetyLimits:
         dt = np.diff(times)
         if not np.all(np.isfinite(times)) or np.any(dt <= 0):
             raise LimitViolation("trajectory: times must be finite and strictly increasing")
-        for k, qk in enumerate(q):
-            self.check_configuration(model, qk, what=f"trajectory waypoint {k}")
+        # every waypoint's joints and TCP at once (forward kinematics vectorised over the rows); the waypoints
+        # found bad are checked again one by one, in order, for the error that names the first (the same checks)
+        bad = ~np.all(np.isfinite(q), axis=1)
+        bad |= np.any((q < self.joint_lower - 1e-9) | (q > self.joint_upper + 1e-9), axis=1)
+        ok = np.flatnonzero(~bad)
+        p = (fk_flange_batch(model, q[ok]) @ np.asarray(self.T_flange_tcp, float)[:, 3])[:, :3]
+        bad[ok[~np.all((p >= self.workspace.lower) & (p <= self.workspace.upper), axis=1)]] = True
+        for k in np.flatnonzero(bad):
+            self.check_configuration(model, q[k], what=f"trajectory waypoint {k}")
         vel = np.diff(q, axis=0) / dt[:, None]
         tol = 1.02  # 2 % for the finite-difference estimate
         over = np.abs(vel) > self.max_joint_speed * tol

@@ -112,6 +112,23 @@ def fk_flange(model: URModel, q: np.ndarray) -> np.ndarray:
     return fk_frames(model, q)[-1]
 
 
+def fk_flange_batch(model: URModel, Q: np.ndarray) -> np.ndarray:
+    """T_base_flange (N, 4, 4) for joint rows Q (N, 6): the DH chain of fk_frames, vectorised over the rows."""
+    Q = np.asarray(Q, float).reshape(-1, 6)
+    n = len(Q)
+    T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    for i in range(6):
+        ct, st = np.cos(Q[:, i]), np.sin(Q[:, i])
+        ca, sa = np.cos(model.alpha[i]), np.sin(model.alpha[i])
+        A = np.zeros((n, 4, 4))
+        A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, model.a[i] * ct
+        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, model.a[i] * st
+        A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, model.d[i]
+        A[:, 3, 3] = 1.0
+        T = T @ A
+    return T
+
+
 def link_segments(model: URModel, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """Capsules (start, end, radius) in the base frame that cover the arm's links.
 

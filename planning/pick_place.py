@@ -27,6 +27,7 @@ from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
+from kitchenbot.planning.place_reach import PlaceReach
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.settings import PlanningSettings
 from kitchenbot.planning.timing import time_parameterise
@@ -79,6 +80,8 @@ class Planner:
             robot, cell, T_flange_cam, margin=s.collision_margin, grasp_margin=s.grasp_margin, voxel_size=s.map_voxel_size
         )
         self._placeable: dict = {}  # (obj_id, grasp name, targets) -> a release pose exists
+        self._place_reach = PlaceReach(robot, self.world)  # release-pose geometry, kept across queries
+        self._turns_cache: dict = {}  # (obj_id, target pose, ...) -> the turns _place_turns allows
         self._voxel_cache: dict = {}
         # OMPL's check step must stay below twice the margin (see planning.motion); never above it.
         self.planning_resolution = min(s.planning_resolution, max(2 * s.collision_margin - 0.002, s.validity_resolution))
@@ -268,8 +271,8 @@ class Planner:
                 if key not in self._placeable:
                     others = self._scene_objects(objects, exclude=obj)
                     held = Held(self.inventory[obj.obj_id], inv(spec.T_obj_tcp), spec.width)
-                    release = self.world.scene(others, voxels, held).for_release(None)
                     pre = self.world.scene(others, voxels, held)  # full margins above the release (plan_place)
+                    release = pre.for_release(None)  # a variant of it: the same geometry, the grasp margins
                     self._placeable[key] = any(
                         self._place_tcp_options(t, spec.T_obj_tcp, q, release, first_only=True, obj_id=obj.obj_id,
                                                 pre_scene=pre)
@@ -540,6 +543,16 @@ class Planner:
     # ---- place -----------------------------------------------------------------------------------------------------
     def _place_turns(self, target: PlaceTarget, obj_id: int) -> list[np.ndarray]:
         """Object-frame rotations (4x4, applied as T_base_obj @ R) the planner may use for this target."""
+        key = (obj_id, np.asarray(target.T_base_obj, float).tobytes(), bool(target.free_yaw), target.flip_ok,
+               target.kind)
+        hit = self._turns_cache.get(key)
+        if hit is None:
+            if len(self._turns_cache) > 2000:
+                self._turns_cache.clear()
+            hit = self._turns_cache[key] = self._place_turns_uncached(target, obj_id)
+        return hit
+
+    def _place_turns_uncached(self, target: PlaceTarget, obj_id: int) -> list[np.ndarray]:
         model = self.inventory.models.get(obj_id)
         sym = model is not None and model.is_rotationally_symmetric
         T_obj = np.asarray(target.T_base_obj, float)
@@ -577,41 +590,21 @@ class Planner:
         one numerically found branch per pose they did not (a grasp chosen for its reachable release, then
         ``no_feasible_placement`` in plan_place)."""
         T_obj = np.asarray(target.T_base_obj, float)
-        if obj_id is not None:
-            turns = self._place_turns(target, obj_id)
-        else:
-            turns = [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if target.free_yaw else [np.eye(4)]
+
+        def turns() -> list[np.ndarray]:
+            if obj_id is not None:
+                return self._place_turns(target, obj_id)
+            return [rot_z(a) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] if target.free_yaw else [np.eye(4)]
+
         c = float(max(target.clearance, 0.0))
-        raises = np.arange(c, c + self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else [c]
+        raises = np.arange(c, c + self.settings.max_release_drop + 1e-9, 0.01) if release_scene is not None else np.array([c])
         up = target.approach_distance if target.approach_distance is not None else self.settings.approach_distance
-        live = []
-        for Rt in turns:
-            To0 = T_obj @ Rt  # about the object's own (symmetry) axis, possibly facing the other way
-            if (To0 @ T_obj_tcp)[2, 2] <= self.settings.max_approach_up:
-                live.append(To0)
-        out = []
-        for dz in raises:  # lowest release first, over all turns
-            for To0 in live:
-                To = trans(0.0, 0.0, float(dz)) @ To0
-                T = To @ T_obj_tcp
-                branches = self.robot.ik_all(T, q_ref)
-                if not branches and self._within_reach(T):  # no closed-form branch: a wrist singularity?
-                    q = self.robot.ik_q(T, q_ref, max_seeds=2, max_iter=40)
-                    branches = [] if q is None else [q]
-                for q in branches:
-                    if release_scene is not None and not release_scene.valid(q):
-                        continue
-                    if pre_scene is not None:
-                        q_pre = self.robot.ik_q(trans(0.0, 0.0, up) @ T, q, max_seeds=0)
-                        if q_pre is None or not pre_scene.valid(q_pre):
-                            continue
-                    out.append((To, T, q))
-                    if first_only:
-                        return out
-            if out:
-                break
-        out.sort(key=lambda x: float(np.max(np.abs(x[2] - q_ref))))
-        return out
+        # the geometry (IK branches, checks against the cell alone) is kept across queries: planning/place_reach.py
+        T_obj_tcp = np.asarray(T_obj_tcp, float)
+        key = (obj_id, T_obj_tcp.tobytes(), T_obj.tobytes(), bool(target.free_yaw), target.flip_ok, target.kind,
+               raises.tobytes(), float(up), float(self.settings.max_approach_up))
+        return self._place_reach.options(key, turns, T_obj, T_obj_tcp, raises, up, self.settings.max_approach_up,
+                                         np.asarray(q_ref, float), release_scene, pre_scene, first_only)
 
     def _within_reach(self, T_base_tcp: np.ndarray) -> bool:
         """Whether the wrist centre of a TCP pose is within the arm's reach of the shoulder (an IK pre-filter)."""

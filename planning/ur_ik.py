@@ -20,22 +20,12 @@ from __future__ import annotations
 import numpy as np
 
 from kitchenbot.drivers.ur_kinematics import URModel, dh_transform
+from kitchenbot.drivers.ur_kinematics import fk_flange_batch as _fk_flange_batch
 
 
 def fk_flange_batch(model: URModel, Q: np.ndarray) -> np.ndarray:
-    """T_base_flange (N, 4, 4) for N configurations at once (the same DH chain as drivers.ur_kinematics)."""
-    Q = np.atleast_2d(np.asarray(Q, float))
-    T = np.broadcast_to(np.eye(4), (len(Q), 4, 4)).copy()
-    for i in range(6):
-        ct, st = np.cos(Q[:, i]), np.sin(Q[:, i])
-        ca, sa = np.cos(model.alpha[i]), np.sin(model.alpha[i])
-        A = np.zeros((len(Q), 4, 4))
-        A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, model.a[i] * ct
-        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, model.a[i] * st
-        A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, model.d[i]
-        A[:, 3, 3] = 1.0
-        T = T @ A
-    return T
+    """T_base_flange (N, 4, 4) for N configurations at once (drivers.ur_kinematics.fk_flange_batch)."""
+    return _fk_flange_batch(model, np.atleast_2d(np.asarray(Q, float)))
 
 
 def _planar_two_link(x: float, y: float, a2: float, a3: float) -> list[tuple[float, float]]:
@@ -90,3 +80,68 @@ def ik_flange(model: URModel, T_base_flange: np.ndarray, tol: float = 1e-6) -> l
     ok = (np.linalg.norm(Tq[:, :3, 3] - T[:3, 3], axis=1) < tol) & \
          (np.linalg.norm((Tq[:, :3, :3] - T[:3, :3]).reshape(len(Q), -1), axis=1) < 1e-5)
     return [q for q, good in zip(Q, ok) if good]
+
+
+def _dh_batch(theta: np.ndarray, d: float, a: float, alpha: float) -> np.ndarray:
+    """dh_transform for an array of angles: (..., 4, 4)."""
+    ct, st = np.cos(theta), np.sin(theta)
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    T = np.zeros(theta.shape + (4, 4))
+    T[..., 0, 0], T[..., 0, 1], T[..., 0, 2], T[..., 0, 3] = ct, -st * ca, st * sa, a * ct
+    T[..., 1, 0], T[..., 1, 1], T[..., 1, 2], T[..., 1, 3] = st, ct * ca, -ct * sa, a * st
+    T[..., 2, 1], T[..., 2, 2], T[..., 2, 3] = sa, ca, d
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def _rigid_inv(T: np.ndarray) -> np.ndarray:
+    R = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros_like(T)
+    out[..., :3, :3] = R
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def ik_flange_batch(model: URModel, T_base_flange: np.ndarray, tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """ik_flange for N poses at once (the same derivation, vectorised over poses and branches): (Q, ok) with
+    Q (N, 8, 6) joint solutions in [-pi, pi) and ok (N, 8) marking the real ones (checked by forward kinematics;
+    wrist-singular and out-of-reach branches are not)."""
+    T = np.asarray(T_base_flange, float).reshape(-1, 4, 4)
+    n = len(T)
+    d1, _, _, d4, d5, d6 = model.d
+    a2, a3 = model.a[1], model.a[2]
+    p05 = T[:, :3, 3] - d6 * T[:, :3, 2]
+    r = np.hypot(p05[:, 0], p05[:, 1])
+    reach = r >= abs(d4) + 1e-9
+    psi = np.arctan2(p05[:, 1], p05[:, 0])
+    phi = np.arcsin(np.clip(d4 / np.where(reach, r, 1.0), -1.0, 1.0))
+    q1 = np.stack([psi + phi, psi + np.pi - phi], axis=1)  # (n, 2)
+    T16 = _rigid_inv(_dh_batch(q1, d1, 0.0, model.alpha[0])) @ T[:, None]  # (n, 2, 4, 4)
+    R = T16[..., :3, :3]
+    c5 = np.clip(R[..., 2, 2], -1.0, 1.0)
+    q5 = np.stack([np.arccos(c5), -np.arccos(c5)], axis=2)  # (n, 2, 2)
+    s5 = np.sin(q5)
+    regular = np.abs(s5) >= 1e-6
+    s5s = np.where(regular, s5, 1.0)
+    Rb = R[:, :, None]  # (n, 2, 1, 3, 3)
+    q6 = np.arctan2(-Rb[..., 2, 1] / s5s, Rb[..., 2, 0] / s5s)
+    q234 = np.arctan2(Rb[..., 1, 2] / -s5s, Rb[..., 0, 2] / -s5s)
+    T46 = _dh_batch(q5, d5, 0.0, model.alpha[4]) @ _dh_batch(q6, d6, 0.0, model.alpha[5])
+    T14 = T16[:, :, None] @ _rigid_inv(T46)  # (n, 2, 2, 4, 4)
+    x, y = T14[..., 0, 3], T14[..., 1, 3]
+    c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2 * a2 * a3)
+    planar = np.abs(c3) <= 1.0 + 1e-9
+    c3 = np.clip(c3, -1.0, 1.0)
+    q3 = np.stack([np.arccos(c3), -np.arccos(c3)], axis=3)  # (n, 2, 2, 2)
+    q2 = np.arctan2(y, x)[..., None] - np.arctan2(a3 * np.sin(q3), a2 + a3 * np.cos(q3))
+    q4 = q234[..., None] - q2 - q3
+    shape = q3.shape
+    Q = np.stack([np.broadcast_to(q1[:, :, None, None], shape), q2, q3, q4,
+                  np.broadcast_to(q5[..., None], shape), np.broadcast_to(q6[..., None], shape)], axis=-1)
+    Q = ((Q + np.pi) % (2 * np.pi) - np.pi).reshape(n, 8, 6)
+    ok = np.broadcast_to((reach[:, None, None] & regular & planar)[..., None], shape).reshape(n, 8)
+    Tq = _fk_flange_batch(model, Q.reshape(-1, 6)).reshape(n, 8, 4, 4)
+    ok = ok & (np.linalg.norm(Tq[..., :3, 3] - T[:, None, :3, 3], axis=-1) < tol) \
+        & (np.linalg.norm((Tq[..., :3, :3] - T[:, None, :3, :3]).reshape(n, 8, 9), axis=-1) < 1e-5)
+    return Q, ok

@@ -49,3 +49,24 @@ def test_robot_model_branches_are_sorted_and_inside_limits():
     for s in sols:
         assert r.within_limits(s)
         np.testing.assert_allclose(r.fk_tcp(s), T, atol=1e-6)
+
+
+def test_batch_ik_gives_the_branches_of_the_single_pose_solver():
+    """ik_flange_batch (many poses at once: the release-pose cache) returns exactly ik_flange's branches."""
+    from kitchenbot.drivers.ur_kinematics import fk_flange, ur_model
+    from kitchenbot.planning.ur_ik import ik_flange, ik_flange_batch
+
+    m = ur_model("ur5e")
+    rng = np.random.default_rng(3)
+    T = np.array([fk_flange(m, q) for q in rng.uniform(-np.pi, np.pi, (120, 6))])
+    T[5, :3, 3] = (3.0, 0.0, 0.5)  # out of reach: no branch
+    Q, ok = ik_flange_batch(m, T)
+    assert Q.shape == (120, 8, 6) and ok.shape == (120, 8)
+    assert not ok[5].any()
+    total = 0
+    for i in range(len(T)):
+        single = sorted(tuple(np.round(q, 7)) for q in ik_flange(m, T[i]))
+        batch = sorted(tuple(np.round(q, 7)) for q in Q[i][ok[i]])
+        assert single == batch
+        total += len(single)
+    assert total > 4 * 119  # most random poses have several branches

@@ -1,0 +1,55 @@
+"""Profile one simulated task run (CPU time): `python scripts/profile_run.py TASK SEED OUT [--objects N]`.
+
+cProfile with a process-CPU timer over ``run_task`` (the path `kitchenbot run --sim` takes), the shipped simulation
+config with fake drivers. Writes OUT.pstats, OUT.txt (the top functions by cumulative CPU time) and prints the run's
+placed count, compute per cycle (CPU) and compute by stage. Set KITCHENBOT_PLANNER_MAX_ITERATIONS /
+KITCHENBOT_PLANNER_SEED for a planner that does not depend on the machine's load (docs/executive.md, "Cycle time").
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import pstats
+import time
+
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("task")
+    ap.add_argument("seed", type=int)
+    ap.add_argument("out")
+    ap.add_argument("--objects", type=int, default=None)
+    ap.add_argument("--top", type=int, default=80)
+    a = ap.parse_args()
+    from kitchenbot.executive.config import DriversConfig, load_config
+    from kitchenbot.executive.runner import run_task
+
+    cfg = load_config()
+    cfg = cfg.model_copy(update={"drivers": DriversConfig()})
+    if a.objects is not None:
+        cfg.sim.min_objects = cfg.sim.max_objects = a.objects
+    pr = cProfile.Profile(time.process_time)
+    pr.enable()
+    rep = run_task(cfg, a.task, a.seed, progress=False, journal_path=False)
+    pr.disable()
+    pr.dump_stats(a.out + ".pstats")
+    s = io.StringIO()
+    pstats.Stats(pr, stream=s).sort_stats("cumulative").print_stats(a.top)
+    with open(a.out + ".txt", "w") as f:
+        f.write(s.getvalue())
+    cpu = [c.get("compute_cpu_s") for c in rep.cycles if c.get("compute_cpu_s") is not None]
+    print(f"{a.task} {a.seed}: {rep.status}, placed {rep.truth['end']['delivered']}/{rep.truth['start']['in_sink']}, "
+          f"collisions {rep.collisions}, cycles {len(rep.cycles)}, simulated {rep.sim_time_s:.1f} s")
+    if cpu:
+        print(f"compute per cycle (CPU s): median {np.median(cpu):.2f}, p90 {np.percentile(cpu, 90):.2f}, "
+              f"total {rep.compute_cpu_time_s:.1f}")
+    print("compute by stage (CPU s): " + ", ".join(f"{k} {v:.1f}" for k, v in
+                                                   sorted(rep.compute_cpu_by_stage_s.items(), key=lambda x: -x[1])))
+
+
+if __name__ == "__main__":
+    main()
