@@ -109,6 +109,25 @@ def test_a_shifted_cell_is_flagged_and_not_used(perceiver, inventory, cell, near
     assert _right(r_ok, near_walls, inventory) == set(range(len(near_walls)))
 
 
+def test_a_table_over_the_sink_is_flagged_and_not_used(perceiver, inventory, cell):
+    """A board over the basin (dishware on a table, not in a sink): nothing is seen behind the cell, but the
+    basin's floor is seen covered by one level surface; the cell is not used, the board is found as a support
+    and the cup standing on it gets its pose."""
+    lo, hi = cell.sink_interior
+    w = cell.spec.sink.wall
+    board = _box((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, -0.03,
+                 (hi[0] - lo[0] + 2 * w, hi[1] - lo[1] + 2 * w, 0.03))
+    T = resting_pose(inventory, 4, 0.45, -0.05, 0.0, cell)
+    T[2, 3] -= lo[2]  # on the board (z 0), not on the basin floor
+    placed = [(4, T)]
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, extra=[(board, (0.62, 0.45, 0.30))])
+    c = check_cell(views, cell)
+    assert c.behind < 0.01 and c.covered > 0.9 and not c.fits and "level" in c.message, c
+    p = Perceiver(perceiver.settings, inventory, cell, use_cell="auto", database=perceiver.database)
+    r = p.perceive(views)
+    assert r.surfaces_from == "data" and _right(r, placed, inventory) == {0} and len(r.poses) == 1
+
+
 def _can(x: float, y: float, z: float) -> o3d.geometry.TriangleMesh:
     m = o3d.geometry.TriangleMesh.create_cylinder(0.033, 0.122, resolution=40)
     m.translate((x, y, z + 0.061))
