@@ -254,13 +254,14 @@ def generate_dataset(
         stats = write_scene(world, out / "test" / f"{i:06d}", true, K, width, height, rng, reported, sensor)
         meta = {"seed": seed + i, "style": world.cell.spec.sink.style,
                 "objects": [{"obj_id": o.model.obj_id, "name": o.model.name} for o in world.objects.values()]}
-        if surface != "sink":
-            meta["surface"] = surface  # the cell's basin is covered: no cell describes this scene
-        elif not default_sensor or distractors:
+        if not default_sensor or distractors or surface != "sink":
             meta.update(variety=variety, cell=world.cell.spec.model_dump(mode="json"),
                         fixtures=sorted(world.fixtures), sensor=sensor.to_json() if sensor else None,
                         distractors=[{"obj_id": o.model.obj_id, "name": o.model.name} for o in world.objects.values()
                                      if o.model.obj_id not in inventory.models])
+            if surface != "sink":  # the cell's basin is covered: no cell describes this scene
+                meta["surface"] = surface
+                del meta["cell"]
         (out / "test" / f"{i:06d}" / "scene_sim.json").write_text(json.dumps(meta, indent=1))
         total_objects += stats["objects"]
         if progress is not None:
