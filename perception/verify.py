@@ -183,7 +183,7 @@ def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_bas
 def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
                  n_own: int, reach: float = CONTINUE_REACH) -> float:
     """Of map points near a pose (`points`, base frame; `explained`: those this pose or another one puts on its
-    surface), how many lie past the model's ends along its axis (up to `reach`) within its radius of the axis, per
+    surface), how many lie past the model's ends along its axis (up to `reach`) within that end's radius, per
     point of the pose's own (`n_own`). A model of a surface of revolution about its z axis (`model_points`,
     object frame). An item that ends where the model ends leaves nothing there but what its neighbours explain;
     a bottle fitted by a cup continues past the cup's rim or base."""
@@ -192,8 +192,13 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
     Ti = inv(T_base_obj)
     q = points[~explained] @ Ti[:3, :3].T + Ti[:3, 3]
     axis = np.median(model_points[:, :2], axis=0)
-    radius = np.linalg.norm(model_points[:, :2] - axis, axis=1).max()
+    r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
+    r_q = np.linalg.norm(q[:, :2] - axis, axis=1)
     z0, z1 = model_points[:, 2].min(), model_points[:, 2].max()
-    past = (np.linalg.norm(q[:, :2] - axis, axis=1) < radius) & \
-        (((q[:, 2] < z0) & (q[:, 2] > z0 - reach)) | ((q[:, 2] > z1) & (q[:, 2] < z1 + reach)))
+    # Past each end, within that end's own radius (1 cm more: a bottle a little wider than a cup's base; not the
+    # reach of a mug's handle, beside which a neighbour may lie).
+    r0 = r_model[model_points[:, 2] < z0 + 0.005].max() + 0.01
+    r1 = r_model[model_points[:, 2] > z1 - 0.005].max() + 0.01
+    past = ((q[:, 2] < z0) & (q[:, 2] > z0 - reach) & (r_q < r0)) | \
+        ((q[:, 2] > z1) & (q[:, 2] < z1 + reach) & (r_q < r1))
     return float(past.sum() / n_own)
