@@ -28,6 +28,7 @@ from kitchenbot.fakes.render import Lighting, render, rgb_noise, stereo_noise
 from kitchenbot.transforms import inv
 from kitchenbot.world.raycast import pinhole_rays
 
+TABLE_CAMERA_LIFT = 0.25  # m: the scan poses raised over a table (generate_dataset(surface="table"))
 DEPTH_SCALE = 0.1  # BOP depth_scale: stored value x 0.1 = mm (sub-millimetre storage, as many BOP sets do)
 
 
@@ -176,6 +177,7 @@ def generate_dataset(
     variety: str = "default",
     distractors: int = 0,
     camera: str = "oakd",
+    surface: str = "sink",
 ) -> dict:
     """Generate `n_scenes` random sink scenes (seeds seed..seed+n-1) scanned from `waypoints`.
 
@@ -187,6 +189,7 @@ def generate_dataset(
     basin size and depth, light and depth-noise level. `distractors`: that many non-inventory objects per
     scene (a set of models drawn from `seed`, written to models_distractors/; their ground truth is in
     scene_gt.json like any object's, and they are not targets). `camera`: fakes/cameras.py's model.
+    `surface="table"`: the items stand on a flat board over the basin's opening (fakes/scenes.py), no sink.
     The defaults give the original datasets exactly.
     """
     from dataclasses import replace
@@ -194,7 +197,7 @@ def generate_dataset(
     from scipy.spatial.transform import Rotation
 
     from kitchenbot.fakes.scenes import SceneOptions, generate_scene
-    from kitchenbot.transforms import make_T
+    from kitchenbot.transforms import make_T, trans
     from kitchenbot.world.inventory import Inventory
 
     if variety not in VARIETIES:
@@ -214,6 +217,8 @@ def generate_dataset(
     opts = scene_options or SceneOptions()
     if variety == "wide" or distractors:
         opts = replace(opts, fixtures=variety == "wide", vary_sink=variety == "wide")
+    if surface != "sink":
+        opts = replace(opts, surface=surface)
     if distractors:
         from kitchenbot.fakes.distractors import sample_distractors
 
@@ -230,6 +235,10 @@ def generate_dataset(
         for q in waypoints:
             world.set_joints(np.asarray(q, float))
             T = world.T_base_cam()
+            if surface == "table":
+                # The scan waypoints look into a 20 cm deep basin; over a table the camera stands higher, as
+                # desk frames are taken (YCB-Video, LM-O: 0.5-1 m away), the same view directions.
+                T = trans(0.0, 0.0, TABLE_CAMERA_LIFT) @ T
             reported.append(T)
             if pose_noise_m > 0 or pose_noise_deg > 0:
                 rv = rng.normal(size=3)
@@ -245,11 +254,14 @@ def generate_dataset(
         stats = write_scene(world, out / "test" / f"{i:06d}", true, K, width, height, rng, reported, sensor)
         meta = {"seed": seed + i, "style": world.cell.spec.sink.style,
                 "objects": [{"obj_id": o.model.obj_id, "name": o.model.name} for o in world.objects.values()]}
-        if not default_sensor or distractors:
+        if not default_sensor or distractors or surface != "sink":
             meta.update(variety=variety, cell=world.cell.spec.model_dump(mode="json"),
                         fixtures=sorted(world.fixtures), sensor=sensor.to_json() if sensor else None,
                         distractors=[{"obj_id": o.model.obj_id, "name": o.model.name} for o in world.objects.values()
                                      if o.model.obj_id not in inventory.models])
+            if surface != "sink":  # the cell's basin is covered: no cell describes this scene
+                meta["surface"] = surface
+                del meta["cell"]
         (out / "test" / f"{i:06d}" / "scene_sim.json").write_text(json.dumps(meta, indent=1))
         total_objects += stats["objects"]
         if progress is not None:

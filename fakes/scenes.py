@@ -3,6 +3,10 @@
 Items are placed largest first (plates, then bowls, then cups), each in a random resting mode (upright,
 upside down, on its side, leaning on a basin wall, stacked/nested on one of its kind), dropped onto what
 is already there and tipped over their support until stable (fakes/placement.py). Two kitchen styles: stainless and white ceramic sinks.
+
+`SceneOptions.surface="table"`: no basin to drop into. A flat table top (a board of a random colour, flush with
+the counter, covering the basin's opening) carries the items: dishware among boxes, cans and bottles on a desk,
+as public RGB-D sets (YCB-Video, LM-O) show it. Nothing leans on walls there, and piles may stand taller.
 """
 
 from __future__ import annotations
@@ -19,6 +23,9 @@ from kitchenbot.transforms import make_T, rot_x, rot_y, rot_z, trans
 from scipy.spatial.transform import Rotation
 
 MAX_TOP_Z = 0.08  # m above the counter: higher piles are re-drawn
+TABLE_MAX_TOP_Z = 0.22  # on a table (no basin around them) items stand up to this high
+SURFACES = ("sink", "table")
+TABLE_COLOURS = [(0.62, 0.45, 0.30), (0.80, 0.70, 0.55), (0.30, 0.30, 0.32), (0.92, 0.92, 0.90)]
 
 
 @dataclass
@@ -34,6 +41,7 @@ class SceneOptions:
     distractor_models: list[ObjectModel] = field(default_factory=list)
     fixtures: bool = False  # rounded corners, drain, faucet, floor grid (fakes/sink_fixtures.py)
     vary_sink: bool = False  # basin size and depth drawn per scene (the cell spec is then the scene's own)
+    surface: str = "sink"  # sink | table: what the items rest on (module docstring)
 
 
 _ORDER = {"plate": 0, "bowl": 1, "mug": 2, "cup": 2, "glass": 3}
@@ -63,8 +71,31 @@ def _footprint_radius(model: ObjectModel, R: np.ndarray) -> float:
     return float(np.max(np.linalg.norm(V[:, :2] - (V[:, :2].max(0) + V[:, :2].min(0)) / 2, axis=1)))
 
 
-def _sample_xy(cell: Cell, radius: float, rng: np.random.Generator) -> np.ndarray | None:
+def _region(cell: Cell, surface: str) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) corners of where items go: the basin's inside, or on a table the same footprint at the
+    table top (z 0)."""
     lo, hi = cell.sink_interior
+    if surface == "table":
+        lo = np.array([lo[0], lo[1], 0.0])
+    return lo, hi
+
+
+def table_top(cell: Cell, colour) -> "Fixture":
+    """A 3 cm board covering the basin's opening and its rim, its top flush with the counter (z 0)."""
+    import open3d as o3d
+
+    from kitchenbot.fakes.world import Fixture
+
+    s = cell.spec.sink
+    c, h = np.array(s.centre_xy), np.array(s.inner_size_xy) / 2 + s.wall
+    m = o3d.geometry.TriangleMesh.create_box(2 * h[0], 2 * h[1], 0.03)
+    m.translate((c[0] - h[0], c[1] - h[1], -0.03))
+    m.compute_vertex_normals()
+    return Fixture("table_top", "table", m, tuple(float(x) for x in colour), 0.15)
+
+
+def _sample_xy(region: tuple[np.ndarray, np.ndarray], radius: float, rng: np.random.Generator) -> np.ndarray | None:
+    lo, hi = region
     lo_xy, hi_xy = lo[:2] + radius + 0.003, hi[:2] - radius - 0.003
     if np.any(lo_xy > hi_xy):
         return None
@@ -110,7 +141,14 @@ def generate_scene(
                            depth=float(wide_rng.uniform(0.16, 0.22)))
     spec = spec.model_copy(update={"sink": spec.sink.model_copy(update=sink_update)})
     world = SimWorld(Cell(spec), inventory, seed=seed, **(world_kwargs or {}))
-    if options.fixtures:
+    if options.surface not in SURFACES:
+        raise ValueError(f"SceneOptions.surface: expected one of {SURFACES}, got {options.surface!r}")
+    table = options.surface == "table"
+    region = _region(world.cell, options.surface)
+    max_top = TABLE_MAX_TOP_Z if table else MAX_TOP_Z
+    if table:  # drawn from its own stream: the sink scenes of a seed stay what they were
+        world.add_fixture(table_top(world.cell, TABLE_COLOURS[int(np.random.default_rng([seed, 5]).integers(4))]))
+    elif options.fixtures:
         from kitchenbot.fakes.sink_fixtures import random_fixtures
 
         for fx in random_fixtures(world.cell, wide_rng):
@@ -139,13 +177,13 @@ def generate_scene(
                 T[:2, 3] += rng.normal(0, 0.012 if model.cls in ("plate", "bowl") else 0.004, 2)
                 T = T @ rot_z(rng.uniform(0, 2 * np.pi)) if model.is_rotationally_symmetric else T
                 T[2, 3] = base_T[2, 3] + 0.25
-            elif model.cls == "plate" and rng.random() < options.lean_probability:
+            elif model.cls == "plate" and rng.random() < options.lean_probability and not table:
                 T, mode = _lean_pose(world, model, rng), "leaning"
                 if T is None:
                     continue
             else:
                 R, mode = _resting_rotation(model, rng)
-                xy = _sample_xy(world.cell, _footprint_radius(model, R), rng)
+                xy = _sample_xy(region, _footprint_radius(model, R), rng)
                 if xy is None:
                     continue
                 T = make_T(R[:3, :3], (xy[0], xy[1], 0.3))
@@ -153,11 +191,11 @@ def generate_scene(
             if mode == "leaning":
                 T_rest = drop_onto(world, uid, T)  # posed against the wall already
             else:
-                T_rest = settle(world, uid, T, keep_inside=world.cell.sink_interior)
+                T_rest = settle(world, uid, T, keep_inside=region)
             V = np.asarray(model.mesh.vertices) @ T_rest[:3, :3].T + T_rest[:3, 3]
-            lo, hi = world.cell.sink_interior
+            lo, hi = region
             inside = np.all(V[:, :2] >= lo[:2] - 1e-3) and np.all(V[:, :2] <= hi[:2] + 1e-3)
-            if V[:, 2].max() > MAX_TOP_Z or not inside or V[:, 2].min() < lo[2] - 0.002:
+            if V[:, 2].max() > max_top or not inside or V[:, 2].min() < lo[2] - 0.002:
                 world.remove_object(uid)
                 continue
             world.set_pose(uid, T_rest)
@@ -166,27 +204,29 @@ def generate_scene(
     if options.distractors > 0:
         if not options.distractor_models:
             raise ValueError("SceneOptions.distractors > 0 needs distractor_models to draw from")
-        _add_distractors(world, options, wide_rng)
+        _add_distractors(world, options, wide_rng, region, max_top)
     return world
 
 
-def _add_distractors(world: SimWorld, options: SceneOptions, rng: np.random.Generator) -> None:
-    """Drop `options.distractors` non-inventory objects into the basin, among and onto the dishware."""
+def _add_distractors(world: SimWorld, options: SceneOptions, rng: np.random.Generator,
+                     region: tuple[np.ndarray, np.ndarray], max_top: float) -> None:
+    """Drop `options.distractors` non-inventory objects into `region` (the basin, or on the table), among and
+    onto the dishware."""
     from kitchenbot.fakes.distractors import resting_rotation
 
-    lo, hi = world.cell.sink_interior
+    lo, hi = region
     for _ in range(options.distractors):
         model = options.distractor_models[int(rng.integers(len(options.distractor_models)))]
         for _attempt in range(8):
             R = resting_rotation(model, rng)
-            xy = _sample_xy(world.cell, _footprint_radius(model, R), rng)
+            xy = _sample_xy(region, _footprint_radius(model, R), rng)
             if xy is None:
                 continue
             uid = world.add_object(model, make_T(R[:3, :3], (xy[0], xy[1], 0.3)))
-            T_rest = settle(world, uid, world.objects[uid].T_base_obj, keep_inside=world.cell.sink_interior)
+            T_rest = settle(world, uid, world.objects[uid].T_base_obj, keep_inside=region)
             V = np.asarray(model.mesh.vertices) @ T_rest[:3, :3].T + T_rest[:3, 3]
             inside = np.all(V[:, :2] >= lo[:2] - 1e-3) and np.all(V[:, :2] <= hi[:2] + 1e-3)
-            if V[:, 2].max() > MAX_TOP_Z + 0.05 or not inside or V[:, 2].min() < lo[2] - 0.002:
+            if V[:, 2].max() > max_top + 0.05 or not inside or V[:, 2].min() < lo[2] - 0.002:
                 world.remove_object(uid)
                 continue
             world.set_pose(uid, T_rest)

@@ -33,7 +33,8 @@ from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import fine_share, fine_tolerance, patch_normals, surface_noise, verify
+from kitchenbot.perception.verify import (continuation, fine_share, fine_tolerance, patch_normals, surface_noise,
+                                          verify)
 from kitchenbot.transforms import inv
 
 log = logging.getLogger(__name__)
@@ -51,6 +52,9 @@ SURFACE_TOL = 0.3
 # Classes whose fits are checked upside down too (tall, thin-walled, nearly as wide at the top as at the base); a
 # refine per object, so not for plates and bowls, whose sides the fits have not confused.
 FLIP_CLASSES = ("cup", "mug", "glass")
+# Metres: a map point this close to a pose's surface is on it, when judging what continues past its ends (the
+# sensor's noise and the fit's error; another pose's surface gets 1.5x this).
+FINE_ON_TOL = 0.004
 
 
 @dataclass
@@ -355,6 +359,7 @@ class Perceiver:
         tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
         log.debug("perception: fine tolerance %.1f mm", 1000 * tol)
         db = self.database
+        tree = cKDTree(m.points)
         for hyp, _, own in found:
             if hyp.verification is None or len(own) == 0:
                 continue
@@ -365,6 +370,41 @@ class Perceiver:
             normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
             hyp.verification.fine = fine_share(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol, others,
                                                self.inventory[hyp.obj_id].is_rotationally_symmetric)
+            if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
+                hyp.verification.continued = self._continued(m, tree, hyp, own, found)
+
+    def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
+                   found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
+        """verify.continuation for a pose of a tall vessel lying down (axis over 45 deg from up): map points past
+        its ends that no pose explains. A copy fitted end to end along the axis does not explain them: that is
+        how a bottle is fitted by cups (one after the other along its body). Standing vessels are not judged:
+        what lies across a cup's rim (a plate, a lying bottle) is past its end too."""
+        model = self.inventory[hyp.obj_id]
+        T = hyp.T_base_obj
+        z = T[:3, 2]
+        up = self._up()
+        up = np.array([0.0, 0.0, 1.0]) if up is None else up
+        if abs(z @ up) >= np.cos(np.radians(45)):
+            return 0.0
+        near = np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)
+        if len(near) == 0:
+            return 0.0
+        P = m.points[near]
+        explained = on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
+        for h, _, _ in found:
+            if h is hyp:
+                continue
+            other = self.inventory[h.obj_id]
+            d = h.T_base_obj[:3, 3] - T[:3, 3]
+            if np.linalg.norm(d) > model.diameter + other.diameter:
+                continue
+            along = abs(d @ z)
+            end_to_end = other.cls in FLIP_CLASSES and h.T_base_obj[:3, 2] @ z > np.cos(np.radians(30)) \
+                and np.linalg.norm(d - (d @ z) * z) < 0.5 * model.diameter \
+                and along > 0.25 * (model.extents[2] + other.extents[2])
+            if not end_to_end:
+                explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
+        return continuation(P, model.points, T, explained, len(own))
 
     def _up(self) -> np.ndarray | None:
         """The gravity prior for this scan: None with a cell (the base frame's z), the base frame's up with

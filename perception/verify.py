@@ -9,9 +9,12 @@ The checks, each a share in [0, 1]:
 - normals: of the explained points, how many lie on a side of the model facing the same way (within ~60 deg);
 - fine: of the segment's points that no other pose claims, how many lie on the model's surface, facing the same
   way, at the sensor's precision (`fine_tolerance`: 3 mm, more where the map's surfaces are rougher), the pose
-  nudged first onto them by a short ICP (`fine_share`).
+  nudged first onto them by a short ICP (`fine_share`);
+- continued (tall vessels lying down: cups, mugs, glasses): measured points just past the model's ends (3 cm along its axis,
+  within its radius) that neither it nor another pose puts on a surface, per point of its own (`continuation`):
+  a bottle or a rolling pin lying there is longer than any cup, its surface goes on where the cup ends.
 
-verification = min(1 - free / (seen + free), normals, fine / FINE_FULL). Coverage both ways at one voxel (seen,
+verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL). Coverage both ways at one voxel (seen,
 explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
 query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
 evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
@@ -47,6 +50,12 @@ FINE_TOL_NOISE = 4.0
 # 0.5-0.8 (their fits are a few millimetres off); drink cans and bottles fitted as cups and glasses 0.2-0.8,
 # boxes fitted as mugs 0.1-0.5 (development scenes with distractors, docs/perception.md).
 FINE_FULL = 0.6
+# The continued share at which a pose scores 0 (linear from 0 at none): right fits of lying cups, mugs and glasses
+# have 0-0.06, cups fitted along a lying bottle 0-0.6, most over 0.15 (development scenes with distractors,
+# docs/perception.md "A bottle is longer than a cup"); with the threshold 0.85 a pose is rejected above 0.15.
+CONTINUED_FULL = 1.0
+# Past each end of the model along its axis, this far, is where a longer object would continue.
+CONTINUE_REACH = 0.03
 
 
 @dataclass
@@ -56,16 +65,18 @@ class Verification:
     free_space: float
     normals: float
     fine: float = 1.0  # set by the pipeline on the final poses (fine_share)
+    continued: float = 0.0  # set by the pipeline on the final poses of tall vessels (continuation)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
-                "fine": self.fine}
+                "fine": self.fine, "continued": self.continued}
 
     @property
     def score(self) -> float:
         judged = self.seen + self.free_space
         through = self.free_space / judged if judged > 0 else 1.0
-        return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL))
+        return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL,
+                            1.0 - self.continued / CONTINUED_FULL))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
@@ -167,3 +178,27 @@ def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_bas
         if np.linalg.norm(T[:3, 3] - T_base_obj[:3, 3]) > 0.01:
             T = T_base_obj
     return float(_on(P, N, entry, T, tol).mean())
+
+
+def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
+                 n_own: int, reach: float = CONTINUE_REACH) -> float:
+    """Of map points near a pose (`points`, base frame; `explained`: those this pose or another one puts on its
+    surface), how many lie past the model's ends along its axis (up to `reach`) within that end's radius, per
+    point of the pose's own (`n_own`). A model of a surface of revolution about its z axis (`model_points`,
+    object frame). An item that ends where the model ends leaves nothing there but what its neighbours explain;
+    a bottle fitted by a cup continues past the cup's rim or base."""
+    if n_own == 0 or len(points) == 0:
+        return 0.0
+    Ti = inv(T_base_obj)
+    q = points[~explained] @ Ti[:3, :3].T + Ti[:3, 3]
+    axis = np.median(model_points[:, :2], axis=0)
+    r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
+    r_q = np.linalg.norm(q[:, :2] - axis, axis=1)
+    z0, z1 = model_points[:, 2].min(), model_points[:, 2].max()
+    # Past each end, within that end's own radius (1 cm more: a bottle a little wider than a cup's base; not the
+    # reach of a mug's handle, beside which a neighbour may lie).
+    r0 = r_model[model_points[:, 2] < z0 + 0.005].max() + 0.01
+    r1 = r_model[model_points[:, 2] > z1 - 0.005].max() + 0.01
+    past = ((q[:, 2] < z0) & (q[:, 2] > z0 - reach) & (r_q < r0)) | \
+        ((q[:, 2] > z1) & (q[:, 2] < z1 + reach) & (r_q < r1))
+    return float(past.sum() / n_own)

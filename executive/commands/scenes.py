@@ -1,5 +1,5 @@
 """`kitchenbot scenes generate --out DIR [--scenes N] [--seed S] [--variety default|wide] [--distractors N]
-[--camera oakd|d435|kinect]`: a BOP dataset with ground truth."""
+[--camera oakd|d435|kinect] [--surface sink|table]`: a BOP dataset with ground truth."""
 
 from __future__ import annotations
 
@@ -25,6 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="non-inventory objects per scene (box, can, bottle, sponge, cutlery, scraps); default 0")
     g.add_argument("--camera", choices=["oakd", "d435", "kinect"], default="oakd",
                    help="camera model: intrinsics and depth error (default oakd, the cell's camera)")
+    g.add_argument("--surface", choices=["sink", "table"], default="sink",
+                   help="table: the items stand on a flat table top (a board over the basin), no sink walls")
     g.set_defaults(func=run_generate)
 
 
@@ -57,7 +59,7 @@ def run_generate(args: argparse.Namespace) -> int:
             height=getattr(cfg.drivers.camera, "height", 480),
             pose_noise_m=args.pose_noise_mm / 1000.0, pose_noise_deg=args.pose_noise_deg, scene_options=opts,
             progress=lambda i, n: bar.update(task, completed=i),
-            variety=args.variety, distractors=args.distractors, camera=args.camera,
+            variety=args.variety, distractors=args.distractors, camera=args.camera, surface=args.surface,
         )
     dt = time.perf_counter() - t0
     print(f"wrote {stats['scenes']} scenes, {stats['images']} images, {stats['objects']} objects "

@@ -193,3 +193,32 @@ def test_generator_rejects_bad_options(tmp_path):
         generate_dataset(tmp_path, 1, 0, [], kw, camera="webcam")
     with pytest.raises(ValueError, match="distractors"):
         generate_dataset(tmp_path, 1, 0, [], kw, distractors=-1)
+
+
+def test_table_scenes_stand_on_a_board_with_no_sink(tmp_path):
+    """--surface table: every item (dishware and distractors) rests on the board over the basin (z >= 0), the
+    board is in the depth, the camera stands 25 cm higher, and the scene names no cell."""
+    from kitchenbot.fakes.bop import TABLE_CAMERA_LIFT
+    from kitchenbot.fakes.scenes import SceneOptions, generate_scene
+
+    cfg, kw = _kwargs()
+    with pytest.raises(ValueError, match="surface"):
+        generate_scene(0, options=SceneOptions(surface="shelf"), world_kwargs=kw)
+    stats = generate_dataset(tmp_path, 1, 5, [np.asarray(cfg.scan_waypoints[1])], kw, 640, 480, distractors=2,
+                             surface="table", camera="d435")
+    assert stats["distractors"] == 2 and stats["objects"] >= 5
+    scene = tmp_path / "test" / "000000"
+    meta = json.loads((scene / "scene_sim.json").read_text())
+    assert meta["surface"] == "table" and "cell" not in meta and "table_top" in meta["fixtures"]
+    gt = json.loads((scene / "scene_gt.json").read_text())["0"]
+    cam = json.loads((scene / "scene_camera.json").read_text())["0"]
+    T_cam_base = make_T(np.asarray(cam["cam_R_w2c"]).reshape(3, 3), np.asarray(cam["cam_t_w2c"]) / 1000)
+    T_base_cam = np.linalg.inv(T_cam_base)
+    world = SimWorld(Cell(), Inventory.builtin(), **kw)
+    world.set_joints(np.asarray(cfg.scan_waypoints[1], float))
+    assert abs(T_base_cam[2, 3] - world.T_base_cam()[2, 3] - TABLE_CAMERA_LIFT) < 1e-6
+    for g in gt:  # every object's origin above the board's top (no item sits in the basin, 20 cm down)
+        T = T_base_cam @ make_T(np.asarray(g["cam_R_m2c"]).reshape(3, 3), np.asarray(g["cam_t_m2c"]) / 1000)
+        assert T[2, 3] > -0.005, g
+    K = np.asarray(cam["cam_K"]).reshape(3, 3)
+    assert abs(K[0, 0] - camera_model("d435").intrinsics(640, 480)[0, 0]) < 1e-6

@@ -63,3 +63,35 @@ def test_points_another_pose_explains_do_not_count(perceiver):
     alone = fine_share(P, N, cup, T_cup, tol)
     assert alone < 0.6
     assert fine_share(P, N, cup, T_cup, tol, [(plate, T_plate)]) > 0.9
+
+
+def _cylinder_side(radius: float, z0: float, z1: float, n: int = 6000, seed: int = 1) -> np.ndarray:
+    """Points on the half of a cylinder's side facing +x (object frame, axis z), as a camera from +x sees it."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-np.pi / 2, np.pi / 2, n)
+    return np.column_stack([radius * np.cos(a), radius * np.sin(a), rng.uniform(z0, z1, n)])
+
+
+def test_a_surface_going_on_past_the_models_end_is_continuation(perceiver, inventory):
+    """A cup lying on its side: its own points leave nothing past its rim or base; a bottle's body that the cup
+    covers goes on past the base (a longer cylinder), and those points count, unless another pose explains
+    them (a neighbour touching the base)."""
+    from kitchenbot.perception.register import on_surface
+    from kitchenbot.perception.verify import continuation
+
+    entry, model = perceiver.database[4], inventory[4]
+    T = make_T(rot_x(np.pi / 2)[:3, :3], np.array([0.4, 0.0, 0.05]))  # lying: axis along -y
+    own, _ = _cup_surface(entry, T, 0.0005)
+    mine = on_surface(own, None, entry, T, 0.004)
+    assert continuation(own, model.points, T, mine, len(own)) < 0.02
+    # The bottle: a cylinder of the cup's base radius, 8 cm on from the base (object z < 0).
+    r_base = np.linalg.norm(model.points[model.points[:, 2] < model.points[:, 2].min() + 0.005, :2]
+                            - np.median(model.points[:, :2], axis=0), axis=1).max()
+    body = _cylinder_side(r_base, model.points[:, 2].min() - 0.08, model.points[:, 2].min())
+    body = body @ T[:3, :3].T + T[:3, 3]
+    P = np.vstack([own, body])
+    explained = on_surface(P, None, entry, T, 0.004)
+    c = continuation(P, model.points, T, explained, len(own))
+    assert c > 0.2, c
+    # The same points explained by another pose: nothing unexplained continues.
+    assert continuation(P, model.points, T, explained | (np.arange(len(P)) >= len(own)), len(own)) < 0.02
