@@ -157,7 +157,8 @@ class StageForRegrasp(Strategy):
            "turn it over (`Task.needs_regrasp`) and it is not already staged (staged standing: once more, on its " \
            "side)"
     does = "a pick and a place onto the counter (`Task.staging_targets`: upright, upside down or on its side), " \
-           "from where the next pick offers other grasps; verified there and picked again first"
+           "only at spots (and turns) from which a grasp reaches a target (`Planner.onward_staging`), from where " \
+           "the next pick offers other grasps; verified there and picked again first"
 
     def applies(self, failure, obj, belief, req):
         return failure is not None and failure.stage == "pick" and failure.kind == "no_feasible_placement"
@@ -174,6 +175,12 @@ class StageForRegrasp(Strategy):
             stage = [t for t in stage if is_lying(t.T_base_obj)]
             if not stage:
                 return None
+        # only where the next pick can carry it on to a target (planning.regrasp)
+        stage = req.planner.onward_staging(req.joints(), stage, req.obj, req.targets, req.scene_objs,
+                                           map_points=req.belief.map_points)
+        if not stage:
+            req.note("note", "no staging spot from which a grasp reaches a target", cls=req.obj.cls)
+            return None
         r = _direct(req, self.name, stage, staging=True)
         return None if isinstance(r, PlanFailure) and r.stage == "pick" else r
 

@@ -707,6 +707,15 @@ class Planner:
             return q0
         return plan_slide(self, q0, list(objects), target, map_points=map_points, distance=distance)
 
+    def onward_staging(self, q_current: np.ndarray, stage: Sequence[PlaceTarget], obj: ObjectPose,
+                       targets: Sequence[PlaceTarget], objects: Sequence[ObjectPose] = (), *,
+                       map_points: np.ndarray | None = None) -> list[PlaceTarget]:
+        """The staging targets from which the item, set down there, offers a grasp that reaches one of `targets`
+        (turn fixed where it matters): see planning.regrasp."""
+        from kitchenbot.planning.regrasp import onward_staging
+
+        return onward_staging(self, stage, obj, targets, objects, map_points, np.asarray(q_current, float))
+
     def plan_escape(self, q_start: np.ndarray, objects: Sequence[ObjectPose] = (), *,
                     map_points: np.ndarray | None = None, held: Grasp | None = None,
                     opening: float | None = None) -> MovePlan | PlanningFailure:

@@ -70,8 +70,9 @@ class Situation:
     """A planner for one situation: `pick(targets, n)` answers the n-th pick request for those targets (staging
     targets have kind "stage"); place and slide answer ok unless told otherwise."""
 
-    def __init__(self, pick, place=None, slide_ok=True):
+    def __init__(self, pick, place=None, slide_ok=True, onward=None):
         self.pick, self.place, self.slide_ok = pick, place, slide_ok
+        self.onward = onward  # staging target -> does the next pick from there reach a target? (None: all do)
         self.calls: list[str] = []
 
     def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None, avoid_grasps=()):
@@ -86,6 +87,10 @@ class Situation:
     def plan_place(self, q, grasp, targets, *, objects=None, map_points=None):
         self.calls.append("place")
         return self.place(targets) if self.place else _Ok()
+
+    def onward_staging(self, q, stage, obj, targets, objects=(), *, map_points=None):
+        self.calls.append("onward")
+        return [t for t in stage if self.onward is None or self.onward(t)]
 
     def plan_slide(self, q, objects, obj, *, map_points=None):
         self.calls.append("slide")
@@ -153,7 +158,37 @@ def test_an_upside_down_cup_for_a_stack_is_staged_for_a_regrasp(inv):
     plan = plan_item(request(task, b, item(inv, "cup", MOUTH_DOWN), planner), strategies_for(task), counts)
     assert plan.strategy == "stage_for_regrasp" and plan.staging
     assert counts["stage_for_regrasp"] == {"tried": 1, "planned": 1} and counts["direct_pick"]["planned"] == 0
-    assert planner.calls == ["pick", "pick:stage", "place"]
+    assert planner.calls == ["pick", "onward", "pick:stage", "place"]
+
+
+def test_an_item_is_staged_only_where_its_next_pick_reaches_a_target(inv):
+    """The staging targets are kept only where the item, set down there, offers a grasp reaching one of its
+    targets (Planner.onward_staging): only those are planned; with none, the item is not staged at all (it
+    would stay on the counter, every pick from there without a feasible placement)."""
+    task, b = make_task("cup-stacking", inv, Cell()), Belief()
+    asked: list = []
+
+    def pick(staging, n):
+        return _Ok() if staging else NoFeasiblePlacement("test: none reaches upright")
+
+    obj = item(inv, "cup", MOUTH_DOWN)
+    all_stage = task.staging_targets(obj, b, task.targets(obj, b))
+    assert len(all_stage) >= 2
+    keep = all_stage[1].T_base_obj
+    planner = Situation(pick, onward=lambda t: np.allclose(t.T_base_obj, keep))
+    real_pick = planner.plan_pick
+
+    def plan_pick(q, objects, *, target=None, map_points=None, place_target=None, avoid_grasps=()):
+        asked.append(list(place_target))
+        return real_pick(q, objects, target=target, map_points=map_points, place_target=place_target)
+
+    planner.plan_pick = plan_pick
+    plan = plan_item(request(task, b, obj, planner), strategies_for(task), {})
+    assert plan.staging and len(asked[-1]) == 1 and np.allclose(asked[-1][0].T_base_obj, keep)
+    planner = Situation(pick, onward=lambda t: False)
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(task, b, obj, planner), strategies_for(task), {})
+    assert e.value.details["planning_kind"] == "no_feasible_placement" and "pick:stage" not in planner.calls
 
 
 def test_an_item_already_staged_is_not_staged_again(inv):

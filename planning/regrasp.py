@@ -1,0 +1,81 @@
+"""Staging for a regrasp that leads somewhere: counter poses from which the next pick reaches a target.
+
+An item that no grasp as it lies can carry to its targets is set down on the counter (``staging``) and picked
+again from there. Whether that second pick can reach a target depends on the pose it is set down in: a mug
+standing with its handle one way offers a level side grasp that turns it over into the rack, the other way
+none does. Without this check a staging spot was taken because the *first* pick and place planned, and the
+item then stayed on the counter (``no_feasible_placement`` from the staged pose, every time).
+
+``onward_staging`` answers, before the staging is planned: for each staging target, the turns about the
+item's own axis (those the planner would try, ``Planner._place_turns``) at which the item, resting there,
+offers a grasp that the grasp filter accepts for the final targets (``Planner.select_grasps`` with
+``place_target``: IK, collisions, a reachable release pose and its pre-place pose). Each becomes a target with
+that turn fixed. A round item's grasps are the same at every turn, so it is checked at one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.types import PlaceTarget
+from kitchenbot.world.gripper import DROP_HEIGHT
+
+MAX_CHECKS = 8  # grasp-filter queries per staging decision (~0.5 s CPU each when nothing is feasible)
+
+
+def _resting(T_target: np.ndarray) -> np.ndarray:
+    """Where an item released at a target pose rests: DROP_HEIGHT lower (targets keep that clearance)."""
+    T = np.array(T_target, float)
+    T[2, 3] -= DROP_HEIGHT
+    return T
+
+
+def reaches_from(planner, obj: ObjectPose, T_rest: np.ndarray, targets: Sequence[PlaceTarget],
+                 objects: Sequence[ObjectPose], map_points: np.ndarray | None, q: np.ndarray) -> bool:
+    """Whether `obj` resting at `T_rest` (with `objects` around it: where it is now is not among them) offers a
+    grasp that reaches one of `targets` (the grasp filter of a direct pick, planning.grasps)."""
+    model = planner.inventory.models.get(obj.obj_id)
+    if model is None:
+        return False
+    P = np.asarray(model.points, float) @ T_rest[:3, :3].T + T_rest[:3, 3]
+    there = ObjectPose(obj.obj_id, obj.cls, T_rest, 1.0, points=P, instance_id=-1)
+    res = planner.select_grasps(q, [*objects, there], target=there, map_points=map_points, place_target=list(targets),
+                                limit=1)
+    return isinstance(res, list) and len(res) > 0
+
+
+def onward_staging(planner, stage: Sequence[PlaceTarget], obj: ObjectPose, targets: Sequence[PlaceTarget],
+                   objects: Sequence[ObjectPose], map_points: np.ndarray | None, q: np.ndarray,
+                   max_checks: int = MAX_CHECKS) -> list[PlaceTarget]:
+    """The staging targets of `stage` (in order), each with its turn fixed to one from which the item, resting
+    there, offers a grasp reaching one of `targets`; those with no such turn are left out. `objects`: the other
+    items (not `obj`). At most `max_checks` grasp-filter queries in all; targets left unchecked then are left out
+    too (a staging that cannot be shown to lead on is not made)."""
+    model = planner.inventory.models.get(obj.obj_id)
+    if model is None or not targets:
+        return []
+    others = [o for o in objects if o is not obj and not (obj.instance_id >= 0 and o.instance_id == obj.instance_id)]
+    round_ = model.is_rotationally_symmetric
+    out: list[PlaceTarget] = []
+    checks = 0
+    for t in stage:
+        turns = planner._place_turns(t, obj.obj_id)
+        if round_:
+            turns = turns[:1]  # the same grasps at every turn about its axis
+        for R in turns:
+            if checks >= max_checks:
+                return out
+            checks += 1
+            T = np.asarray(t.T_base_obj, float) @ R
+            if reaches_from(planner, obj, _resting(T), targets, others, map_points, q):
+                # a round item keeps its free turn (any of them leads on); another one is set down at this turn
+                out.append(t if round_ else replace(t, T_base_obj=T, free_yaw=False, flip_ok=False))
+                break
+    return out
+
+
+__all__ = ["onward_staging", "reaches_from", "MAX_CHECKS"]
