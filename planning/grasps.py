@@ -21,6 +21,7 @@ import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import Scene
+from kitchenbot.planning.pad_give import pad_contacts
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.types import (
     Grasp,
@@ -52,6 +53,7 @@ class GraspStats:
     feasible: int = 0
     observed_in_tool: int = 0  # feasible, but observed points lie where a pad or the palm would be (ranked last)
     empty_grip: int = 0  # feasible, but none of the item's observed points lies between the pads (ranked last)
+    pad_contact: int = 0  # feasible with the pads brushing a neighbour within their give (ranked after clear ones)
 
 
 def _tf(T: np.ndarray) -> coal.Transform3s:
@@ -121,6 +123,8 @@ def observed_in_grip(P_tcp: np.ndarray, opening: float, gripper, pad_depth: floa
 # neighbour along its body. They rank after every feasible standard grasp.
 FALLBACK_GRASPS = ("rimnarrow", "footpitch", "side10")
 FALLBACK_PENALTY = 1.0
+# A grasp whose pads brush a neighbour (planning/pad_give.py) ranks after the standard grasps that keep clear.
+PAD_GIVE_PENALTY = 1.0
 
 # Observed points inside the tool at a grasp that count as a real surface there (a few are depth noise).
 OBSERVED_HITS = 20
@@ -274,6 +278,7 @@ def select_grasps(
             continue
         grasp_scene.set_opening(spec.opening)
         q_grasp = None
+        brush: tuple = ()
         reached = False
         # A Fin-Ray grasp still holds with a shallower bite: back off along the approach (up to 8 mm)
         # when the finger tips would touch what the object rests on. Every IK branch is tried, nearest to
@@ -289,12 +294,17 @@ def select_grasps(
                 break  # unreachable: backing off 8 mm will not change that
             for qb in branches:
                 reached = True
+                give = None
                 if not grasp_scene.valid(qb):
-                    continue
+                    # the pads may brush a neighbour within their give (planning/pad_give.py)
+                    give = pad_contacts(grasp_scene, qb, Tb, spec.opening, f"obj:{names[k]}",
+                                        settings.approach_distance, settings.pad_give)
+                    if give is None:
+                        continue
                 q_pre = robot.ik(Tb @ trans(0.0, 0.0, -settings.approach_distance), qb, max_seeds=0).q
                 if q_pre is None or not scene.valid(q_pre):
                     continue  # this branch's pre-grasp is unreachable or blocked: try the next branch
-                q_grasp, T = qb, Tb
+                q_grasp, T, brush = qb, Tb, tuple(give or ())
                 break
             if q_grasp is not None:
                 break
@@ -314,6 +324,9 @@ def select_grasps(
         score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
         if spec.name.startswith(FALLBACK_GRASPS):
             score -= FALLBACK_PENALTY
+        if brush:  # after every grasp whose pads keep clear of the neighbours
+            score -= PAD_GIVE_PENALTY
+            st.pad_contact += 1
         # The real surfaces (observed points of the item and of its neighbours) where a pad or the palm would be
         # at the grasp: the estimated pose is off there. Ranked last (below every grasp the points leave free).
         if k not in observed:
@@ -328,7 +341,7 @@ def select_grasps(
                                                           PAD_DEPTH) == 0:
             score -= 10.0
             st.empty_grip += 1
-        out.append(Grasp(spec, o, T, q_grasp, q_pre, T_pre, float(score), float(clearance)))
+        out.append(Grasp(spec, o, T, q_grasp, q_pre, T_pre, float(score), float(clearance), pad_contacts=brush))
         st.feasible += 1
     if out:
         out.sort(key=lambda g: -g.score)

@@ -412,6 +412,8 @@ class Planner:
         # whose lift is blocked costs no RRT-Connect query.
         base_scene.set_opening(g.spec.opening)
         grasp_scene = base_scene.for_grasp(name)
+        if g.pad_contacts:  # the pads may brush a neighbour within their give (planning/pad_give.py)
+            grasp_scene = grasp_scene.allowing_keep_zone(g.pad_contacts)
         r = self._line(grasp_scene, g.q_pregrasp, g.T_base_tcp, "grasp_in")
         if isinstance(r, PlanningFailure):
             return r
