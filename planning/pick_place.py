@@ -25,7 +25,7 @@ from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
-from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks
+from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.settings import PlanningSettings
@@ -489,11 +489,49 @@ class Planner:
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 first = first or CartesianPathFailed("lift: the lifted pose is within the collision margin",
                                                      {"pairs": pairs, "segment": "lift"})
+        # Every line ran into perceived items (one overhanging it): out from under them nearly level, then up.
+        for leg in (sidesteps(centre, objects, lift_objects) if lift_objects else []):
+            r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg)
+            if isinstance(r, PlanningFailure):
+                pairs = r.details.get("pairs", ())
+                held_only &= bool(pairs) and all("held" in p for p in pairs)
+                continue
+            lift, q_lifted = r
+            if held_scene.valid(q_lifted):
+                base_scene.set_opening(g.spec.opening)
+                approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+                if isinstance(approach, PlanningFailure):
+                    return approach
+                timings["lift_sidestep_m"] = float(np.linalg.norm(leg[:2]))
+                return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
+                                lift_contact_travel=LIFT_CONTACT_TRAVEL)
         if first is not None:
             if lift_objects:
                 first.details["lift_objects"] = sorted(lift_objects)
             first.details["held_blocked"] = held_only
         return first
+
+    def _two_leg_lift(self, lift_scene: Scene, start_scene: Scene, q_grasp: np.ndarray, T_grasp: np.ndarray,
+                      leg: np.ndarray) -> tuple[Trajectory, np.ndarray] | PlanningFailure:
+        """A lift in two straight legs: by `leg` (base frame, m: nearly level, out from under what overhangs the
+        item; the held item may leave its start contacts during the first LIFT_CONTACT_TRAVEL as on any lift),
+        then straight up by lift_height; timed as one path (planning.lift.sidesteps)."""
+        info1: dict = {}
+        r = self._line(lift_scene, q_grasp, trans(*leg) @ T_grasp, "lift", check_start=False,
+                       start_scene=start_scene, start_travel=LIFT_CONTACT_TRAVEL, info=info1)
+        if isinstance(r, PlanningFailure):
+            return r
+        q1 = r[1]
+        info2: dict = {}
+        r = self._line(lift_scene, q1, trans(0.0, 0.0, self.settings.lift_height) @ self.robot.fk_tcp(q1), "lift",
+                       check_start=False, info=info2)
+        if isinstance(r, PlanningFailure):
+            return r
+        Q = np.vstack([info1["path"], info2["path"][1:]])
+        traj = self._time(Q, "lift", "along_path")
+        if isinstance(traj, PlanningFailure):
+            return traj
+        return traj, Q[-1]
 
     # after a lift that ends within the transport margin: short moves towards the sink's middle (level, then up)
     LIFT_CLEAR_MOVES = ((0.02, 0.0), (0.04, 0.0), (0.03, 0.05))
