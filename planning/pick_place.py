@@ -314,8 +314,13 @@ class Planner:
         timings["grasp_selection_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(grasps, PlanningFailure):
             if target is not None and grasps.kind in ("no_graspable_object", "no_collision_free_grasp"):
-                # hidden under, or crowded by, what rests on it: those items are the ones to pick first
-                self._report_blocking(grasps, target, objects, self._resting_on(target, objects))
+                # hidden under, or crowded by, what rests on it: those items are the ones to pick first; with
+                # nothing on it, the neighbours its grasps collided with, most often first (taking one of them
+                # out first frees it)
+                blockers = self._resting_on(target, objects)
+                if not blockers and grasps.kind == "no_collision_free_grasp":
+                    blockers = self._crowding(target, objects, grasps.details.get("crowded_by") or {})
+                self._report_blocking(grasps, target, objects, blockers)
             return grasps
         last: PlanningFailure | None = None
         tried = 0
@@ -352,6 +357,13 @@ class Planner:
         failure.details["blocking"] = ids[0]
         failure.details["blocking_all"] = [(i, o.cls) for i, o in zip(ids, blockers)]
         failure.message += f" (blocked by the {blockers[0].cls}" + (f" {ids[0]})" if ids[0] >= 0 else ")")
+
+    @staticmethod
+    def _crowding(target: ObjectPose, objects, crowded_by: dict) -> list[ObjectPose]:
+        """The perceived objects (not `target`) named in a grasp failure's ``crowded_by``, most often first."""
+        names = {object_name(o, k): o for k, o in enumerate(objects)}
+        out = [names[n] for n in sorted(crowded_by, key=lambda n: -crowded_by[n]) if n in names]
+        return [o for o in out if o is not target and not (target.instance_id >= 0 and o.instance_id == target.instance_id)]
 
     def _vertical_clear_travel(self, a: ObjectPose, b: ObjectPose, height: float = 0.12, step: float = 0.005) -> float:
         """Metres `a` must be translated straight up to be clear of `b` for good (`height` + step if it never

@@ -84,7 +84,12 @@ def test_pads_brushing_a_neighbour_within_their_give_grasp_it_without_a_collisio
     assert world.held_uid is not None
 
 
-def test_a_neighbour_deeper_than_the_give_still_blocks_the_grasp():
+def test_a_neighbour_deeper_than_the_give_still_blocks_the_grasp_and_is_named_as_the_blocker():
     cfg, world, planner, poses, target, avoid = _setup(0.005)
     home = np.asarray(cfg.robot.home, float)
-    assert planner.plan_pick(home, poses, target=target, avoid_grasps=avoid).kind == "no_collision_free_grasp"
+    f = planner.plan_pick(home, poses, target=target, avoid_grasps=avoid)
+    assert f.kind == "no_collision_free_grasp"
+    neighbour = next(p for p in poses if p is not target)
+    # nothing lies on the glass: the neighbour its grasps collide with is the one to take out first
+    assert f.details["crowded_by"] == {str(neighbour.instance_id): 1}
+    assert f.details["blocking"] == neighbour.instance_id
