@@ -419,6 +419,16 @@ class Scene:
                 other.gd.deactivateCollisionPair(k)
         return other
 
+    def allowing_keep_zone(self, pairs: Iterable[tuple[str, str]]) -> "Scene":
+        """As allowing(pairs), keeping for_grasp's contact zone for the target (its strict variant allows the
+        pairs too): a grasp whose pads may also brush a neighbour (planning/pad_give.py)."""
+        pairs = list(pairs)
+        other = self.allowing(pairs)
+        if self._zone is not None:
+            strict, gid, radius = self._zone
+            other._zone = (strict.allowing(pairs), gid, radius)
+        return other
+
     def touching_only(self, pairs: Iterable[tuple[str, str]]) -> "Scene":
         """A copy of this scene in which the given (name, name) pairs keep no margin: they may come closer than
         the collision margin but must not touch (escaping from a stop within the margin of a rack wall)."""

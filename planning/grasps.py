@@ -14,13 +14,14 @@ planner then tries them in order until one is plannable.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import coal
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import Scene
+from kitchenbot.planning.pad_give import pad_contacts
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.types import (
     Grasp,
@@ -52,6 +53,10 @@ class GraspStats:
     feasible: int = 0
     observed_in_tool: int = 0  # feasible, but observed points lie where a pad or the palm would be (ranked last)
     empty_grip: int = 0  # feasible, but none of the item's observed points lies between the pads (ranked last)
+    pad_contact: int = 0  # feasible with the pads brushing a neighbour within their give (ranked after clear ones)
+    # perceived objects (names) the rejected grasps collided with or took in, and how often; filled only when no
+    # grasp is feasible (what crowds the item: Planner.plan_pick names the most frequent one as its blocker)
+    crowded_by: dict = field(default_factory=dict)
 
 
 def _tf(T: np.ndarray) -> coal.Transform3s:
@@ -121,6 +126,8 @@ def observed_in_grip(P_tcp: np.ndarray, opening: float, gripper, pad_depth: floa
 # neighbour along its body. They rank after every feasible standard grasp.
 FALLBACK_GRASPS = ("rimnarrow", "footpitch", "side10")
 FALLBACK_PENALTY = 1.0
+# A grasp whose pads brush a neighbour (planning/pad_give.py) ranks after the standard grasps that keep clear.
+PAD_GIVE_PENALTY = 1.0
 
 # Observed points inside the tool at a grasp that count as a real surface there (a few are depth noise).
 OBSERVED_HITS = 20
@@ -175,6 +182,26 @@ def _observed_near(o: ObjectPose, objects: Sequence[ObjectPose], reach: float = 
         parts.append(np.asarray(x.points, float).reshape(-1, 3))
     P = np.vstack(parts)
     return P[np.linalg.norm(P - c, axis=1) <= reach] if len(P) else P
+
+
+# rejected grasps whose collisions are looked at when no grasp is feasible (a few ms each)
+MAX_CROWD_CHECKS = 24
+
+
+def _crowded_by(scenes: dict, names: list[str], collided: list, taken: list, objects) -> dict:
+    """{object name: how many rejected grasps collided with it or would take it in}."""
+    out: dict[str, int] = {}
+    for o in taken:
+        k = next((j for j, x in enumerate(objects) if x is o), None)
+        if k is not None:
+            out[names[k]] = out.get(names[k], 0) + 1
+    for k, q, opening in collided:
+        sc = scenes[k]
+        sc.set_opening(opening)
+        hit = {n[4:] for p in sc.colliding_pairs(q) for n in p if n.startswith("obj:") and n[4:] != names[k]}
+        for n in hit:
+            out[n] = out.get(n, 0) + 1
+    return out
 
 
 def select_grasps(
@@ -249,6 +276,8 @@ def select_grasps(
     # not take the places of standard ones under `limit`): the expensive checks, until `limit` grasps are feasible.
     pending.sort(key=lambda c: (c[2].name.startswith(FALLBACK_GRASPS), -(c[3][2, 3] + 0.05 * -c[3][2, 2])))
     scenes: dict[int, Scene] = {}
+    collided: list = []  # (object index, q, opening) of rejected grasps: what crowds the item, if nothing fits
+    taken: list = []  # objects a pad would take in
     observed: dict[int, np.ndarray] = {}  # object index -> observed points (base frame) around it
     for k, o, spec, T in pending:
         if limit is not None and len(out) >= limit:
@@ -268,12 +297,15 @@ def select_grasps(
             if any(coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, coal.CollisionResult())
                    for vol, T_vol in sweeps):
                 taken_in = True
+                taken.append(po)
                 break
         if taken_in:
             st.multi_object += 1
             continue
         grasp_scene.set_opening(spec.opening)
         q_grasp = None
+        brush: tuple = ()
+        first_hit = None  # the first IK branch whose gripper collided (what crowds the item)
         reached = False
         # A Fin-Ray grasp still holds with a shallower bite: back off along the approach (up to 8 mm)
         # when the finger tips would touch what the object rests on. Every IK branch is tried, nearest to
@@ -289,16 +321,24 @@ def select_grasps(
                 break  # unreachable: backing off 8 mm will not change that
             for qb in branches:
                 reached = True
+                give = None
                 if not grasp_scene.valid(qb):
-                    continue
+                    # the pads may brush a neighbour within their give (planning/pad_give.py)
+                    give = pad_contacts(grasp_scene, qb, Tb, spec.opening, f"obj:{names[k]}",
+                                        settings.approach_distance, settings.pad_give)
+                    if give is None:
+                        first_hit = first_hit or (k, qb, spec.opening)
+                        continue
                 q_pre = robot.ik(Tb @ trans(0.0, 0.0, -settings.approach_distance), qb, max_seeds=0).q
                 if q_pre is None or not scene.valid(q_pre):
                     continue  # this branch's pre-grasp is unreachable or blocked: try the next branch
-                q_grasp, T = qb, Tb
+                q_grasp, T, brush = qb, Tb, tuple(give or ())
                 break
             if q_grasp is not None:
                 break
         if q_grasp is None:
+            if first_hit is not None and len(collided) < MAX_CROWD_CHECKS:
+                collided.append(first_hit)
             if reached:
                 st.in_collision += 1
             else:
@@ -314,6 +354,9 @@ def select_grasps(
         score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
         if spec.name.startswith(FALLBACK_GRASPS):
             score -= FALLBACK_PENALTY
+        if brush:  # after every grasp whose pads keep clear of the neighbours
+            score -= PAD_GIVE_PENALTY
+            st.pad_contact += 1
         # The real surfaces (observed points of the item and of its neighbours) where a pad or the palm would be
         # at the grasp: the estimated pose is off there. Ranked last (below every grasp the points leave free).
         if k not in observed:
@@ -328,11 +371,12 @@ def select_grasps(
                                                           PAD_DEPTH) == 0:
             score -= 10.0
             st.empty_grip += 1
-        out.append(Grasp(spec, o, T, q_grasp, q_pre, T_pre, float(score), float(clearance)))
+        out.append(Grasp(spec, o, T, q_grasp, q_pre, T_pre, float(score), float(clearance), pad_contacts=brush))
         st.feasible += 1
     if out:
         out.sort(key=lambda g: -g.score)
         return out
+    st.crowded_by = _crowded_by(scenes, names, collided, taken, objects)
     details = st.__dict__.copy()
     if not any_model or st.considered == 0:
         return NoGraspableObject("no candidate object with grasps (occluded, unknown model or no grasps)", details)

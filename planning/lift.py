@@ -1,6 +1,7 @@
 """The lift's fallbacks, in the order plan_pick tries them, as one generator (`lift_fallbacks`): straight up;
 along the item's own axis when it rests tilted (as it was stacked); tilted away from the basin walls when it
-is near one; and, once all of those ran into perceived items, tilted away from the items they ran into.
+is near one; and, once all of those ran into perceived items, tilted away from the items they ran into. Where
+those run into them too, a lift in two legs (`sidesteps`): out from under them nearly level, then straight up.
 
 Each direction comes with `along`: whether it is straight up or along the item's axis (those lifts may keep
 the fingers' and the held item's start contacts for a few centimetres; see Planner.plan_pick).
@@ -45,10 +46,8 @@ def base_directions(sink_lo_hi, p: np.ndarray, T_base_obj: np.ndarray | None = N
     return out
 
 
-def directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.ndarray],
-                    tilts=(30.0, 45.0), turns=(0.0, 40.0, -40.0)) -> list[np.ndarray]:
-    """Unit lift directions tilted away (horizontally) from the named perceived objects' centres, not within
-    10 degrees of one in `have`."""
+def _away_angle(centre: np.ndarray, objects, names: set[str]) -> float | None:
+    """Heading (rad, base frame) away from the named perceived objects' centres, or None."""
     away = np.zeros(2)
     for k, o in enumerate(objects):
         if object_name(o, k) in names:
@@ -56,8 +55,17 @@ def directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.
             if np.linalg.norm(v) > 1e-3:
                 away += v / np.linalg.norm(v)
     if np.linalg.norm(away) < 1e-6:
+        return None
+    return float(np.arctan2(away[1], away[0]))
+
+
+def directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.ndarray],
+                    tilts=(30.0, 45.0), turns=(0.0, 40.0, -40.0)) -> list[np.ndarray]:
+    """Unit lift directions tilted away (horizontally) from the named perceived objects' centres, not within
+    10 degrees of one in `have`."""
+    a0 = _away_angle(centre, objects, names)
+    if a0 is None:
         return []
-    a0 = float(np.arctan2(away[1], away[0]))
     out: list[np.ndarray] = []
     for tilt in tilts:
         for da in turns:
@@ -81,3 +89,23 @@ def lift_fallbacks(sink_lo_hi, T_base_obj: np.ndarray, objects, ran_into: set[st
     if ran_into:
         for d in directions_away(centre, objects, ran_into, base):
             yield d, False
+
+
+# The first leg of a sideways-then-up lift: (m level, m up). An item under something that overhangs it (a plate's
+# rim leaning over a cup, a bowl tilted over a glass) runs into it on every line that rises at once, even tilted
+# 45 degrees; moved out from under it nearly level first, it then goes straight up past it.
+SIDESTEPS = ((0.04, 0.01), (0.07, 0.015))
+
+
+def sidesteps(centre: np.ndarray, objects, ran_into: set[str], turns=(0.0, 45.0, -45.0)) -> list[np.ndarray]:
+    """First legs (base-frame offsets, m) of sideways-then-up lifts away from the perceived objects the other
+    lifts ran into (straight away from them, and turned by `turns` degrees), shortest first; [] when none."""
+    a0 = _away_angle(centre, objects, ran_into)
+    if a0 is None:
+        return []
+    out = []
+    for level, up in SIDESTEPS:
+        for da in turns:
+            a = a0 + np.radians(da)
+            out.append(np.array([level * np.cos(a), level * np.sin(a), up]))
+    return out

@@ -25,7 +25,7 @@ from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
-from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks
+from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.place_reach import PlaceReach
 from kitchenbot.planning.robot import RobotModel
@@ -317,8 +317,13 @@ class Planner:
         timings["grasp_selection_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(grasps, PlanningFailure):
             if target is not None and grasps.kind in ("no_graspable_object", "no_collision_free_grasp"):
-                # hidden under, or crowded by, what rests on it: those items are the ones to pick first
-                self._report_blocking(grasps, target, objects, self._resting_on(target, objects))
+                # hidden under, or crowded by, what rests on it: those items are the ones to pick first; with
+                # nothing on it, the neighbours its grasps collided with, most often first (taking one of them
+                # out first frees it)
+                blockers = self._resting_on(target, objects)
+                if not blockers and grasps.kind == "no_collision_free_grasp":
+                    blockers = self._crowding(target, objects, grasps.details.get("crowded_by") or {})
+                self._report_blocking(grasps, target, objects, blockers)
             return grasps
         last: PlanningFailure | None = None
         tried = 0
@@ -355,6 +360,13 @@ class Planner:
         failure.details["blocking"] = ids[0]
         failure.details["blocking_all"] = [(i, o.cls) for i, o in zip(ids, blockers)]
         failure.message += f" (blocked by the {blockers[0].cls}" + (f" {ids[0]})" if ids[0] >= 0 else ")")
+
+    @staticmethod
+    def _crowding(target: ObjectPose, objects, crowded_by: dict) -> list[ObjectPose]:
+        """The perceived objects (not `target`) named in a grasp failure's ``crowded_by``, most often first."""
+        names = {object_name(o, k): o for k, o in enumerate(objects)}
+        out = [names[n] for n in sorted(crowded_by, key=lambda n: -crowded_by[n]) if n in names]
+        return [o for o in out if o is not target and not (target.instance_id >= 0 and o.instance_id == target.instance_id)]
 
     def _vertical_clear_travel(self, a: ObjectPose, b: ObjectPose, height: float = 0.12, step: float = 0.005) -> float:
         """Metres `a` must be translated straight up to be clear of `b` for good (`height` + step if it never
@@ -415,6 +427,8 @@ class Planner:
         # whose lift is blocked costs no RRT-Connect query.
         base_scene.set_opening(g.spec.opening)
         grasp_scene = base_scene.for_grasp(name)
+        if g.pad_contacts:  # the pads may brush a neighbour within their give (planning/pad_give.py)
+            grasp_scene = grasp_scene.allowing_keep_zone(g.pad_contacts)
         r = self._line(grasp_scene, g.q_pregrasp, g.T_base_tcp, "grasp_in")
         if isinstance(r, PlanningFailure):
             return r
@@ -490,11 +504,49 @@ class Planner:
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 first = first or CartesianPathFailed("lift: the lifted pose is within the collision margin",
                                                      {"pairs": pairs, "segment": "lift"})
+        # Every line ran into perceived items (one overhanging it): out from under them nearly level, then up.
+        for leg in (sidesteps(centre, objects, lift_objects) if lift_objects else []):
+            r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg)
+            if isinstance(r, PlanningFailure):
+                pairs = r.details.get("pairs", ())
+                held_only &= bool(pairs) and all("held" in p for p in pairs)
+                continue
+            lift, q_lifted = r
+            if held_scene.valid(q_lifted):
+                base_scene.set_opening(g.spec.opening)
+                approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+                if isinstance(approach, PlanningFailure):
+                    return approach
+                timings["lift_sidestep_m"] = float(np.linalg.norm(leg[:2]))
+                return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
+                                lift_contact_travel=LIFT_CONTACT_TRAVEL)
         if first is not None:
             if lift_objects:
                 first.details["lift_objects"] = sorted(lift_objects)
             first.details["held_blocked"] = held_only
         return first
+
+    def _two_leg_lift(self, lift_scene: Scene, start_scene: Scene, q_grasp: np.ndarray, T_grasp: np.ndarray,
+                      leg: np.ndarray) -> tuple[Trajectory, np.ndarray] | PlanningFailure:
+        """A lift in two straight legs: by `leg` (base frame, m: nearly level, out from under what overhangs the
+        item; the held item may leave its start contacts during the first LIFT_CONTACT_TRAVEL as on any lift),
+        then straight up by lift_height; timed as one path (planning.lift.sidesteps)."""
+        info1: dict = {}
+        r = self._line(lift_scene, q_grasp, trans(*leg) @ T_grasp, "lift", check_start=False,
+                       start_scene=start_scene, start_travel=LIFT_CONTACT_TRAVEL, info=info1)
+        if isinstance(r, PlanningFailure):
+            return r
+        q1 = r[1]
+        info2: dict = {}
+        r = self._line(lift_scene, q1, trans(0.0, 0.0, self.settings.lift_height) @ self.robot.fk_tcp(q1), "lift",
+                       check_start=False, info=info2)
+        if isinstance(r, PlanningFailure):
+            return r
+        Q = np.vstack([info1["path"], info2["path"][1:]])
+        traj = self._time(Q, "lift", "along_path")
+        if isinstance(traj, PlanningFailure):
+            return traj
+        return traj, Q[-1]
 
     # after a lift that ends within the transport margin: short moves towards the sink's middle (level, then up)
     LIFT_CLEAR_MOVES = ((0.02, 0.0), (0.04, 0.0), (0.03, 0.05))

@@ -79,6 +79,8 @@ class Grasp:
     T_base_pregrasp: np.ndarray
     score: float = 0.0
     clearance: float = 0.0
+    # (pad, obj:<neighbour>) pairs the pads may touch during the grasp-in (planning/pad_give.py); () for most
+    pad_contacts: tuple = ()
 
     @property
     def T_obj_tcp(self) -> np.ndarray:
