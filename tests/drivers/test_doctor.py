@@ -52,7 +52,7 @@ def test_doctor_does_not_talk_over_a_gripper_in_use(tmp_path, capsys):
     from kitchenbot.drivers.dynamixel_gripper import DynamixelGripper
 
     with DynamixelEmulator() as emu:
-        g = DynamixelGripper(emu.port, min_packet_timeout_ms=100)
+        g = DynamixelGripper(emu.port, min_packet_timeout_ms=1000)  # emulator on a loaded host
         g.connect()  # a run holds the port
         try:
             cfg = _config(tmp_path, {"gripper": {"kind": "dynamixel", "port": emu.port}})
