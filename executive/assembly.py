@@ -104,7 +104,8 @@ def assemble(config: CellConfig, seed: int | None = None, world=None) -> RobotCe
 
         gripper = DynamixelGripper(d.gripper.port, d.gripper.baudrate, d.gripper.servo_id,
                                    closed_ticks=d.gripper.closed_ticks, open_ticks=d.gripper.open_ticks,
-                                   max_opening=d.gripper.max_opening, current_limit_ma=d.gripper.current_limit_ma)
+                                   max_opening=d.gripper.max_opening, current_limit_ma=d.gripper.current_limit_ma,
+                                   min_packet_timeout_ms=d.gripper.min_packet_timeout_ms)
 
     if d.camera.kind == "fake":
         from kitchenbot.fakes.camera import FakeCamera

@@ -107,6 +107,8 @@ class DynamixelGripperConfig(_Strict):
     closed_ticks: int = Field(2048, description="servo position where the finger pads touch (linear calibration)")
     open_ticks: int = Field(3072, description="servo position where the pads are max_opening apart")
     max_opening: float = Field(0.085, gt=0, le=0.3, description="m between the pads at open_ticks")
+    min_packet_timeout_ms: float = Field(0.0, ge=0, le=2000, description="floor on the status-packet timeout "
+                                         "(0: the SDK's ~34 ms); raise it for a slow USB hub or an emulator")
 
 
 class FakeCameraConfig(_Strict):

@@ -62,7 +62,8 @@ def check_gripper(cfg) -> DeviceReport:
 
     gripper = DynamixelGripper(
         g.port, g.baudrate, g.servo_id, closed_ticks=g.closed_ticks, open_ticks=g.open_ticks,
-        max_opening=g.max_opening, current_limit_ma=g.current_limit_ma, min_packet_timeout_ms=100,
+        max_opening=g.max_opening, current_limit_ma=g.current_limit_ma,
+        min_packet_timeout_ms=max(100.0, g.min_packet_timeout_ms),
     )  # fmt: skip
     try:
         info = gripper.probe()

@@ -15,9 +15,14 @@ from kitchenbot.fakes.dynamixel_emulator import DynamixelEmulator, crc16, frame,
 pytestmark = pytest.mark.timeout(60)
 
 
+# A floor on every packet timeout: the emulator is a Python process that a loaded host can leave unscheduled for
+# longer than a real servo's microsecond answer; 100 ms was seen to run out with the suite and benchmarks at once.
+PACKET_TIMEOUT_MS = 1000.0
+
+
 def _port(emu) -> PortHandler:
-    """The SDK's PortHandler with a 100 ms timeout floor: the emulator is a Python process on a loaded CI host."""
-    return DxlPortHandler(emu.port, 100.0)
+    """The SDK's PortHandler with the emulator's packet-timeout floor."""
+    return DxlPortHandler(emu.port, PACKET_TIMEOUT_MS)
 
 
 @pytest.fixture
@@ -31,8 +36,7 @@ def emu():
 
 @pytest.fixture
 def gripper(emu):
-    # 100 ms packet-timeout floor: the emulator is a Python process on a shared, loaded CI machine.
-    g = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=100)
+    g = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=PACKET_TIMEOUT_MS)
     g.connect()
     try:
         yield g
@@ -185,7 +189,7 @@ def test_silent_servo_times_out_after_retries(emu, gripper):
     t0 = time.monotonic()
     with pytest.raises(DriverTimeoutError, match=r"no valid answer .* after 3 tries"):
         gripper.status()
-    assert 0.3 <= time.monotonic() - t0 < 5.0  # 3 tries x 100 ms (upper bound loose: a loaded CI host)
+    assert 3 * PACKET_TIMEOUT_MS / 1000 <= time.monotonic() - t0 < 10.0  # 3 tries (upper bound loose: a loaded host)
     emu.set_silent(False)
     assert gripper.status().error is None  # recovers once the servo answers again
 
@@ -196,7 +200,7 @@ def test_stopped_emulator_gives_a_driver_error_not_a_hang(emu, gripper):
     with pytest.raises(DriverError) as exc:
         gripper.status()
     assert isinstance(exc.value, (DriverTimeoutError, DeviceNotConnectedError))
-    assert time.monotonic() - t0 < 5.0  # no hang (loose bound: a loaded CI host)
+    assert time.monotonic() - t0 < 10.0  # no hang (loose bound: a loaded host)
 
 
 def test_connect_to_a_silent_bus_names_port_id_and_baud(emu):
@@ -230,7 +234,8 @@ def test_calibration_is_linear_both_ways():
 
 def test_reversed_calibration_grasps_too():
     with DynamixelEmulator(closed_ticks=3000, open_ticks=2000, max_opening=0.1, object_width=0.03) as emu:
-        g = DynamixelGripper(emu.port, closed_ticks=3000, open_ticks=2000, max_opening=0.1, min_packet_timeout_ms=100)
+        g = DynamixelGripper(emu.port, closed_ticks=3000, open_ticks=2000, max_opening=0.1,
+                             min_packet_timeout_ms=PACKET_TIMEOUT_MS)
         g.connect()
         try:
             g.open()
@@ -302,7 +307,7 @@ def test_reconnecting_keeps_torque_on_and_the_object_held(emu, gripper):
     assert gripper.grasp(current_limit=0.5).holding
     before = emu.state()
     gripper.disconnect()  # e.g. the executive restarts
-    g2 = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=100)
+    g2 = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=PACKET_TIMEOUT_MS)
     g2.connect()
     try:
         after = emu.state()
@@ -320,7 +325,7 @@ def test_reconnect_with_another_current_limit_defers_the_eeprom_write_while_hold
     gripper.open()
     assert gripper.grasp(current_limit=0.5).holding
     gripper.disconnect()
-    g2 = DynamixelGripper(emu.port, 57600, 1, current_limit_ma=800, min_packet_timeout_ms=100)
+    g2 = DynamixelGripper(emu.port, 57600, 1, current_limit_ma=800, min_packet_timeout_ms=PACKET_TIMEOUT_MS)
     g2.connect()
     try:
         s = emu.state()
@@ -336,7 +341,7 @@ def test_reconnect_with_another_current_limit_defers_the_eeprom_write_while_hold
 def test_connect_to_an_idle_servo_with_torque_on_writes_no_eeprom(emu, gripper):
     gripper.open(0.05)
     gripper.disconnect()
-    g2 = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=100)
+    g2 = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=PACKET_TIMEOUT_MS)
     port, ph = _raw(emu)
     port.closePort()  # the exclusive lock is released: connect may open it
     g2.connect()
@@ -471,7 +476,7 @@ def test_group_reads_answer_in_the_order_of_the_instruction():
 
 
 def test_the_serial_port_is_opened_exclusively(emu, gripper):
-    other = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=100)
+    other = DynamixelGripper(emu.port, 57600, 1, min_packet_timeout_ms=PACKET_TIMEOUT_MS)
     with pytest.raises(DeviceNotConnectedError, match="another program has it open"):
         other.connect()
     with pytest.raises(DeviceNotConnectedError, match="another program has it open"):
