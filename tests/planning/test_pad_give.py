@@ -21,7 +21,8 @@ def test_give_leaves_the_physical_finger_clear():
     from kitchenbot.planning.settings import PlanningSettings
 
     assert PAD_GIVE == pytest.approx(PAD_ENVELOPE.thickness - FINGERS.finger_thickness - 0.001)
-    assert PlanningSettings().pad_give == pytest.approx(PAD_GIVE)
+    assert PlanningSettings().pad_give == 0.0  # off by default (planning/settings.py says why)
+    assert PlanningSettings(pad_give=PAD_GIVE).pad_give == pytest.approx(PAD_GIVE)
 
 
 def _two_glasses(gap_into_envelope: float):
@@ -63,10 +64,9 @@ def test_pads_brushing_a_neighbour_within_their_give_grasp_it_without_a_collisio
 
     cfg, world, planner, poses, target, avoid = _setup(0.002)
     home = np.asarray(cfg.robot.home, float)
-    strict = planner.settings.model_copy(update={"pad_give": 0.0})
-    planner.settings, default = strict, planner.settings
+    planner.settings = planner.settings.model_copy(update={"pad_give": 0.0})
     assert planner.plan_pick(home, poses, target=target, avoid_grasps=avoid).kind == "no_collision_free_grasp"
-    planner.settings = default
+    planner.settings = planner.settings.model_copy(update={"pad_give": PAD_GIVE})
     pick = planner.plan_pick(home, poses, target=target, avoid_grasps=avoid)
     assert pick.ok, pick
     assert pick.grasp.spec.name == "rim_00"
@@ -86,6 +86,7 @@ def test_pads_brushing_a_neighbour_within_their_give_grasp_it_without_a_collisio
 
 def test_a_neighbour_deeper_than_the_give_still_blocks_the_grasp_and_is_named_as_the_blocker():
     cfg, world, planner, poses, target, avoid = _setup(0.005)
+    planner.settings = planner.settings.model_copy(update={"pad_give": PAD_GIVE})
     home = np.asarray(cfg.robot.home, float)
     f = planner.plan_pick(home, poses, target=target, avoid_grasps=avoid)
     assert f.kind == "no_collision_free_grasp"
