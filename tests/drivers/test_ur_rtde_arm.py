@@ -280,9 +280,17 @@ def test_watchdog_thread_rebuilds_a_stalled_receive_interface(emu):
     assert not any(t.name == "ur-rtde-watchdog" and t.is_alive() for t in threading.enumerate())
 
 
-def test_receive_that_cannot_be_rebuilt_declares_the_link_lost(emu):
-    arm = make_arm(emu, connect_timeout=0.3)
+def _connected_with_short_rebuilds(emu):
+    """An arm connected with the default handshake timeout (a loaded host may take longer than 0.3 s to answer),
+    whose later rebuilds against a stalled controller give up after 0.3 s each."""
+    arm = make_arm(emu)
     arm.connect()
+    arm.connect_timeout = 0.3
+    return arm
+
+
+def test_receive_that_cannot_be_rebuilt_declares_the_link_lost(emu):
+    arm = _connected_with_short_rebuilds(emu)
     try:
         emu.stall()
         emu.set(stall_new=True)
@@ -306,8 +314,7 @@ def test_receive_that_keeps_stalling_is_given_up_after_bounded_rebuilds(emu, arm
 
 
 def test_connect_again_after_a_lost_link(emu):
-    arm = make_arm(emu, connect_timeout=0.3)
-    arm.connect()
+    arm = _connected_with_short_rebuilds(emu)
     emu.stall()
     emu.set(stall_new=True)
     arm._clock.advance(1.0)
@@ -350,8 +357,7 @@ def test_stop_is_not_delayed_by_a_receive_rebuild(emu):
 
 
 def test_stop_still_sends_stopj_after_the_receive_link_is_lost(emu):
-    arm = make_arm(emu, connect_timeout=0.3)
-    arm.connect()
+    arm = _connected_with_short_rebuilds(emu)
     try:
         arm.move_joints(HOME + np.array([0.6, 0, 0, 0, 0, 0]), speed=0.3, asynchronous=True)
         emu.wait_for(lambda s: s["moving"], what="moving")
