@@ -41,12 +41,10 @@ def _cup_under_a_plate(world=None, planner=None):
     return None
 
 
-def test_a_cup_under_an_overhanging_plate_is_lifted_out_sideways_then_up(monkeypatch):
+def test_a_cup_under_an_overhanging_plate_is_lifted_out_sideways_then_up(monkeypatch, run_pick_on_fake_arm):
     from kitchenbot.executive.assembly import make_sim_world
     from kitchenbot.executive.config import load_config
     from kitchenbot.executive.oracle import OraclePerceiver
-    from kitchenbot.fakes.arm import FakeArm
-    from kitchenbot.fakes.gripper import FakeGripper
     from kitchenbot.planning.pick_place import Planner
 
     cfg = load_config()
@@ -69,13 +67,4 @@ def test_a_cup_under_an_overhanging_plate_is_lifted_out_sideways_then_up(monkeyp
     assert pick.timings_ms.get("lift_sidestep_m", 0.0) > 0.0
     P = np.array([planner.robot.fk_tcp(q)[:3, 3] for q in pick.lift.q])
     assert P[-1, 2] - P[0, 2] >= planner.settings.lift_height  # then straight up
-    arm, grip = FakeArm(world, cfg.safety_limits()), FakeGripper(world)
-    arm.connect()
-    grip.connect()
-    grip.open(pick.grasp.spec.opening)
-    for t in (pick.approach, pick.grasp_in):
-        arm.execute_trajectory(t.times, t.q)
-    assert grip.grasp(0.5).holding
-    arm.execute_trajectory(pick.lift.times, pick.lift.q)
-    assert arm.log.collisions == 0 and arm.log.protective_stops == 0
-    assert world.held_uid is not None
+    run_pick_on_fake_arm(cfg, world, pick)

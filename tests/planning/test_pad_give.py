@@ -58,9 +58,7 @@ def _setup(gap):
     return cfg, world, planner, poses, target, avoid
 
 
-def test_pads_brushing_a_neighbour_within_their_give_grasp_it_without_a_collision():
-    from kitchenbot.fakes.arm import FakeArm
-    from kitchenbot.fakes.gripper import FakeGripper
+def test_pads_brushing_a_neighbour_within_their_give_grasp_it_without_a_collision(run_pick_on_fake_arm):
 
     cfg, world, planner, poses, target, avoid = _setup(0.002)
     home = np.asarray(cfg.robot.home, float)
@@ -72,16 +70,7 @@ def test_pads_brushing_a_neighbour_within_their_give_grasp_it_without_a_collisio
     assert pick.grasp.spec.name == "rim_00"
     neighbour = f"obj:{next(p.instance_id for p in poses if p is not target)}"
     assert {n for _, n in pick.grasp.pad_contacts} == {neighbour}
-    arm, grip = FakeArm(world, cfg.safety_limits()), FakeGripper(world)
-    arm.connect()
-    grip.connect()
-    grip.open(pick.grasp.spec.opening)
-    for t in (pick.approach, pick.grasp_in):
-        arm.execute_trajectory(t.times, t.q)
-    assert grip.grasp(0.5).holding
-    arm.execute_trajectory(pick.lift.times, pick.lift.q)
-    assert arm.log.collisions == 0 and arm.log.protective_stops == 0
-    assert world.held_uid is not None
+    run_pick_on_fake_arm(cfg, world, pick)
 
 
 def test_a_neighbour_deeper_than_the_give_still_blocks_the_grasp_and_is_named_as_the_blocker():
