@@ -52,6 +52,12 @@ class ModelEntry:
         return cKDTree(self.dense_points)
 
     @cached_property
+    def reach(self) -> float:
+        """Farthest dense surface point from the object origin (metres): nothing farther is near the surface."""
+        return float(np.sqrt((self.dense_points.astype(np.float64) ** 2).sum(axis=1).max())) \
+            if len(self.dense_points) else 0.0
+
+    @cached_property
     def oriented_tree(self) -> cKDTree:
         """KD-tree over (point, NORMAL_WEIGHT x outward normal) of the dense surface: a nearest neighbour here
         is a near point whose surface faces the same way (a thin wall's far side is not one)."""

@@ -33,8 +33,8 @@ from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import (continuation, fine_share, fine_tolerance, patch_normals, surface_noise,
-                                          verify)
+from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, patch_normals,
+                                          surface_noise, verify)
 from kitchenbot.transforms import inv
 
 log = logging.getLogger(__name__)
@@ -55,6 +55,9 @@ FLIP_CLASSES = ("cup", "mug", "glass")
 # Metres: a map point this close to a pose's surface is on it, when judging what continues past its ends (the
 # sensor's noise and the fit's error; another pose's surface gets 1.5x this).
 FINE_ON_TOL = 0.004
+# Tall vessels open at the top, judged by what fills their cavity (verify.filled: a can's lid is no opening; a
+# bowl is left out: what lies in one, a spoon or food scraps, is no evidence against it).
+CAVITY_CLASSES = ("cup", "mug", "glass")
 
 
 @dataclass
@@ -372,6 +375,8 @@ class Perceiver:
                                                self.inventory[hyp.obj_id].is_rotationally_symmetric)
             if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
                 hyp.verification.continued = self._continued(m, tree, hyp, own, found)
+            if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
+                hyp.verification.filled = self._filled(m, tree, hyp, own, found)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
@@ -405,6 +410,22 @@ class Perceiver:
             if not end_to_end:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
         return continuation(P, model.points, T, explained, len(own))
+
+    def _filled(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
+                found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
+        """verify.filled for a pose of an open vessel: map points inside its cavity that no pose explains."""
+        model = self.inventory[hyp.obj_id]
+        T = hyp.T_base_obj
+        near = np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)
+        if len(near) == 0:
+            return 0.0
+        P = m.points[near]
+        explained = on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
+        for h, _, _ in found:
+            if h is not hyp and np.linalg.norm(h.T_base_obj[:3, 3] - T[:3, 3]) < \
+                    model.diameter + self.inventory[h.obj_id].diameter:
+                explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
+        return filled(P, model.points, T, explained, len(own))
 
     def _up(self) -> np.ndarray | None:
         """The gravity prior for this scan: None with a cell (the base frame's z), the base frame's up with

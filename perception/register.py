@@ -19,6 +19,7 @@ Candidates scoring below ``min_overlap`` are rejected: unknown objects are never
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -200,13 +201,16 @@ def _exp_se3_small(x: np.ndarray) -> np.ndarray:
     th = np.linalg.norm(w)
     Kx = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
     if th < 1e-9:
-        R = np.eye(3) + Kx
+        R = _EYE3 + Kx
     else:
-        R = np.eye(3) + np.sin(th) / th * Kx + (1 - np.cos(th)) / th**2 * (Kx @ Kx)
+        R = _EYE3 + np.sin(th) / th * Kx + (1 - np.cos(th)) / th**2 * (Kx @ Kx)
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = x[3:]
     return T
+
+
+_EYE3 = np.eye(3)
 
 
 def _converged(x: np.ndarray, dmax: float) -> np.ndarray:
@@ -214,12 +218,14 @@ def _converged(x: np.ndarray, dmax: float) -> np.ndarray:
     under 1e-4 rad and 0.01 mm. (A test relative to the level's distance, 1 %, saved ~15 % of the refinement's
     iterations; with it, held-out scenes with distractors had 12 more false positives in 24 images: fits in
     piles follow any change in the ICP.)"""
-    return (np.linalg.norm(x[..., :3], axis=-1) < 1e-4) & (np.linalg.norm(x[..., 3:], axis=-1) < 1e-5)
+    return (np.einsum("...i,...i->...", x[..., :3], x[..., :3]) < 1e-8) & \
+        (np.einsum("...i,...i->...", x[..., 3:], x[..., 3:]) < 1e-10)
 
 
 def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...],
                  iters: int = 10, coarse: bool = False, upright: bool = False,
-                 qn: np.ndarray | None = None, symmetric: bool = False) -> np.ndarray:
+                 qn: np.ndarray | None = None, symmetric: bool = False, sparse: tuple[float, int] = (np.inf, 1)
+                 ) -> np.ndarray:
     """Point-to-plane ICP of query points (base frame) onto the model surface; returns T_obj_base.
 
     Hand-written (numpy + the model's prebuilt KD-tree) because Open3D's registration_icp rebuilds the target
@@ -233,48 +239,65 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
     wrong side: plates sat one wall thickness high, stacked ones more.
     `symmetric`: the model is a surface of revolution about its z axis; the turn about it is left out (the
     data cannot fix it: it drifted by degrees per iteration and the ICP never met its convergence test).
+    `sparse` = (d, k): levels with a correspondence distance of at least d use every k-th query point (the
+    coarse levels only bring the pose near; the fine ones, on all points, settle it).
+    The loop keeps numpy calls per iteration few (it runs ~30 times per refinement on a few hundred points,
+    where per-call overhead, not arithmetic, was the cost).
     """
     free = np.array([2, 3, 4, 5]) if upright else np.arange(6)
     if symmetric:
         free = free[free != 2]
-    T = T_obj_base.copy()
+    damp = 1e-6 * np.eye(len(free))
+    T = np.array(T_obj_base, float)
     if coarse:  # voxel-level model points: a smaller tree, good enough to screen hypotheses
         tree, mp, mn = entry.ref_tree, entry.ref.points, entry.ref.normals
         qn = None  # the voxel-level model merges a thin wall's two sides into one point: no side to choose
     else:
         tree, mp, mn = entry.tree, entry.dense_points, entry.dense_normals
+    mp, mn = np.asarray(mp, np.float64), np.asarray(mn, np.float64)
+    q_all, qn_all = q, qn
+    J = np.empty((len(q), 6))
     for dmax in dists:
+        k_step = sparse[1] if dmax >= sparse[0] else 1
+        q = q_all[::k_step]
+        qn = None if qn_all is None else qn_all[::k_step]
+        X = np.empty((len(q), 6)) if qn is not None else None
+        dmax2 = dmax * dmax
         for _ in range(iters):
-            p = q @ T[:3, :3].T + T[:3, 3]
+            R, t = T[:3, :3], T[:3, 3]
+            p = q @ R.T + t
             if qn is None:
                 d, j = tree.query(p, distance_upper_bound=dmax)
-                ok = np.isfinite(d)
+                ok = d < np.inf
             else:
-                pn = qn @ T[:3, :3].T
+                pn = qn @ R.T
+                X[:, :3] = p
+                np.multiply(pn, NORMAL_WEIGHT, out=X[:, 3:])
                 # (a match facing within 60 deg is at most sqrt(dmax^2 + NORMAL_WEIGHT^2) away in the 6-D tree)
-                d6, j = entry.oriented_tree.query(np.hstack([p, NORMAL_WEIGHT * pn]),
-                                                  distance_upper_bound=np.hypot(dmax, NORMAL_WEIGHT))
-                j = np.minimum(j, len(mp) - 1)
+                d6, j = entry.oriented_tree.query(X, distance_upper_bound=math.hypot(dmax, NORMAL_WEIGHT))
+                np.minimum(j, len(mp) - 1, out=j)
                 # Near in space and facing within ~60 deg of the query normal (normals of 1 cm voxel centres
                 # on a rim or a tight curve are rough).
-                ok = np.isfinite(d6) & (np.linalg.norm(p - mp[j], axis=1) <= dmax) & \
+                diff = p - mp[j]
+                ok = (d6 < np.inf) & (np.einsum("ij,ij->i", diff, diff) <= dmax2) & \
                     (np.einsum("ij,ij->i", pn, mn[j]) > 0.5)
-            if ok.sum() < 6:
+            k = int(np.count_nonzero(ok))
+            if k < 6:
                 break
-            p, m, n = p[ok], mp[j[ok]].astype(np.float64), mn[j[ok]].astype(np.float64)
+            jo = j[ok]
+            p, m, n = p[ok], mp[jo], mn[jo]
             r = np.einsum("ij,ij->i", p - m, n)
-            J = np.empty((len(p), 6))
-            J[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]  # p x n, written out (np.cross is slow on small arrays)
-            J[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
-            J[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
-            J[:, 3:] = n
-            Jf = J[:, free]
+            Jk = J[:k]
+            Jk[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]  # p x n, written out (np.cross is slow on small arrays)
+            Jk[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
+            Jk[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
+            Jk[:, 3:] = n
+            Jf = Jk[:, free]
             x = np.zeros(6)
-            x[free] = -np.linalg.solve(Jf.T @ Jf + 1e-6 * np.eye(len(free)), Jf.T @ r)
-            dT = _exp_se3_small(x)
-            T = dT @ T
-            if _converged(x, dmax):
-                break
+            x[free] = -np.linalg.solve(Jf.T @ Jf + damp, Jf.T @ r)
+            T = _exp_se3_small(x) @ T
+            if x[0] * x[0] + x[1] * x[1] + x[2] * x[2] < 1e-8 and x[3] * x[3] + x[4] * x[4] + x[5] * x[5] < 1e-10:
+                break  # _converged, on scalars
     return T
 
 
@@ -321,7 +344,13 @@ def icp_batch(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: t
             jj = np.where(ok, j.reshape(len(idx), n), 0)
             m, nn = mp[jj], mn[jj]
             r = np.einsum("hni,hni->hn", p - m, nn) * ok
-            J = np.concatenate([np.cross(p, nn), nn], axis=2) * ok[..., None]
+            J = np.empty(p.shape[:2] + (6,))
+            # p x n written out (np.cross's checks and copies cost more than the products here)
+            J[..., 0] = p[..., 1] * nn[..., 2] - p[..., 2] * nn[..., 1]
+            J[..., 1] = p[..., 2] * nn[..., 0] - p[..., 0] * nn[..., 2]
+            J[..., 2] = p[..., 0] * nn[..., 1] - p[..., 1] * nn[..., 0]
+            J[..., 3:] = nn
+            J *= ok[..., None]
             A = J.transpose(0, 2, 1) @ J + eye6
             bvec = (J.transpose(0, 2, 1) @ r[..., None])[..., 0]
             lk = lock[idx]
@@ -478,16 +507,25 @@ def on_surface(points: np.ndarray, normals: np.ndarray | None, entry: ModelEntry
     this one is near this plate's underside, but faces the other way."""
     if len(points) == 0:
         return np.zeros(0, bool)
+    # Only points within the model's reach of its origin can be on it (the duplicate and verification checks
+    # ask about whole segments against every pose nearby; most points are beyond the reach).
+    d2 = ((points - T_base_obj[:3, 3]) ** 2).sum(axis=1)
+    out = np.zeros(len(points), bool)
+    cand = np.nonzero(d2 <= (entry.reach + tol) ** 2)[0]
+    if len(cand) == 0:
+        return out
     Ti = inv(T_base_obj)
-    p = points @ Ti[:3, :3].T + Ti[:3, 3]
+    p = points[cand] @ Ti[:3, :3].T + Ti[:3, 3]
     if normals is None:
         d, _ = entry.tree.query(p, distance_upper_bound=tol)
-        return np.isfinite(d)
-    pn = normals @ Ti[:3, :3].T
+        out[cand] = np.isfinite(d)
+        return out
+    pn = normals[cand] @ Ti[:3, :3].T
     d6, j = entry.oriented_tree.query(np.hstack([p, NORMAL_WEIGHT * pn]), distance_upper_bound=np.hypot(tol, NORMAL_WEIGHT))
     j = np.minimum(j, len(entry.dense_points) - 1)
-    return np.isfinite(d6) & (np.linalg.norm(p - entry.dense_points[j], axis=1) <= tol) & \
+    out[cand] = np.isfinite(d6) & (np.linalg.norm(p - entry.dense_points[j], axis=1) <= tol) & \
         (np.einsum("ij,ij->i", pn, entry.dense_normals[j]) > 0.5)
+    return out
 
 
 def surface_fit(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,

@@ -56,6 +56,11 @@ FINE_FULL = 0.6
 CONTINUED_FULL = 1.0
 # Past each end of the model along its axis, this far, is where a longer object would continue.
 CONTINUE_REACH = 0.03
+# The filled share at which a pose scores 0 (linear from 0 at none; see `filled`): calibrated with
+# perception/calibrate_verify.py on development scenes with distractors (docs/perception.md "A can is closed").
+FILLED_FULL = 1.0
+# Inside the wall by this much (metres; the wall's thickness and the fit's error) counts as the vessel's cavity.
+CAVITY_MARGIN = 0.006
 
 
 @dataclass
@@ -66,17 +71,18 @@ class Verification:
     normals: float
     fine: float = 1.0  # set by the pipeline on the final poses (fine_share)
     continued: float = 0.0  # set by the pipeline on the final poses of tall vessels (continuation)
+    filled: float = 0.0  # set by the pipeline on the final poses of open vessels (filled)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
-                "fine": self.fine, "continued": self.continued}
+                "fine": self.fine, "continued": self.continued, "filled": self.filled}
 
     @property
     def score(self) -> float:
         judged = self.seen + self.free_space
         through = self.free_space / judged if judged > 0 else 1.0
         return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL,
-                            1.0 - self.continued / CONTINUED_FULL))
+                            1.0 - self.continued / CONTINUED_FULL, 1.0 - self.filled / FILLED_FULL))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
@@ -202,3 +208,32 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
     past = ((q[:, 2] < z0) & (q[:, 2] > z0 - reach) & (r_q < r0)) | \
         ((q[:, 2] > z1) & (q[:, 2] < z1 + reach) & (r_q < r1))
     return float(past.sum() / n_own)
+
+
+def filled(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
+           n_own: int, margin: float = CAVITY_MARGIN) -> float:
+    """Of map points near a pose of an open vessel (cup, mug, glass, bowl; `model_points` object frame, its axis
+    z, opening at the top; `explained`: points this pose or another one puts on its surface), how many lie
+    inside its cavity, per point of the pose's own (`n_own`): within the wall (the wall's radius at that
+    height less `margin`) and between the base and the rim (3 mm over it). A real vessel's cavity shows its
+    own inner wall and floor, or an item nested in it (another pose's points); a can or a closed box fitted
+    by a cup or a glass puts its lid (flat, at the rim, across the opening) there."""
+    if n_own == 0 or len(points) == 0:
+        return 0.0
+    Ti = inv(T_base_obj)
+    q = points[~explained] @ Ti[:3, :3].T + Ti[:3, 3]
+    axis = np.median(model_points[:, :2], axis=0)
+    r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
+    z0, z1 = model_points[:, 2].min(), model_points[:, 2].max()
+    # The wall's radius per 5 mm of height: the median radius of the model's points there (the wall's two
+    # sides; a mug's handle is a small share of a slice).
+    edges = np.arange(z0, z1 + 0.005, 0.005)
+    b_model = np.clip(np.digitize(model_points[:, 2], edges) - 1, 0, len(edges) - 1)
+    wall = np.zeros(len(edges))
+    for b in range(len(edges)):
+        sel = b_model == b
+        wall[b] = np.median(r_model[sel]) if sel.any() else 0.0
+    inside = (q[:, 2] > z0) & (q[:, 2] < z1 + 0.003)
+    b_q = np.clip(np.digitize(q[:, 2], edges) - 1, 0, len(edges) - 1)
+    inside &= np.linalg.norm(q[:, :2] - axis, axis=1) < wall[b_q] - margin
+    return float(inside.sum() / n_own)

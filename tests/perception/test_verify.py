@@ -95,3 +95,39 @@ def test_a_surface_going_on_past_the_models_end_is_continuation(perceiver, inven
     assert c > 0.2, c
     # The same points explained by another pose: nothing unexplained continues.
     assert continuation(P, model.points, T, explained | (np.arange(len(P)) >= len(own)), len(own)) < 0.02
+
+
+def _disk(radius: float, z: float, n: int = 3000, seed: int = 2) -> np.ndarray:
+    """Points on a flat disk across the object z axis at height z (object frame): a lid."""
+    rng = np.random.default_rng(seed)
+    r, a = radius * np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    return np.column_stack([r * np.cos(a), r * np.sin(a), np.full(n, z)])
+
+
+def test_a_lid_across_the_opening_fills_the_cavity(perceiver, inventory):
+    """A cup's cavity shows its own inner wall and floor: nothing unexplained fills it. A closed cylinder fitted
+    by the cup (a drink can) shows its lid across the opening at the rim: those points fill the cavity, unless
+    another pose explains them (an item nested in the cup); upright or lying, it is judged in the cup's frame.
+    Points beside the cup (a neighbour) do not count."""
+    from kitchenbot.perception.register import on_surface
+    from kitchenbot.perception.verify import filled
+
+    entry, model = perceiver.database[4], inventory[4]
+    z1 = model.points[:, 2].max()
+    r_rim = np.linalg.norm(model.points[model.points[:, 2] > z1 - 0.005, :2]
+                           - np.median(model.points[:, :2], axis=0), axis=1).max()
+    for T in (make_T(np.eye(3), np.array([0.4, 0.0, 0.05])),
+              make_T(rot_x(np.pi / 2)[:3, :3], np.array([0.4, 0.0, 0.05]))):  # upright; lying (axis along -y)
+        own, _ = _cup_surface(entry, T, 0.0005)
+        mine = on_surface(own, None, entry, T, 0.004)
+        assert filled(own, model.points, T, mine, len(own)) < 0.02
+        lid = _disk(r_rim - 0.002, z1) @ T[:3, :3].T + T[:3, 3]
+        beside = (_disk(r_rim, z1) + np.array([2.5 * r_rim, 0.0, 0.0])) @ T[:3, :3].T + T[:3, 3]
+        P = np.vstack([own, lid, beside])
+        explained = on_surface(P, None, entry, T, 0.004)
+        f = filled(P, model.points, T, explained, len(own))
+        assert f > 0.2, f
+        P2 = np.vstack([own, beside])
+        assert filled(P2, model.points, T, on_surface(P2, None, entry, T, 0.004), len(own)) < 0.02
+        # The lid explained by another pose: nothing unexplained fills the cup.
+        assert filled(P, model.points, T, explained | (np.arange(len(P)) >= len(own)), len(own)) < 0.02
