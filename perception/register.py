@@ -224,8 +224,7 @@ def _converged(x: np.ndarray, dmax: float) -> np.ndarray:
 
 def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists: tuple[float, ...],
                  iters: int = 10, coarse: bool = False, upright: bool = False,
-                 qn: np.ndarray | None = None, symmetric: bool = False, sparse: tuple[float, int] = (np.inf, 1)
-                 ) -> np.ndarray:
+                 qn: np.ndarray | None = None, symmetric: bool = False) -> np.ndarray:
     """Point-to-plane ICP of query points (base frame) onto the model surface; returns T_obj_base.
 
     Hand-written (numpy + the model's prebuilt KD-tree) because Open3D's registration_icp rebuilds the target
@@ -239,8 +238,6 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
     wrong side: plates sat one wall thickness high, stacked ones more.
     `symmetric`: the model is a surface of revolution about its z axis; the turn about it is left out (the
     data cannot fix it: it drifted by degrees per iteration and the ICP never met its convergence test).
-    `sparse` = (d, k): levels with a correspondence distance of at least d use every k-th query point (the
-    coarse levels only bring the pose near; the fine ones, on all points, settle it).
     The loop keeps numpy calls per iteration few (it runs ~30 times per refinement on a few hundred points,
     where per-call overhead, not arithmetic, was the cost).
     """
@@ -255,13 +252,9 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
     else:
         tree, mp, mn = entry.tree, entry.dense_points, entry.dense_normals
     mp, mn = np.asarray(mp, np.float64), np.asarray(mn, np.float64)
-    q_all, qn_all = q, qn
     J = np.empty((len(q), 6))
+    X = np.empty((len(q), 6)) if qn is not None else None
     for dmax in dists:
-        k_step = sparse[1] if dmax >= sparse[0] else 1
-        q = q_all[::k_step]
-        qn = None if qn_all is None else qn_all[::k_step]
-        X = np.empty((len(q), 6)) if qn is not None else None
         dmax2 = dmax * dmax
         for _ in range(iters):
             R, t = T[:3, :3], T[:3, 3]
