@@ -15,7 +15,11 @@ never checked; toppra is also not installed and would be one more compiled depen
   the blended path is not the checked polyline: the caller must prove it free (``free``) and otherwise falls
   back to ``stop_at_vertices``. Start and end are at rest on the first / last segment's line (no corner cut).
 
-Samples are uniform in time (``dt``); in the stop-at-vertices profile each segment lasts a whole number of
+Every profile also keeps the TCP within ``SafetyLimits.max_tcp_speed`` (checked on the samples as the safety
+layer checks it): a stop-at-vertices segment whose TCP would run faster is slowed on its own (the same segment
+f times slower: joint speeds / f, accelerations / f^2), a smooth profile as a whole.
+
+Samples are uniform in time (``dt``; a profile slowed for the TCP: ``f * dt``); in the stop-at-vertices profile each segment lasts a whole number of
 samples, so every vertex is a sample and linear interpolation between samples never leaves the polyline.
 The result is verified with ``SafetyLimits.check_trajectory`` (the same check the Arm applies) before it is
 returned.
@@ -27,10 +31,27 @@ import numpy as np
 
 from kitchenbot.drivers.errors import LimitViolation
 from kitchenbot.drivers.safety import SafetyLimits
-from kitchenbot.drivers.ur_kinematics import URModel
+from kitchenbot.drivers.ur_kinematics import URModel, fk_flange_batch
 from kitchenbot.planning.types import Trajectory
 
 DT = 0.008  # s between samples (125 Hz: the Arm streams or resamples; dense enough for finite differences)
+TCP_HEADROOM = 1.01  # a profile slowed for the TCP speed limit is slowed this much more (sampling, rounding to dt)
+
+
+def tcp_speed_ratio(limits: SafetyLimits, ur: URModel, times: np.ndarray, q: np.ndarray) -> float:
+    """The samples' peak TCP speed (finite differences, as ``SafetyLimits.check_trajectory`` estimates it) over
+    the limit ``limits.max_tcp_speed``: above 1 the trajectory must be that many times slower."""
+    q = np.asarray(q, float)
+    if len(q) < 2:
+        return 0.0
+    p = (fk_flange_batch(ur, q) @ np.asarray(limits.T_flange_tcp, float)[:, 3])[:, :3]
+    v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(np.asarray(times, float))
+    return float(v.max()) / limits.max_tcp_speed
+
+
+def _slowed_for_tcp(times: np.ndarray, q: np.ndarray, ratio: float) -> np.ndarray:
+    """The same samples f = ratio times slower (velocities / f, accelerations / f^2) when the TCP is too fast."""
+    return times * (ratio * TCP_HEADROOM) if ratio > 1.0 else times
 
 
 def _trapezoid_s(T: float, v: float, a: float, t: np.ndarray) -> np.ndarray:
@@ -67,20 +88,31 @@ def _segment_profile(dq: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: flo
     return n, float(v), a
 
 
-def stop_at_vertices(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
-    """Rest-to-rest synchronised trapezoids between consecutive rows of Q. Returns (times, q)."""
+def stop_at_vertices(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT,
+                     tcp_ratio=None) -> tuple[np.ndarray, np.ndarray]:
+    """Rest-to-rest synchronised trapezoids between consecutive rows of Q. Returns (times, q).
+    `tcp_ratio(times, q)`: the samples' peak TCP speed over its limit; a segment above 1 is slowed by that factor
+    (speeds / f, accelerations / f^2: the same segment f times slower), each segment on its own."""
     Q = np.asarray(Q, float)
     times = [0.0]
     qs = [Q[0]]
     t0 = 0.0
     for k in range(len(Q) - 1):
         dq = Q[k + 1] - Q[k]
-        n, v, a = _segment_profile(dq, vmax, amax, dt)
+        slow = 1.0
+        for _ in range(4):
+            n, v, a = _segment_profile(dq, vmax / slow, amax / slow**2, dt)
+            if n == 0:
+                break
+            t = np.arange(1, n + 1) * dt
+            s = _trapezoid_s(n * dt, v, a, t)
+            s[-1] = 1.0
+            f = 1.0 if tcp_ratio is None else tcp_ratio(np.r_[0.0, t], np.vstack([Q[k], Q[k] + s[:, None] * dq]))
+            if f <= 1.0:
+                break
+            slow *= f * TCP_HEADROOM
         if n == 0:
             continue
-        t = np.arange(1, n + 1) * dt
-        s = _trapezoid_s(n * dt, v, a, t)
-        s[-1] = 1.0
         qs.extend(Q[k] + s[:, None] * dq)
         times.extend(t0 + t)
         t0 += n * dt
@@ -198,11 +230,20 @@ def time_parameterise(
     """
     vmax = np.asarray(limits.max_joint_speed, float) * velocity_scale
     amax = np.asarray(limits.max_joint_accel, float) * acceleration_scale
+
+    def ratio(times: np.ndarray, q: np.ndarray) -> float:
+        return tcp_speed_ratio(limits, ur, times, q)
+
+    def tcp_slowed(times: np.ndarray, q: np.ndarray) -> np.ndarray:
+        # a smooth profile (one trapezoid, or blends) is slowed as a whole where the TCP runs too fast
+        return _slowed_for_tcp(times, q, ratio(times, q))
+
     if mode == "blended":
         if free is None:
             raise ValueError("time_parameterise(mode='blended'): needs free=, the collision check of the blended path")
         try:
             times, q = blended(Q, vmax, amax, dt)
+            times = tcp_slowed(times, q)
             limits.check_trajectory(ur, times, q)
             if free(q):
                 return Trajectory(times, q, name)
@@ -216,18 +257,22 @@ def time_parameterise(
         for share in (1.0, 0.85, 0.7):
             times, q = along_path(Q, vmax, amax, dt, accel_share=share)
             if within(times, q, vmax, amax):
+                times = tcp_slowed(times, q)
                 try:
                     limits.check_trajectory(ur, times, q)
                     return Trajectory(times, q, name)
                 except LimitViolation:
                     break
-    fn = stop_at_vertices if mode == "stop_at_vertices" else along_path
     slow = 1.0
     last: LimitViolation | None = None
     for attempt in range(16):
-        if attempt == 10 and fn is along_path:  # a corner the smooth profile cannot take: stop at the vertices
-            fn, slow = stop_at_vertices, 1.0
-        times, q = fn(Q, vmax / slow, amax / slow**2, dt)
+        if attempt == 10 and mode != "stop_at_vertices":  # a corner the smooth profile cannot take: stop there
+            mode, slow = "stop_at_vertices", 1.0
+        if mode == "stop_at_vertices":
+            times, q = stop_at_vertices(Q, vmax / slow, amax / slow**2, dt, tcp_ratio=ratio)
+        else:
+            times, q = along_path(Q, vmax / slow, amax / slow**2, dt)
+            times = tcp_slowed(times, q)
         try:
             limits.check_trajectory(ur, times, q)
             return Trajectory(times, q, name)

@@ -225,3 +225,26 @@ def test_a_work_budget_grows_with_the_time_budget(planner, home, monkeypatch):
     planner.plan_move(home, q1)
     planner.plan_move(home, q1, timeout_scale=4.0)
     assert seen == [200, 800]
+
+
+def test_timing_keeps_the_tcp_within_its_speed_limit(planner, home):
+    """A base turn at the full joint speed would swing the TCP faster than max_tcp_speed: every profile slows
+    down for it (a stop-at-vertices segment on its own), and a slow segment keeps its joint-limited pace."""
+    from kitchenbot.planning.timing import stop_at_vertices, tcp_speed_ratio
+
+    lim, ur = planner.limits, planner.robot.ur
+    turn = home + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # the base: the TCP far from its axis moves fast
+    wrist = turn + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])  # the last wrist joint: the TCP hardly moves
+    Q = np.vstack([home, turn, wrist])
+    t_raw, q_raw = stop_at_vertices(Q, lim.max_joint_speed, lim.max_joint_accel)
+    assert tcp_speed_ratio(lim, ur, t_raw, q_raw) > 1.1  # too fast without the TCP limit
+    for mode in ("stop_at_vertices", "along_path", "blended"):
+        traj = time_parameterise(Q, lim, ur, mode=mode, free=lambda q: True)
+        lim.check_trajectory(ur, traj.times, traj.q)
+        assert tcp_speed_ratio(lim, ur, traj.times, traj.q) <= 1.02
+        np.testing.assert_allclose(traj.q[-1], Q[-1])
+    stop = time_parameterise(Q, lim, ur, mode="stop_at_vertices")
+    # the wrist segment is not slowed with the base turn: it lasts as long as its own joint limits make it
+    k = int(np.argmin(np.max(np.abs(stop.q - turn), axis=1)))
+    t_wrist, _ = stop_at_vertices(Q[1:], lim.max_joint_speed, lim.max_joint_accel)
+    assert stop.duration - stop.times[k] == pytest.approx(t_wrist[-1], abs=0.02)
