@@ -7,8 +7,9 @@ never checked; toppra is also not installed and would be one more compiled depen
 - ``stop_at_vertices``: each polyline segment gets a synchronised trapezoidal profile (all joints start and
   stop together, the slowest joint sets the pace) and the arm comes to rest at every vertex. Used for the few
   vertices of a simplified RRT-Connect path.
-- ``along_path``: one trapezoid in the path parameter over a dense polyline (straight Cartesian approach,
-  retreat and lift segments whose joint path is smooth), slowed until the finite-difference check passes.
+- ``along_path``: over a dense polyline (straight Cartesian approach, retreat and lift segments whose joint path
+  is smooth), first the fastest path speed that may vary along the path (planning/path_speed.py), else one
+  trapezoid in the path parameter, slowed until the finite-difference check passes.
 - ``blended``: the vertices of a joint polyline are passed without stopping: straight segments at constant
   joint velocity joined by parabolic blends (the linear-segments-with-parabolic-blends scheme for via points,
   Craig, *Introduction to Robotics*, ch. 7). A blend cuts its corner (by at most |dv| * b / 8 per joint), so
@@ -32,6 +33,7 @@ import numpy as np
 from kitchenbot.drivers.errors import LimitViolation
 from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import URModel, fk_flange_batch
+from kitchenbot.planning.path_speed import path_speed_profile
 from kitchenbot.planning.types import Trajectory
 
 DT = 0.008  # s between samples (125 Hz: the Arm streams or resamples; dense enough for finite differences)
@@ -251,18 +253,31 @@ def time_parameterise(
             pass
         mode = "stop_at_vertices"
     if mode == "along_path":
-        # More of the acceleration for the trapezoid first: a straight line's joint path curves little, and a
-        # short line (most: approach, lift, lower, retreat) never reaches full speed, so its duration goes with
-        # 1 / sqrt(acceleration). Kept only if it stays within the scaled limits too; else half, as below.
+        # Two candidates, the faster kept: the path speed free to vary along the path (planning/path_speed.py:
+        # a corner or a fast-turning stretch slows only itself), and one trapezoid in the path parameter with more
+        # of the acceleration for it (a straight line's joint path curves little, and a short line never reaches
+        # full speed, so its duration goes with 1 / sqrt(acceleration)). Each kept only where its samples stay
+        # within the limits (finite differences, the safety check).
+        found: list[tuple[np.ndarray, np.ndarray]] = []
+        if len(Q) >= 3:
+            P = (fk_flange_batch(ur, np.asarray(Q, float)) @ np.asarray(limits.T_flange_tcp, float)[:, 3])[:, :3]
+            for slow in (1.0, 1.15, 1.3, 1.5):
+                times, q = path_speed_profile(Q, vmax / slow, amax / slow**2, dt, P=P,
+                                              vtcp=limits.max_tcp_speed / slow)
+                if within(times, q, vmax, amax):
+                    found.append((tcp_slowed(times, q), q))
+                    break
         for share in (1.0, 0.85, 0.7):
             times, q = along_path(Q, vmax, amax, dt, accel_share=share)
             if within(times, q, vmax, amax):
-                times = tcp_slowed(times, q)
-                try:
-                    limits.check_trajectory(ur, times, q)
-                    return Trajectory(times, q, name)
-                except LimitViolation:
-                    break
+                found.append((tcp_slowed(times, q), q))
+                break
+        for times, q in sorted(found, key=lambda c: c[0][-1]):
+            try:
+                limits.check_trajectory(ur, times, q)
+                return Trajectory(times, q, name)
+            except LimitViolation:
+                continue
     slow = 1.0
     last: LimitViolation | None = None
     for attempt in range(16):
