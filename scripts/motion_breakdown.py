@@ -41,11 +41,14 @@ def main() -> None:
     if a.objects is not None:
         cfg.sim.min_objects = cfg.sim.max_objects = a.objects
     sim, n = Counter(), Counter()
+    moves, n_moves = Counter(), Counter()  # planned joint moves ("trajectory move") by what they were for
 
     def hook(runner) -> None:
         clock = runner._sim_now
         runner._run_trajectory = _timed(sim, n, lambda traj, *a, **k: f"trajectory {traj.name}",
                                         runner._run_trajectory, clock)
+        runner._move_joints = _timed(moves, n_moves, lambda q, what, *a, **k: what.split(" (")[0].rstrip("0123456789 "),
+                                     runner._move_joints, clock)
         g = runner.robot.gripper
         for name in ("open", "grasp"):
             setattr(g, name, _timed(sim, n, lambda *a, _n=name, **k: f"gripper {_n}", getattr(g, name), clock))
@@ -60,6 +63,8 @@ def main() -> None:
     print(f"{'simulated time in':<28} {'s':>7} {'count':>6} {'s per placed':>13}")
     for k, v in sorted(sim.items(), key=lambda kv: -kv[1]):
         print(f"{k:<28} {v:7.1f} {n[k]:6d} {v / max(placed, 1):13.2f}")
+    for k, v in sorted(moves.items(), key=lambda kv: -kv[1]):
+        print(f"{'  of which joint moves to ' + k:<28} {v:7.1f} {n_moves[k]:6d} {v / max(placed, 1):13.2f}")
     rest = total - sum(sim.values())
     print(f"{'other (polls, waits)':<28} {rest:7.1f} {'':6} {rest / max(placed, 1):13.2f}")
     print("simulated s by state: " + ", ".join(f"{k} {v:.1f}" for k, v in
@@ -68,7 +73,7 @@ def main() -> None:
                                                  sorted(rep.compute_cpu_by_stage_s.items(), key=lambda x: -x[1])))
     if a.json:
         with open(a.json, "w") as f:
-            json.dump({"placed": placed, "sim_s": total, "by_kind_s": dict(sim), "counts": dict(n),
+            json.dump({"placed": placed, "sim_s": total, "by_kind_s": dict(sim), "counts": dict(n), "joint_moves_s": dict(moves),
                        "state_sim_s": rep.state_sim_time_s, "compute_cpu_by_stage_s": rep.compute_cpu_by_stage_s,
                        "cycles": rep.cycles, "collisions": rep.collisions}, f, indent=1, default=str)
 
