@@ -31,7 +31,6 @@ from kitchenbot.executive.journal import Journal
 from kitchenbot.executive.motion import MotionTracks, Motions, spot_measured  # noqa: F401
 from kitchenbot.executive.recovery import RecoveryActions
 from kitchenbot.executive.report import RunReport
-from kitchenbot.executive.scan_order import visit_order
 from kitchenbot.executive.stage_times import StageTimes
 from kitchenbot.executive.strategies import strategies_for
 from kitchenbot.executive.verification import Verification
@@ -322,12 +321,10 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
 
     # ---- scan, perceive, select ---------------------------------------------------------------------------------
     def _scan(self) -> list[View]:
-        views, taken = [], []
+        views = []
         skipped: list[StepFailed] = []
         home = np.asarray(self.robot.config.robot.home, float)
-        waypoints = self.robot.config.scan_waypoints
-        for k in visit_order(self.arm.joint_positions(), waypoints):  # least travel (executive/scan_order.py)
-            q = waypoints[k]
+        for k, q in enumerate(self.robot.config.scan_waypoints):
             try:
                 self._move_joints_via(np.asarray(q, float), f"scan waypoint {k}", home)
             except StepFailed as e:  # blocked (e.g. by a pile on the counter): the other views still cover the sink
@@ -336,10 +333,8 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
                 skipped.append(e)
                 continue
             views.append(self._capture_view(f"scan{self.counts.scan_count}_wp{k}", f"scan_wp{k}"))
-            taken.append(k)
         if not views:
             raise skipped[0]
-        views = [v for _, v in sorted(zip(taken, views), key=lambda kv: kv[0])]  # perception: the configured order
         self.counts.scan_count += 1
         if self.dataset is not None:
             self.dataset.write_scan(views)
