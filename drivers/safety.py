@@ -110,6 +110,14 @@ class SafetyLimits:
             raise LimitViolation(
                 f"trajectory segment {k}: joint {j} speed {vel[k, j]:.3f} rad/s exceeds {self.max_joint_speed[j]:.3f}"
             )
+        # the TCP's speed between waypoints (all are valid here, so p holds every row's TCP position)
+        tcp_v = np.linalg.norm(np.diff(p, axis=0), axis=1) / dt
+        over_tcp = np.flatnonzero(tcp_v > self.max_tcp_speed * tol)
+        if len(over_tcp):
+            k = int(over_tcp[0])
+            raise LimitViolation(
+                f"trajectory segment {k}: TCP speed {tcp_v[k]:.3f} m/s exceeds {self.max_tcp_speed:.3f}"
+            )
         if len(q) >= 3:
             acc = np.diff(vel, axis=0) / ((dt[1:] + dt[:-1]) / 2)[:, None]
             over = np.abs(acc) > self.max_joint_accel * tol

@@ -167,11 +167,16 @@ class Planner:
             return InvalidInput(f"{name}: expected 6 finite joint values, got shape {q.shape}")
         return q
 
+    # motions that end in or make contact: timed slower (PlanningSettings.contact_speed_scale)
+    CONTACT_MOTIONS = frozenset({"grasp_in", "lower", "press", "slide", "escape"})
+
     def _time(self, Q: np.ndarray, name: str, mode: str, free=None) -> Trajectory | PlanningFailure:
+        s = self.settings
+        c = s.contact_speed_scale if name in self.CONTACT_MOTIONS else 1.0
         try:
             return time_parameterise(
-                Q, self.limits, self.robot.ur, velocity_scale=self.settings.velocity_scale,
-                acceleration_scale=self.settings.acceleration_scale, mode=mode, name=name, free=free,
+                Q, self.limits, self.robot.ur, velocity_scale=s.velocity_scale * c,
+                acceleration_scale=s.acceleration_scale * c, mode=mode, name=name, free=free,
             )
         except LimitViolation as e:
             return CartesianPathFailed(f"{name}: {e}")

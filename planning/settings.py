@@ -75,5 +75,12 @@ class PlanningSettings(BaseModel):
         "~/.cache/kitchenbot/grasps",
         description="where grasps synthesised from meshes are cached (keyed by a hash of the mesh); null: no cache",
     )
-    velocity_scale: float = Field(0.5, gt=0.0, le=1.0)
-    acceleration_scale: float = Field(0.5, gt=0.0, le=1.0)
+    # Fractions of the safety limits (drivers/safety.py: joint speed and acceleration; the TCP speed limit holds for
+    # every profile, planning/timing.py) that free motions are timed for: the whole of them.
+    velocity_scale: float = Field(1.0, gt=0.0, le=1.0, description="fraction of the joint speed limits")
+    acceleration_scale: float = Field(1.0, gt=0.0, le=1.0, description="fraction of the joint acceleration limits")
+    contact_speed_scale: float = Field(
+        0.5, gt=0.0, le=1.0,
+        description="further factor on both for motions that end in or make contact (grasp_in, the guarded lower, "
+                    "press, slide, escape): an item set down or closed on at half speed, as before",
+    )

@@ -7,15 +7,20 @@ never checked; toppra is also not installed and would be one more compiled depen
 - ``stop_at_vertices``: each polyline segment gets a synchronised trapezoidal profile (all joints start and
   stop together, the slowest joint sets the pace) and the arm comes to rest at every vertex. Used for the few
   vertices of a simplified RRT-Connect path.
-- ``along_path``: one trapezoid in the path parameter over a dense polyline (straight Cartesian approach,
-  retreat and lift segments whose joint path is smooth), slowed until the finite-difference check passes.
+- ``along_path``: over a dense polyline (straight Cartesian approach, retreat and lift segments whose joint path
+  is smooth), first the fastest path speed that may vary along the path (planning/path_speed.py), else one
+  trapezoid in the path parameter, slowed until the finite-difference check passes.
 - ``blended``: the vertices of a joint polyline are passed without stopping: straight segments at constant
   joint velocity joined by parabolic blends (the linear-segments-with-parabolic-blends scheme for via points,
   Craig, *Introduction to Robotics*, ch. 7). A blend cuts its corner (by at most |dv| * b / 8 per joint), so
   the blended path is not the checked polyline: the caller must prove it free (``free``) and otherwise falls
   back to ``stop_at_vertices``. Start and end are at rest on the first / last segment's line (no corner cut).
 
-Samples are uniform in time (``dt``); in the stop-at-vertices profile each segment lasts a whole number of
+Every profile also keeps the TCP within ``SafetyLimits.max_tcp_speed`` (checked on the samples as the safety
+layer checks it): a stop-at-vertices segment whose TCP would run faster is slowed on its own (the same segment
+f times slower: joint speeds / f, accelerations / f^2), a smooth profile as a whole.
+
+Samples are uniform in time (``dt``; a profile slowed for the TCP: ``f * dt``); in the stop-at-vertices profile each segment lasts a whole number of
 samples, so every vertex is a sample and linear interpolation between samples never leaves the polyline.
 The result is verified with ``SafetyLimits.check_trajectory`` (the same check the Arm applies) before it is
 returned.
@@ -27,10 +32,28 @@ import numpy as np
 
 from kitchenbot.drivers.errors import LimitViolation
 from kitchenbot.drivers.safety import SafetyLimits
-from kitchenbot.drivers.ur_kinematics import URModel
+from kitchenbot.drivers.ur_kinematics import URModel, fk_flange_batch
+from kitchenbot.planning.path_speed import path_speed_profile
 from kitchenbot.planning.types import Trajectory
 
 DT = 0.008  # s between samples (125 Hz: the Arm streams or resamples; dense enough for finite differences)
+TCP_HEADROOM = 1.01  # a profile slowed for the TCP speed limit is slowed this much more (sampling, rounding to dt)
+
+
+def tcp_speed_ratio(limits: SafetyLimits, ur: URModel, times: np.ndarray, q: np.ndarray) -> float:
+    """The samples' peak TCP speed (finite differences, as ``SafetyLimits.check_trajectory`` estimates it) over
+    the limit ``limits.max_tcp_speed``: above 1 the trajectory must be that many times slower."""
+    q = np.asarray(q, float)
+    if len(q) < 2:
+        return 0.0
+    p = (fk_flange_batch(ur, q) @ np.asarray(limits.T_flange_tcp, float)[:, 3])[:, :3]
+    v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(np.asarray(times, float))
+    return float(v.max()) / limits.max_tcp_speed
+
+
+def _slowed_for_tcp(times: np.ndarray, q: np.ndarray, ratio: float) -> np.ndarray:
+    """The same samples f = ratio times slower (velocities / f, accelerations / f^2) when the TCP is too fast."""
+    return times * (ratio * TCP_HEADROOM) if ratio > 1.0 else times
 
 
 def _trapezoid_s(T: float, v: float, a: float, t: np.ndarray) -> np.ndarray:
@@ -67,20 +90,31 @@ def _segment_profile(dq: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: flo
     return n, float(v), a
 
 
-def stop_at_vertices(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
-    """Rest-to-rest synchronised trapezoids between consecutive rows of Q. Returns (times, q)."""
+def stop_at_vertices(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT,
+                     tcp_ratio=None) -> tuple[np.ndarray, np.ndarray]:
+    """Rest-to-rest synchronised trapezoids between consecutive rows of Q. Returns (times, q).
+    `tcp_ratio(times, q)`: the samples' peak TCP speed over its limit; a segment above 1 is slowed by that factor
+    (speeds / f, accelerations / f^2: the same segment f times slower), each segment on its own."""
     Q = np.asarray(Q, float)
     times = [0.0]
     qs = [Q[0]]
     t0 = 0.0
     for k in range(len(Q) - 1):
         dq = Q[k + 1] - Q[k]
-        n, v, a = _segment_profile(dq, vmax, amax, dt)
+        slow = 1.0
+        for _ in range(4):
+            n, v, a = _segment_profile(dq, vmax / slow, amax / slow**2, dt)
+            if n == 0:
+                break
+            t = np.arange(1, n + 1) * dt
+            s = _trapezoid_s(n * dt, v, a, t)
+            s[-1] = 1.0
+            f = 1.0 if tcp_ratio is None else tcp_ratio(np.r_[0.0, t], np.vstack([Q[k], Q[k] + s[:, None] * dq]))
+            if f <= 1.0:
+                break
+            slow *= f * TCP_HEADROOM
         if n == 0:
             continue
-        t = np.arange(1, n + 1) * dt
-        s = _trapezoid_s(n * dt, v, a, t)
-        s[-1] = 1.0
         qs.extend(Q[k] + s[:, None] * dq)
         times.extend(t0 + t)
         t0 += n * dt
@@ -198,11 +232,20 @@ def time_parameterise(
     """
     vmax = np.asarray(limits.max_joint_speed, float) * velocity_scale
     amax = np.asarray(limits.max_joint_accel, float) * acceleration_scale
+
+    def ratio(times: np.ndarray, q: np.ndarray) -> float:
+        return tcp_speed_ratio(limits, ur, times, q)
+
+    def tcp_slowed(times: np.ndarray, q: np.ndarray) -> np.ndarray:
+        # a smooth profile (one trapezoid, or blends) is slowed as a whole where the TCP runs too fast
+        return _slowed_for_tcp(times, q, ratio(times, q))
+
     if mode == "blended":
         if free is None:
             raise ValueError("time_parameterise(mode='blended'): needs free=, the collision check of the blended path")
         try:
             times, q = blended(Q, vmax, amax, dt)
+            times = tcp_slowed(times, q)
             limits.check_trajectory(ur, times, q)
             if free(q):
                 return Trajectory(times, q, name)
@@ -210,24 +253,41 @@ def time_parameterise(
             pass
         mode = "stop_at_vertices"
     if mode == "along_path":
-        # More of the acceleration for the trapezoid first: a straight line's joint path curves little, and a
-        # short line (most: approach, lift, lower, retreat) never reaches full speed, so its duration goes with
-        # 1 / sqrt(acceleration). Kept only if it stays within the scaled limits too; else half, as below.
+        # Two candidates, the faster kept: the path speed free to vary along the path (planning/path_speed.py:
+        # a corner or a fast-turning stretch slows only itself), and one trapezoid in the path parameter with more
+        # of the acceleration for it (a straight line's joint path curves little, and a short line never reaches
+        # full speed, so its duration goes with 1 / sqrt(acceleration)). Each kept only where its samples stay
+        # within the limits (finite differences, the safety check).
+        found: list[tuple[np.ndarray, np.ndarray]] = []
+        if len(Q) >= 3:
+            P = (fk_flange_batch(ur, np.asarray(Q, float)) @ np.asarray(limits.T_flange_tcp, float)[:, 3])[:, :3]
+            for slow in (1.0, 1.15, 1.3, 1.5):
+                times, q = path_speed_profile(Q, vmax / slow, amax / slow**2, dt, P=P,
+                                              vtcp=limits.max_tcp_speed / slow)
+                if within(times, q, vmax, amax):
+                    found.append((tcp_slowed(times, q), q))
+                    break
         for share in (1.0, 0.85, 0.7):
             times, q = along_path(Q, vmax, amax, dt, accel_share=share)
             if within(times, q, vmax, amax):
-                try:
-                    limits.check_trajectory(ur, times, q)
-                    return Trajectory(times, q, name)
-                except LimitViolation:
-                    break
-    fn = stop_at_vertices if mode == "stop_at_vertices" else along_path
+                found.append((tcp_slowed(times, q), q))
+                break
+        for times, q in sorted(found, key=lambda c: c[0][-1]):
+            try:
+                limits.check_trajectory(ur, times, q)
+                return Trajectory(times, q, name)
+            except LimitViolation:
+                continue
     slow = 1.0
     last: LimitViolation | None = None
     for attempt in range(16):
-        if attempt == 10 and fn is along_path:  # a corner the smooth profile cannot take: stop at the vertices
-            fn, slow = stop_at_vertices, 1.0
-        times, q = fn(Q, vmax / slow, amax / slow**2, dt)
+        if attempt == 10 and mode != "stop_at_vertices":  # a corner the smooth profile cannot take: stop there
+            mode, slow = "stop_at_vertices", 1.0
+        if mode == "stop_at_vertices":
+            times, q = stop_at_vertices(Q, vmax / slow, amax / slow**2, dt, tcp_ratio=ratio)
+        else:
+            times, q = along_path(Q, vmax / slow, amax / slow**2, dt)
+            times = tcp_slowed(times, q)
         try:
             limits.check_trajectory(ur, times, q)
             return Trajectory(times, q, name)

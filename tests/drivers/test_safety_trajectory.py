@@ -57,3 +57,19 @@ def test_a_waypoint_outside_the_workspace_is_refused(setup):
     first = int(np.argmax(zs < lo[2]))
     with pytest.raises(LimitViolation, match=rf"waypoint {first} \(TCP\): position .* outside the workspace"):
         lim.check_trajectory(model, t, Q)
+
+
+def test_a_trajectory_whose_tcp_runs_too_fast_is_refused(setup):
+    """The TCP speed limit holds for timed trajectories too (finite differences of the waypoints' TCP), not only
+    for linear moves: joint speeds within their limits can still swing the TCP faster than max_tcp_speed."""
+    limits, model, home = setup
+    n = 60
+    Q = home + np.linspace(0.0, 1.0, n)[:, None] * np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # the base turns
+    t = np.linspace(0.0, 1.0, n)  # 1 rad/s: within the joint speed limit, and the accelerations are 0
+    p = (fk_flange_batch(model, Q) @ limits.T_flange_tcp[:, 3])[:, :3]
+    tcp_speed = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t)))
+    slower = type(limits)(**{**limits.__dict__, "max_tcp_speed": 0.8 * tcp_speed})
+    with pytest.raises(LimitViolation, match=r"trajectory segment \d+: TCP speed .* m/s exceeds"):
+        slower.check_trajectory(model, t, Q)
+    slower.check_trajectory(model, t * 1.3, Q)  # the same path 30 % slower passes
+    type(limits)(**{**limits.__dict__, "max_tcp_speed": 1.01 * tcp_speed}).check_trajectory(model, t, Q)

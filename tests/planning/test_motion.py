@@ -225,3 +225,54 @@ def test_a_work_budget_grows_with_the_time_budget(planner, home, monkeypatch):
     planner.plan_move(home, q1)
     planner.plan_move(home, q1, timeout_scale=4.0)
     assert seen == [200, 800]
+
+
+def test_timing_keeps_the_tcp_within_its_speed_limit(planner, home):
+    """A base turn at the full joint speed would swing the TCP faster than max_tcp_speed: every profile slows
+    down for it (a stop-at-vertices segment on its own), and a slow segment keeps its joint-limited pace."""
+    from kitchenbot.planning.timing import stop_at_vertices, tcp_speed_ratio
+
+    lim, ur = planner.limits, planner.robot.ur
+    turn = home + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # the base: the TCP far from its axis moves fast
+    wrist = turn + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])  # the last wrist joint: the TCP hardly moves
+    Q = np.vstack([home, turn, wrist])
+    t_raw, q_raw = stop_at_vertices(Q, lim.max_joint_speed, lim.max_joint_accel)
+    assert tcp_speed_ratio(lim, ur, t_raw, q_raw) > 1.1  # too fast without the TCP limit
+    for mode in ("stop_at_vertices", "along_path", "blended"):
+        traj = time_parameterise(Q, lim, ur, mode=mode, free=lambda q: True)
+        lim.check_trajectory(ur, traj.times, traj.q)
+        assert tcp_speed_ratio(lim, ur, traj.times, traj.q) <= 1.02
+        np.testing.assert_allclose(traj.q[-1], Q[-1])
+    stop = time_parameterise(Q, lim, ur, mode="stop_at_vertices")
+    # the wrist segment is not slowed with the base turn: it lasts as long as its own joint limits make it
+    k = int(np.argmin(np.max(np.abs(stop.q - turn), axis=1)))
+    t_wrist, _ = stop_at_vertices(Q[1:], lim.max_joint_speed, lim.max_joint_accel)
+    assert stop.duration - stop.times[k] == pytest.approx(t_wrist[-1], abs=0.02)
+
+
+def test_a_two_leg_line_is_timed_through_its_corner_without_stopping_at_every_sample(planner, home):
+    """A lift in two straight legs (level, then up) is one dense polyline with a corner: one trapezoid cannot take
+    the corner within the limits, and stopping at each of its many vertices is slow. The path speed varying along
+    the path (planning/path_speed.py) slows down for the corner only; the samples stay on the polyline."""
+    from kitchenbot.planning.path_speed import path_speed_profile
+    from kitchenbot.planning.timing import stop_at_vertices, tcp_speed_ratio, within
+
+    lim, ur, sc = planner.limits, planner.robot.ur, planner.world.scene()
+    leg1 = cartesian_line(planner.robot, sc, home, trans(0.05, 0.0, 0.0) @ planner.robot.fk_tcp(home))
+    leg2 = cartesian_line(planner.robot, sc, leg1[-1], trans(0.0, 0.0, 0.15) @ planner.robot.fk_tcp(leg1[-1]))
+    assert not hasattr(leg1, "kind") and not hasattr(leg2, "kind")
+    Q = np.vstack([leg1, leg2[1:]])
+    traj = time_parameterise(Q, lim, ur, mode="along_path")
+    lim.check_trajectory(ur, traj.times, traj.q)
+    assert within(traj.times, traj.q, lim.max_joint_speed, lim.max_joint_accel)
+    assert tcp_speed_ratio(lim, ur, traj.times, traj.q) <= 1.02
+    t_stop, _ = stop_at_vertices(Q, lim.max_joint_speed, lim.max_joint_accel)
+    assert traj.duration < 0.5 * t_stop[-1]
+    # every sample lies on the polyline: on the segment between two consecutive vertices
+    t, q = path_speed_profile(Q, lim.max_joint_speed, lim.max_joint_accel, 0.008)
+    D = np.diff(Q, axis=0)
+    for x in q[:: max(1, len(q) // 25)]:
+        f = np.clip(np.einsum("ij,ij->i", x - Q[:-1], D) / np.maximum(np.einsum("ij,ij->i", D, D), 1e-300), 0, 1)
+        assert np.min(np.linalg.norm(Q[:-1] + f[:, None] * D - x, axis=1)) < 1e-9
+    np.testing.assert_allclose(q[0], Q[0])
+    np.testing.assert_allclose(q[-1], Q[-1])
