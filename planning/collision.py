@@ -286,9 +286,13 @@ class CollisionWorld:
             keep &= ~np.all((P >= b.lower - explain_radius) & (P <= b.upper + explain_radius), axis=1)
         keep[keep] = ~self.explained(P[keep], objects, explain_radius, instance_points, instance_reach,
                                      self_explaining)
-        P = P[keep]
-        if len(P) == 0:
+        return self.occupied_voxels(P[keep], min_points)
+
+    def occupied_voxels(self, points: np.ndarray | None, min_points: int = 1) -> np.ndarray:
+        """Centres of the voxels holding >= `min_points` of `points` (N, 3)."""
+        if points is None or len(points) == 0:
             return np.zeros((0, 3))
+        P = np.asarray(points, float).reshape(-1, 3)
         idx = np.floor(P / self.voxel_size).astype(np.int64)
         uniq, counts = np.unique(idx, axis=0, return_counts=True)
         return (uniq[counts >= min_points] + 0.5) * self.voxel_size

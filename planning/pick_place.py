@@ -43,6 +43,7 @@ from kitchenbot.planning.types import (
     PlacePlan,
     PlanningFailure,
     Trajectory,
+    marks_of,
 )
 from kitchenbot.transforms import check_rigid, inv, rot_z, trans
 from kitchenbot.world.attitude import is_lying
@@ -143,6 +144,8 @@ class Planner:
         around as unknown obstacles (a phantom pile where the picked item stood)."""
         if map_points is None or len(map_points) == 0 or obj.obj_id not in self.inventory.models:
             return map_points
+        if marks_of(map_points):
+            raise ValueError("without_points_of: expected the perceived map points, got map points with marks")
         P = np.asarray(map_points, float).reshape(-1, 3)
         gone = self.world.explained(P, self._scene_objects([obj]), instance_points=[obj.points])
         return P[~gone]
@@ -153,16 +156,20 @@ class Planner:
         same map and objects (tens of ms for a fused map of ~50k points)."""
         if map_points is None or len(map_points) == 0:
             return np.zeros((0, 3))
+        marks = marks_of(map_points)  # the last rows: contact marks, keep-outs; nothing explains them away
         P = np.asarray(map_points)
         known = [o for o in known if o.obj_id in self.inventory.models]  # as _scene_objects keeps them
         mine = None if own is None else [any(o is x for x in own) for o in known]
         key = (id(map_points), P.shape, float(P.reshape(-1)[:: max(1, P.size // 97)].sum()),
                tuple(sorted((o.obj_id, o.instance_id, np.asarray(o.T_base_obj, float).tobytes()) for o in known)),
-               None if mine is None else tuple(sorted(o.instance_id for o, m in zip(known, mine) if m)))
+               None if mine is None else tuple(sorted(o.instance_id for o, m in zip(known, mine) if m)), marks)
         hit = self._voxel_cache.get(key)
         if hit is None:
-            hit = self.world.unexplained_voxels(P, self._scene_objects(known), instance_points=[o.points for o in known],
+            n = len(P) - marks
+            hit = self.world.unexplained_voxels(P[:n], self._scene_objects(known), instance_points=[o.points for o in known],
                                                 self_explaining=mine)
+            if marks:
+                hit = np.unique(np.vstack([hit, self.world.occupied_voxels(P[n:])]).round(9), axis=0)
             if len(self._voxel_cache) > 8:
                 self._voxel_cache.clear()
             self._voxel_cache[key] = hit

@@ -80,3 +80,27 @@ def test_a_neighbours_points_inside_the_targets_box_are_not_explained_by_the_box
     own = [target.points, P]  # the points belong to the neighbour's instance
     assert not w.explained(P, so, instance_points=own, self_explaining=[True, False]).any()
     assert w.explained(P, so, instance_points=[target.points, None], self_explaining=[True, False]).all()
+
+
+def test_contact_marks_stay_obstacles_inside_a_perceived_objects_box(planner, resting):
+    """A stop's contact mark lies where the pads met a neighbour, i.e. inside (or at) that neighbour's model box
+    when it was perceived a little off: the box must not explain the mark away, or the next plan goes into the
+    same contact (planning.types.MapPoints)."""
+    from kitchenbot.executive.belief import Belief
+    from kitchenbot.planning.types import MapPoints, marks_of
+
+    bowl = resting("bowl", (0.5, 0.0), 1)
+    m = planner.inventory[bowl.obj_id]
+    c = bowl.T_base_obj[:3, 3]
+    mark = c + np.array([0.0, 0.0, 0.01]) + np.random.default_rng(2).uniform(-0.004, 0.004, (30, 3))  # in the bowl's box
+    seen = _seen(m, bowl.T_base_obj)
+    b = Belief()
+    b.set_map_base(seen)
+    assert len(planner.scene([bowl], b.map_points).voxels) == 0  # the bowl explains its own points
+    b.mark_contact(mark)
+    pts = b.map_points
+    assert isinstance(pts, MapPoints) and marks_of(pts) == len(mark) and marks_of(pts[1:]) == 0
+    vox = planner.scene([bowl], pts).voxels
+    assert len(vox) >= 1 and np.min(np.linalg.norm(vox - mark.mean(axis=0), axis=1)) < 0.02
+    # the same points as plain map points are explained by the bowl's box (what happened before)
+    assert len(planner.scene([bowl], np.vstack([seen, mark])).voxels) == 0
