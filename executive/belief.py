@@ -27,6 +27,7 @@ import numpy as np
 
 from kitchenbot.executive import machine as M
 from kitchenbot.perception.types import ObjectPose, View
+from kitchenbot.planning.types import MapPoints
 from kitchenbot.tasks.base import Placed
 
 #: m: two poses of one class this close are taken for the same item (a perceived pose against an item the robot
@@ -99,7 +100,10 @@ class BeliefMap:
         """All of it as one array (the same object while nothing changes: the planner caches by identity)."""
         if self._cache is None:
             parts = [p for p in (self.base, self.contact_points, self.keep_out) if p is not None and len(p)]
-            self._cache = (np.vstack(parts) if len(parts) > 1 else parts[0] if parts else self.base,)
+            # the marks (contacts, keep-out) last, flagged: no perceived object explains them away (MapPoints)
+            marks = sum(len(p) for p in (self.contact_points, self.keep_out) if p is not None)
+            pts = np.vstack(parts) if len(parts) > 1 else parts[0] if parts else self.base
+            self._cache = (MapPoints.of(pts, marks) if marks else pts,)
         return self._cache[0]
 
     def set_base(self, points: np.ndarray | None) -> None:

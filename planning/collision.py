@@ -163,6 +163,47 @@ def tcp_positions(robot: RobotModel, Q: np.ndarray) -> np.ndarray:
     return (T @ robot.T_flange_tcp[:, 3])[:, :3]
 
 
+# Owners of map points and distances to model surfaces (for CollisionWorld.explained) ---------------------------
+_SAME_POINT = 1e-4  # m: a map point and an instance's point this close are the same measurement
+
+
+def _owners(P: np.ndarray, instance_points: Sequence[np.ndarray | None], n: int) -> np.ndarray:
+    """Index of the instance (among the first `n`) whose points include each of `P`, -1 for none."""
+    owner = np.full(len(P), -1, np.int64)
+    parts, ids = [], []
+    for k in range(min(n, len(instance_points))):
+        ip = instance_points[k]
+        if ip is not None and len(ip):
+            ip = np.asarray(ip, float).reshape(-1, 3)
+            parts.append(ip)
+            ids.append(np.full(len(ip), k, np.int64))
+    if not parts or len(P) == 0:
+        return owner
+    from scipy.spatial import cKDTree
+
+    d, j = cKDTree(np.vstack(parts)).query(P, distance_upper_bound=_SAME_POINT)
+    ok = np.isfinite(d)
+    owner[ok] = np.concatenate(ids)[j[ok]]
+    return owner
+
+
+_SURFACES: dict[int, tuple] = {}  # id(mesh) -> (mesh, open3d RaycastingScene)
+
+
+def _surface_distance(model: ObjectModel, P_obj: np.ndarray) -> np.ndarray:
+    """Distance (m) from points in the object frame to the model's mesh surface (Open3D's ray-casting scene,
+    built once per mesh)."""
+    import open3d as o3d
+
+    hit = _SURFACES.get(id(model.mesh))
+    if hit is None or hit[0] is not model.mesh:
+        rs = o3d.t.geometry.RaycastingScene()
+        rs.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(model.mesh))
+        hit = _SURFACES[id(model.mesh)] = (model.mesh, rs)
+    q = o3d.core.Tensor(np.asarray(P_obj, np.float32).reshape(-1, 3))
+    return hit[1].compute_distance(q).numpy().astype(float)
+
+
 # ---- the world ---------------------------------------------------------------------------------------------
 
 ROBOT_GROUP = "robot"
@@ -232,6 +273,7 @@ class CollisionWorld:
         min_points: int = 3,
         instance_points: Sequence[np.ndarray | None] = (),
         instance_reach: float = 0.03,
+        self_explaining: Sequence[bool] | None = None,
     ) -> np.ndarray:
         """Centres of voxels holding >= `min_points` map points that nothing explains: not a cell box, not a
         perceived object (see :meth:`explained`)."""
@@ -242,10 +284,15 @@ class CollisionWorld:
         keep = np.ones(len(P), bool)
         for b in self.cell.boxes:
             keep &= ~np.all((P >= b.lower - explain_radius) & (P <= b.upper + explain_radius), axis=1)
-        keep[keep] = ~self.explained(P[keep], objects, explain_radius, instance_points, instance_reach)
-        P = P[keep]
-        if len(P) == 0:
+        keep[keep] = ~self.explained(P[keep], objects, explain_radius, instance_points, instance_reach,
+                                     self_explaining)
+        return self.occupied_voxels(P[keep], min_points)
+
+    def occupied_voxels(self, points: np.ndarray | None, min_points: int = 1) -> np.ndarray:
+        """Centres of the voxels holding >= `min_points` of `points` (N, 3)."""
+        if points is None or len(points) == 0:
             return np.zeros((0, 3))
+        P = np.asarray(points, float).reshape(-1, 3)
         idx = np.floor(P / self.voxel_size).astype(np.int64)
         uniq, counts = np.unique(idx, axis=0, return_counts=True)
         return (uniq[counts >= min_points] + 0.5) * self.voxel_size
@@ -257,31 +304,55 @@ class CollisionWorld:
         explain_radius: float = 0.015,
         instance_points: Sequence[np.ndarray | None] = (),
         instance_reach: float = 0.03,
+        self_explaining: Sequence[bool] | None = None,
     ) -> np.ndarray:
-        """Mask of the (N, 3) `points` that perceived objects explain: inside an object's mesh bounding box grown by
-        `explain_radius`, or within `explain_radius` of a recognised instance's own points (so a pose a little off
-        leaves no phantom obstacle beside the object). `instance_points[i]` belongs to `objects[i]`; only its
-        points within `instance_reach` of that object's box count (an instance that took in a neighbour must not
-        hide the neighbour)."""
+        """Mask of the (N, 3) `points` that perceived objects explain.
+
+        A point of no recognised instance is explained inside an object's mesh bounding box grown by
+        `explain_radius`. A point of instance ``objects[i]`` (``instance_points[i]`` holds them) is explained
+        where some object's model surface lies within `explain_radius` of it: where the fitted model does not
+        cover its own points, the real item is there and the model is not, so they stay obstacles. Only the
+        objects marked in `self_explaining` (None: all) may explain their own points anyway, as before: within
+        `explain_radius` of the instance's points that lie within `instance_reach` of its box (the grasp
+        target and the held item, so a pose a little off leaves no phantom obstacle beside the item the pads
+        close on; an instance that took in a neighbour must not hide the neighbour)."""
         P = np.asarray(points, float).reshape(-1, 3)
         hit = np.zeros(len(P), bool)
+        n = len(objects)
+        own_ok = [True] * n if self_explaining is None else [bool(x) for x in self_explaining] + [True] * n
+        boxes = []
+        for o in objects:
+            bb = o.model.mesh.get_axis_aligned_bounding_box()
+            boxes.append((np.asarray(bb.get_min_bound()), np.asarray(bb.get_max_bound())))
+        owner = _owners(P, instance_points, n)
         inst = []
         for k, o in enumerate(objects):
+            lo, hi = boxes[k]
             Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
-            bb = o.model.mesh.get_axis_aligned_bounding_box()
-            lo, hi = np.asarray(bb.get_min_bound()), np.asarray(bb.get_max_bound())
-            hit |= np.all((Pl >= lo - explain_radius) & (Pl <= hi + explain_radius), axis=1)
+            in_box = np.all((Pl >= lo - explain_radius) & (Pl <= hi + explain_radius), axis=1)
+            # the box explains points of no instance and of instances that may explain themselves
+            free_owner = owner < 0
+            if not all(own_ok[:n]):
+                free_owner |= np.isin(owner, [j for j in range(n) if own_ok[j]])
+            hit |= in_box & free_owner
+            # any point on (near) this model's surface
+            cand = in_box & ~hit
+            if cand.any():
+                hit[np.flatnonzero(cand)[_surface_distance(o.model, Pl[cand]) <= explain_radius]] = True
             ip = instance_points[k] if k < len(instance_points) else None
-            if ip is not None and len(ip):
+            if own_ok[k] and ip is not None and len(ip):
                 ip = np.asarray(ip, float).reshape(-1, 3)
                 il = (ip - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
                 inst.append(ip[np.all((il >= lo - instance_reach) & (il <= hi + instance_reach), axis=1)])
         if inst and not hit.all():
             from scipy.spatial import cKDTree
 
-            d, _ = cKDTree(np.vstack(inst)).query(P[~hit], distance_upper_bound=explain_radius)
-            idx = np.flatnonzero(~hit)
-            hit[idx[np.isfinite(d)]] = True
+            # instance points explain points of no instance and their own instance's (not a neighbour's)
+            may = ~hit & ((owner < 0) | np.isin(owner, [j for j in range(n) if own_ok[j]]))
+            if may.any():
+                d, _ = cKDTree(np.vstack(inst)).query(P[may], distance_upper_bound=explain_radius)
+                idx = np.flatnonzero(may)
+                hit[idx[np.isfinite(d)]] = True
         return hit
 
     # ---- per-query scene -------------------------------------------------------------------------------------

@@ -43,6 +43,7 @@ from kitchenbot.planning.types import (
     PlacePlan,
     PlanningFailure,
     Trajectory,
+    marks_of,
 )
 from kitchenbot.transforms import check_rigid, inv, rot_z, trans
 from kitchenbot.world.attitude import is_lying
@@ -118,15 +119,18 @@ class Planner:
         exclude: ObjectPose | None = None,
         held: Grasp | None = None,
         opening: float | None = None,
+        own: Sequence[ObjectPose] | None = None,
     ) -> Scene:
         """The collision scene of one query (perceived objects minus `exclude`, unexplained map points, held).
 
         Map points are explained by every perceived object (the excluded and the held one included: their
-        points were mapped where they were before the pick)."""
+        points were mapped where they were before the pick). `own`: the only objects whose observed points
+        explain themselves where their fitted model does not cover them (the grasp target, the held item;
+        None: every object, see CollisionWorld.explained); a neighbour's points off its model stay obstacles."""
         explainers = list(objects) + [o for o in (exclude, held.obj if held is not None else None)
                                       if o is not None and not any(o is x for x in objects)]
         known = [o for o in explainers if o.obj_id in self.inventory.models]
-        voxels = self._voxels(map_points, known)
+        voxels = self._voxels(map_points, known, own)
         objs = self._scene_objects(objects, exclude=exclude)
         h = None
         if held is not None:
@@ -140,21 +144,32 @@ class Planner:
         around as unknown obstacles (a phantom pile where the picked item stood)."""
         if map_points is None or len(map_points) == 0 or obj.obj_id not in self.inventory.models:
             return map_points
+        if marks_of(map_points):
+            raise ValueError("without_points_of: expected the perceived map points, got map points with marks")
         P = np.asarray(map_points, float).reshape(-1, 3)
         gone = self.world.explained(P, self._scene_objects([obj]), instance_points=[obj.points])
         return P[~gone]
 
-    def _voxels(self, map_points: np.ndarray | None, known: list[ObjectPose]) -> np.ndarray:
+    def _voxels(self, map_points: np.ndarray | None, known: list[ObjectPose],
+                own: Sequence[ObjectPose] | None = None) -> np.ndarray:
         """Unexplained map points as voxel centres; cached, since one pick or place asks several times for the
         same map and objects (tens of ms for a fused map of ~50k points)."""
         if map_points is None or len(map_points) == 0:
             return np.zeros((0, 3))
+        marks = marks_of(map_points)  # the last rows: contact marks, keep-outs; nothing explains them away
         P = np.asarray(map_points)
+        known = [o for o in known if o.obj_id in self.inventory.models]  # as _scene_objects keeps them
+        mine = None if own is None else [any(o is x for x in own) for o in known]
         key = (id(map_points), P.shape, float(P.reshape(-1)[:: max(1, P.size // 97)].sum()),
-               tuple(sorted((o.obj_id, o.instance_id, np.asarray(o.T_base_obj, float).tobytes()) for o in known)))
+               tuple(sorted((o.obj_id, o.instance_id, np.asarray(o.T_base_obj, float).tobytes()) for o in known)),
+               None if mine is None else tuple(sorted(o.instance_id for o, m in zip(known, mine) if m)), marks)
         hit = self._voxel_cache.get(key)
         if hit is None:
-            hit = self.world.unexplained_voxels(P, self._scene_objects(known), instance_points=[o.points for o in known])
+            n = len(P) - marks
+            hit = self.world.unexplained_voxels(P[:n], self._scene_objects(known), instance_points=[o.points for o in known],
+                                                self_explaining=mine)
+            if marks:
+                hit = np.unique(np.vstack([hit, self.world.occupied_voxels(P[n:])]).round(9), axis=0)
             if len(self._voxel_cache) > 8:
                 self._voxel_cache.clear()
             self._voxel_cache[key] = hit
@@ -256,7 +271,7 @@ class Planner:
         if isinstance(q, PlanningFailure):
             return q
         if scene is None:
-            scene = self.scene(objects, map_points)
+            scene = self.scene(objects, map_points, own=None if target is None else [target])
         flt = None
         if place_target is not None:
             targets = [place_target] if isinstance(place_target, PlaceTarget) else list(place_target)
@@ -315,7 +330,7 @@ class Planner:
             return q0
         timings: dict = {}
         t0 = time.perf_counter()
-        base_scene = self.scene(objects, map_points)
+        base_scene = self.scene(objects, map_points, own=None if target is None else [target])
         grasps = self.select_grasps(q0, objects, target=target, map_points=map_points, place_target=place_target,
                                     limit=self.settings.max_grasp_candidates, scene=base_scene,
                                     avoid_grasps=avoid_grasps)
@@ -441,7 +456,7 @@ class Planner:
         g.q = q_grasp
         # Lift: the held object leaves the contacts it rests in (sink floor, a stack) during the first
         # LIFT_CONTACT_TRAVEL metres (those pairs only are not checked there); above that, everything is.
-        held_scene = self.scene(objects, map_points, exclude=g.obj, held=g)
+        held_scene = self.scene(objects, map_points, exclude=g.obj, held=g, own=[g.obj])
         lift_scene = held_scene.for_release(None)
         # contacts the held object has where it rests (its support, a stack) may last for the first few
         # centimetres; anything else it would touch is checked from the start
@@ -700,7 +715,7 @@ class Planner:
         s = self.settings
         timings: dict = {}
         t_start = time.perf_counter()
-        held_scene = self.scene(objects, map_points, exclude=grasp.obj, held=grasp)
+        held_scene = self.scene(objects, map_points, exclude=grasp.obj, held=grasp, own=[grasp.obj])
         release_scene = held_scene.for_release(None)
         last: PlanningFailure | None = None
         for tgt in targets:

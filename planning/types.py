@@ -102,6 +102,29 @@ class Grasp:
         return self.T_base_tcp[:3, 2].copy()
 
 
+class MapPoints(np.ndarray):
+    """Map points (N, 3), base frame, whose last ``marks`` rows are marks that no perceived object explains: where
+    a stopped motion met something, a keep-out. Every plan keeps clear of them even inside a perceived object's
+    box (the object they met was perceived a little off: its model there is no explanation). A plain array
+    behaves as one without marks; a slice or copy of this one has none."""
+
+    marks: int = 0
+
+    @classmethod
+    def of(cls, points: np.ndarray, marks: int) -> "MapPoints":
+        out = np.asarray(points, float).reshape(-1, 3).view(cls)
+        out.marks = int(min(max(marks, 0), len(out)))
+        return out
+
+    def __array_finalize__(self, obj) -> None:
+        self.marks = 0  # derived arrays (slices, copies) do not know which of their rows are marks
+
+
+def marks_of(points) -> int:
+    """How many trailing rows of `points` are marks no object explains (:class:`MapPoints`; 0 for a plain array)."""
+    return int(getattr(points, "marks", 0) or 0)
+
+
 @dataclass
 class PlaceTarget:
     """Where the held object should end up: its pose ``T_base_obj`` (object frame as in the inventory).

@@ -1,0 +1,80 @@
+#!/usr/bin/env python3
+"""Run one simulated task scene and report every collision the fake arm stopped on: which planned motion
+(approach, grasp_in, lift, transfer, lower, retreat, or a joint move such as a scan waypoint), which bodies
+("pad hits obj:UID"), the item being handled, and for every item in the sink its true pose against the closest
+perceived pose of its class (position error, rotation error, visible fraction, verification, own points).
+
+    KITCHENBOT_PLANNER_MAX_ITERATIONS=200 KITCHENBOT_PLANNER_SEED=0 \\
+        python scripts/collision_forensics.py sink-to-dishwasher 800 > f.json
+
+Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+
+from kitchenbot.executive.config import DriversConfig, load_config
+from kitchenbot.executive.runner import run_task
+
+
+def main(task: str, seed: int, slip: float = 0.05) -> dict:
+    cfg = load_config(None).model_copy(update={"drivers": DriversConfig()})
+    cfg.sim.slip_probability = slip
+    events: list[dict] = []
+    moving = {"name": None}
+
+    def hook(runner) -> None:
+        arm, cls = runner.robot.arm, type(runner)
+        run_traj, move_joints, event = cls._run_trajectory, cls._move_joints, arm._event
+
+        def _run_trajectory(self, traj, carrying=False, guarded=False):
+            moving["name"] = getattr(traj, "name", "?")
+            return run_traj(self, traj, carrying, guarded)
+
+        def _move_joints(self, q, what):
+            moving["name"] = f"move_joints: {what}"
+            return move_joints(self, q, what)
+
+        def _event(kind, detail="", t=None):
+            if kind == "motion" and "collision:" in detail:
+                events.append(describe(runner, moving["name"], detail))
+            return event(kind, detail, t)
+
+        cls._run_trajectory, cls._move_joints, arm._event = _run_trajectory, _move_joints, _event
+
+    rep = run_task(cfg, task, seed, progress=False, journal_path=False, runner_hook=hook)
+    return {"task": task, "seed": seed, "delivered": rep.truth["end"]["delivered"],
+            "wanted": rep.truth["start"]["in_sink"], "collisions": rep.collisions, "events": events}
+
+
+def describe(runner, motion: str | None, detail: str) -> dict:
+    w = runner.robot.arm.world
+    rec: dict = {"motion": motion, "detail": detail, "state": runner.state, "target": None, "objects": []}
+    it = runner.item.obj if runner.item is not None else None
+    if it is not None:
+        rec["target"] = {"cls": it.cls, "p": np.round(it.T_base_obj[:3, 3], 3).tolist(), "iid": it.instance_id}
+    for uid, so in w.objects.items():
+        p = so.T_base_obj[:3, 3]
+        near = [o for o in runner.belief.poses if o.obj_id == so.model.obj_id]
+        best = min(near, key=lambda o: np.linalg.norm(o.T_base_obj[:3, 3] - p), default=None)
+        e = {"uid": uid, "cls": so.model.cls, "true_p": np.round(p, 3).tolist(), "held": uid == w.held_uid}
+        if best is not None and np.linalg.norm(best.T_base_obj[:3, 3] - p) < 0.1:
+            R = best.T_base_obj[:3, :3].T @ so.T_base_obj[:3, :3]
+            e.update(err_cm=round(100 * float(np.linalg.norm(best.T_base_obj[:3, 3] - p)), 2),
+                     rot_deg=round(float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))), 1),
+                     visible=round(best.visible_fraction, 2), verification=round(best.verification, 2),
+                     points=len(best.points), iid=best.instance_id)
+        else:
+            e["perceived"] = False
+        rec["objects"].append(e)
+    return rec
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 3:
+        sys.exit("usage: collision_forensics.py TASK SEED")
+    print(json.dumps(main(sys.argv[1], int(sys.argv[2])), indent=1))
