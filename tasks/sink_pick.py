@@ -20,6 +20,7 @@ sink, seen at its spot).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
@@ -34,7 +35,7 @@ from kitchenbot.tasks.base import (
     footprint,
     upright,
 )
-from kitchenbot.world.attitude import is_upright
+from kitchenbot.world.attitude import faces_down, is_upright
 from kitchenbot.world.gripper import DROP_HEIGHT
 from kitchenbot.world.inventory import ObjectModel
 
@@ -42,6 +43,21 @@ PILE_CLASSES = ("plate", "bowl", "cup")  # items a person piles up on the counte
 PILE_MAX_TOP = 0.20  # m above the counter: a pile higher gets unstable, and the tool must still reach over it
 PILE_CLEARANCE = 0.015  # m above a pile where the item is let go: its pose in the gripper is as good as perception
 # from the zone's far corner (tests/tasks/test_sink_pick_drop_zone.py)
+
+
+def levelled(R: np.ndarray, round_: bool = False) -> np.ndarray:
+    """R turned by the smallest rotation that makes the item's axis vertical the way it faces (up or down): its
+    yaw is kept as far as it can be. A `round_` item (rotationally symmetric) loses its turn about its axis, which
+    changes nothing but keeps its footprint box the disc's square."""
+    z = R[:, 2]
+    goal = np.array([0.0, 0.0, 1.0 if z[2] >= 0 else -1.0])
+    if round_:
+        return np.diag([1.0, np.sign(goal[2]), goal[2]])
+    axis = np.cross(z, goal)
+    s, c = float(np.linalg.norm(axis)), float(z @ goal)
+    if s < 1e-9:
+        return np.array(R, float)
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix() @ R
 
 
 def _piles(placed: list[Placed], tol: float = 0.03) -> list[list[Placed]]:
@@ -188,7 +204,7 @@ class SinkPick(Task):
         probe = model
         if model.cls in PILE_CLASSES and pose is upright:
             probe = max([model, *(m for m in belief.pending if m.cls == model.cls)], key=lambda m: max(m.extents[:2]))
-        pref = self._lattice(probe, lo, hi) if pose is upright else None
+        pref = self._lattice(probe, lo, hi, None if pose is upright else pose)
         growth, new = self._reserved(model, belief)
         spots: list[np.ndarray] = []
         # the reservations leave no room: first a new pile's spot, then a pile's growth gives way to a placement now
@@ -202,16 +218,25 @@ class SinkPick(Task):
         return spots
 
     @staticmethod
-    def _lattice(model: ObjectModel, lo: np.ndarray, hi: np.ndarray) -> list[tuple[float, float]]:
+    def _lattice(model: ObjectModel, lo: np.ndarray, hi: np.ndarray, pose=None) -> list[tuple[float, float]]:
         """Spots packed edge to edge from the zone's sides (a pile in a corner leaves the rest of the zone in one
-        piece; cups in rows waste no room), tried before the 2 cm grid."""
-        r = max(model.extents[:2]) / 2 + CLEARANCE / 2
-        if model.cls == "plate":  # plate piles in the corners
-            xs, ys = [lo[0] + r, hi[0] - r], [lo[1] + r, hi[1] - r]
+        piece; cups in rows waste no room), tried before the 2 cm grid. Upright by default; given a `pose`
+        function (an item set down the way it lay), from the half-widths of its footprint in that pose, so an
+        item set down turned also goes to the zone's sides instead of its middle, where it would split the free
+        room in two."""
+        if pose is None:
+            r = np.full(2, max(model.extents[:2]) / 2 + CLEARANCE / 2)
+        else:
+            f_lo, f_hi, _ = footprint(model, pose(model, (0.0, 0.0), 0.0))
+            r = np.maximum(-f_lo, f_hi) + CLEARANCE / 2
+        if model.cls == "plate" and pose is None:  # plate piles in the corners
+            xs, ys = [lo[0] + r[0], hi[0] - r[0]], [lo[1] + r[1], hi[1] - r[1]]
         else:
             pitch = 2 * r + 1e-3
-            xs = [*np.arange(lo[0] + r, hi[0] - r + 1e-9, pitch), *np.arange(hi[0] - r, lo[0] + r - 1e-9, -pitch)]
-            ys = [*np.arange(lo[1] + r, hi[1] - r + 1e-9, pitch), *np.arange(hi[1] - r, lo[1] + r - 1e-9, -pitch)]
+            xs = [*np.arange(lo[0] + r[0], hi[0] - r[0] + 1e-9, pitch[0]),
+                  *np.arange(hi[0] - r[0], lo[0] + r[0] - 1e-9, -pitch[0])]
+            ys = [*np.arange(lo[1] + r[1], hi[1] - r[1] + 1e-9, pitch[1]),
+                  *np.arange(hi[1] - r[1], lo[1] + r[1] - 1e-9, -pitch[1])]
         return [(float(x), float(y)) for x in xs for y in ys]
 
     def targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
@@ -253,6 +278,16 @@ class SinkPick(Task):
         if not out and not any(m.cls == "plate" for m in belief.pending if m is not model):
             add(self._pile_targets(model, lambda top: 0 if top.cls == "plate" else None, belief)[:2], "a plate pile")
         R = obj.T_base_obj[:3, :3]
+        if faces_down(obj.T_base_obj):
+            # Mouth down in the sink (a bowl tipped over, tilted on the items below): set down level and mouth
+            # down, the tool turning with it by the tilt. Inverted copies nest as well as upright ones, so it goes
+            # onto a pile of its model lying so first, and its level footprint is smaller than the tilted one.
+            Rl = levelled(R, model.is_rotationally_symmetric)
+            for T in self._same_way_piles(model, Rl, belief)[:1]:
+                out.append(PlaceTarget(T, "drop", free_yaw=True, support=f"a {model.cls} pile (upside down)",
+                                       clearance=PILE_CLEARANCE))
+            for T in self._floor(model, belief, 2, as_is(Rl)):
+                out.append(PlaceTarget(T, "drop", free_yaw=True, support="counter (upside down)"))
         if not is_upright(obj.T_base_obj):
             # Not upright in the sink (a glass on its side): no grasp may reach "upright", so also offer the
             # drop zone as it lies now (set down the way it is held): nested onto a pile of the same model

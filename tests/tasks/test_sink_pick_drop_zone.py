@@ -162,6 +162,39 @@ def test_upside_down_bowls_set_down_as_they_lay_nest_onto_each_other(inv):
     assert T[2, 3] == pytest.approx(first.T_base_obj[2, 3] + nesting_height(m))  # the first rests DROP_HEIGHT lower
 
 
+def test_tilted_mouth_down_bowls_are_set_down_level_and_nest_into_one_pile(inv):
+    """Bowls tipped over on the items below (mouth down, 30 degrees off level, each tilted another way) are set
+    down level and mouth down: the first on the counter (its level footprint, not the wider tilted one), the next
+    ones nested onto it, so three tipped bowls take one bowl's room."""
+    from kitchenbot.transforms import rot_x, rot_z
+
+    task = make_task("sink-pick", inv, Cell())
+    belief = Belief()
+    m = inv.by_name("bowl")
+    bowls = [ObjectPose(m.obj_id, "bowl", make_T(rot_z(yaw)[:3, :3] @ rot_x(np.pi - 0.5)[:3, :3],
+                                                 (0.5 + 0.01 * k, 0.0, -0.12)), 1.0, instance_id=k)
+             for k, yaw in enumerate((0.3, 2.0, 4.0))]
+    placed = []
+    for k, bowl in enumerate(bowls):
+        belief.pending = task.pending_models(bowls[k:])
+        ts = task.targets(bowl, belief)
+        level = [t for t in ts if "upside down" in t.support]
+        assert level, [t.support for t in ts]
+        t = level[0]
+        assert t.T_base_obj[2, 2] == pytest.approx(-1.0)  # level, mouth down
+        order = [x.support for x in ts]
+        assert order.index(t.support) < order.index("counter (as it lay)")  # before the tilted pose
+        if k:
+            assert t.support == "a bowl pile (upside down)"
+            np.testing.assert_allclose(t.T_base_obj[:2, 3], placed[0].T_base_obj[:2, 3], atol=1e-9)
+            assert t.T_base_obj[2, 3] == pytest.approx(placed[-1].T_base_obj[2, 3] + nesting_height(m))
+        belief.record_placed(task, bowl, t, t.T_base_obj)
+        placed.append(t)
+    lo = np.min([p.lo for p in belief.placed], 0)
+    hi = np.max([p.hi for p in belief.placed], 0)
+    np.testing.assert_allclose(hi - lo, m.extents[:2], atol=1e-6)  # one bowl's disc
+
+
 def test_an_item_that_fell_into_the_drop_zone_is_done_where_it_lies_elsewhere_not(inv):
     """A dropped item found in the drop zone is done for sink-pick (it takes items as they lie); one on the counter
     outside it is not, and no other task takes an item where it fell."""
