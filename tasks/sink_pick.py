@@ -60,6 +60,26 @@ def levelled(R: np.ndarray, round_: bool = False) -> np.ndarray:
     return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix() @ R
 
 
+_FLOOR_RADIUS: dict[int, float] = {}
+
+
+def floor_radius(model: ObjectModel, rise: float = 0.003, step: float = 0.005) -> float:
+    """Radius (m) of the flat floor of a dish: out to where its top surface rises more than `rise` above the
+    middle (a plate's rim), from the mesh's highest vertex per `step`-wide ring. Cached per model id."""
+    if model.obj_id not in _FLOOR_RADIUS:
+        V = np.asarray(model.mesh.vertices)
+        r = np.hypot(V[:, 0], V[:, 1])
+        floor = float(V[r < step, 2].max()) if np.any(r < step) else float(V[:, 2].min())
+        rad = float(r.max())
+        for r0 in np.arange(0.0, rad, step):
+            ring = (r >= r0) & (r < r0 + step)
+            if np.any(ring) and float(V[ring, 2].max()) > floor + rise:
+                rad = float(r0)
+                break
+        _FLOOR_RADIUS[model.obj_id] = rad
+    return _FLOOR_RADIUS[model.obj_id]
+
+
 def _piles(placed: list[Placed], tol: float = 0.03) -> list[list[Placed]]:
     """Placed items grouped into piles (bottom first): items centred within `tol` of each other (a pile is built
     centred on its bottom item; a neighbour whose footprint merely overlaps is not part of it)."""
@@ -131,7 +151,7 @@ class SinkPick(Task):
         out = []
         for pile in _piles(zone_items):
             rank = kinds(pile[-1])
-            if rank is None:
+            if rank is None or self._carries(pile[-1], zone_items):
                 continue
             T = pile_pose(model, pile)
             if T is None:
@@ -146,6 +166,46 @@ class SinkPick(Task):
                 continue  # a bigger item on a smaller pile would overhang its neighbours
             out.append((rank, T[2, 3], T))
         return [T for _, _, T in sorted(out, key=lambda r: (r[0], r[1]))]
+
+    @staticmethod
+    def _carries(top: Placed, zone_items: list[Placed]) -> list[Placed]:
+        """The items standing on `top` off its centre (not part of its pile: see `_plate_top_spots`)."""
+        return [p for p in zone_items if p is not top and p.T_base_obj[2, 3] > top.T_base_obj[2, 3] + 1e-3
+                and bool(np.all(p.lo < top.hi) and np.all(p.hi > top.lo))]
+
+    def _plate_top_spots(self, model: ObjectModel, belief: Holdings, limit: int) -> list[np.ndarray]:
+        """Upright poses standing on the flat floor of a plate that tops a pile, as a person puts glasses and
+        mugs onto a stack of plates when the counter is full: inside the floor's disc (`floor_radius`) and
+        CLEARANCE from what already stands there, off the centre first (two glasses side by side on a dinner
+        plate; one in the middle would take the whole floor); an item wider than the floor in the middle, on
+        an empty plate only. The lowest pile first."""
+        zone_items = [p for p in belief.placed if self._in_zone(p)]
+        r_item = float(np.hypot(*model.extents[:2])) / 2 if not model.is_rotationally_symmetric \
+            else max(model.extents[:2]) / 2
+        out = []
+        for pile in _piles(zone_items):
+            top = pile[-1]
+            if top.cls != "plate" or not is_upright(top.T_base_obj):
+                continue
+            room = floor_radius(self.inventory[top.obj_id]) - r_item
+            on_it = self._carries(top, zone_items)
+            c = top.T_base_obj[:2, 3]
+            cands = [c + room * np.array([np.cos(a), np.sin(a)]) for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+            # off the centre only where two fit side by side (glasses on a dinner plate); else in the middle,
+            # standing on the rim if need be (a mug on a side plate), as one item centred on a pile always was
+            for xy in [*cands, c] if room >= r_item + CLEARANCE / 2 else [c]:
+                T = upright(model, xy, 0.0)
+                T[2, 3] = top.top_z + model.extents[2] / 2 + DROP_HEIGHT
+                if T[2, 3] + model.extents[2] / 2 > PILE_MAX_TOP:
+                    break
+                # the item's disc (a mug: the circle around its box) keeps CLEARANCE from those already there
+                if any(np.linalg.norm(xy - q.T_base_obj[:2, 3]) < r_item + max(q.hi - q.lo) / 2 + CLEARANCE
+                       for q in on_it):
+                    continue
+                out.append(T)
+                on_it = on_it + [Placed(model.obj_id, model.cls, T, *footprint(model, T), None)]
+                break  # one per plate here: the next call sees this one placed
+        return sorted(out, key=lambda T: T[2, 3])[:limit]
 
     def _same_way_piles(self, model: ObjectModel, R: np.ndarray, belief: Holdings) -> list[np.ndarray]:
         """Poses nested onto piles topped by the same model lying the way R does (its axis within ~10 degrees):
@@ -276,7 +336,7 @@ class SinkPick(Task):
             # no plate is left to come
             add(self._floor(model, belief, 2, centre_inside="any"), "counter (overhanging)")
         if not out and not any(m.cls == "plate" for m in belief.pending if m is not model):
-            add(self._pile_targets(model, lambda top: 0 if top.cls == "plate" else None, belief)[:2], "a plate pile")
+            add(self._plate_top_spots(model, belief, 2), "a plate pile")
         R = obj.T_base_obj[:3, :3]
         if faces_down(obj.T_base_obj):
             # Mouth down in the sink (a bowl tipped over, tilted on the items below): set down level and mouth

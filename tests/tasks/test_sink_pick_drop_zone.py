@@ -11,6 +11,7 @@ from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.executive.belief import Belief
 from kitchenbot.tasks import make_task
+from kitchenbot.tasks.sink_pick import floor_radius
 from kitchenbot.transforms import make_T
 from kitchenbot.world.cell import Cell
 from kitchenbot.world.gripper import DROP_HEIGHT
@@ -63,6 +64,11 @@ def test_a_ten_item_sink_fits_in_the_drop_zone(inv, names):
     for a in belief.placed:
         for b in belief.placed:
             if a is b or not _overlap(a, b):
+                continue
+            lower, upper = sorted((a, b), key=lambda p: p.T_base_obj[2, 3])
+            if lower.cls == "plate" and upper.cls != "plate":  # off the centre of a plate: on its flat floor
+                d = np.linalg.norm(upper.T_base_obj[:2, 3] - lower.T_base_obj[:2, 3])
+                assert d + max(upper.hi - upper.lo) / 2 <= floor_radius(inv[lower.obj_id]) + 1e-6 or d < 1e-9
                 continue
             assert np.allclose(a.T_base_obj[:2, 3], b.T_base_obj[:2, 3], atol=1e-9), (a.cls, b.cls)
     # plates only go onto plates, bowls onto bowls, cups onto cups; anything else only onto a plate pile once
@@ -252,3 +258,51 @@ def test_a_neighbour_grazing_a_pile_does_not_close_it_to_an_item_of_its_size(inv
     belief.pending = task.pending_models([dinner[0]])
     assert not [nt for nt in task.targets(dinner[0], belief)
                 if np.allclose(nt.T_base_obj[:2, 3], pile.T_base_obj[:2, 3])]
+
+
+def test_on_a_full_counter_two_glasses_stand_side_by_side_on_a_dinner_plate_pile(inv):
+    """Once the counter is full and no plate is left to come, glasses stand on the flat floor of the plate that
+    tops a pile, off its centre and apart, so a dinner plate takes two glasses (one in the middle took it whole);
+    a plate pile with a glass on it takes no further plate."""
+    from kitchenbot.planning.types import PlaceTarget
+    from kitchenbot.tasks.base import Placed, footprint, upright
+    from kitchenbot.tasks.sink_pick import floor_radius
+
+    cell = Cell()
+    task = make_task("sink-pick", inv, cell)
+    z = cell.spec.drop_zone
+    plate, glass = inv.by_name("dinner_plate"), inv.by_name("glass")
+    belief = Belief()
+    # the zone full (bowls everywhere) but for a dinner plate in its corner
+    lo, hi = np.array(z.origin_xy), np.array(z.origin_xy) + np.array(z.size_xy)
+    Tp = upright(plate, lo + plate.extents[:2] / 2 + 0.005, z.z)
+    Tp[2, 3] -= DROP_HEIGHT
+    belief.placed.append(Placed(plate.obj_id, "plate", Tp, *footprint(plate, Tp), PlaceTarget(Tp, "drop")))
+    bowl = inv.by_name("bowl")
+    for x in np.arange(lo[0] - 0.04, hi[0] + 0.08, 0.06):  # bowls over every bit of the zone the plate leaves
+        for y in np.arange(lo[1] - 0.04, hi[1] + 0.08, 0.06):
+            T = upright(bowl, (x, y), z.z)
+            T[2, 3] -= DROP_HEIGHT
+            f = footprint(bowl, T)
+            if not (np.all(f[0] < belief.placed[0].hi) and np.all(f[1] > belief.placed[0].lo)):
+                belief.placed.append(Placed(bowl.obj_id, "bowl", T, *f, PlaceTarget(T, "drop")))
+    glasses = [ObjectPose(glass.obj_id, "glass", make_T(np.eye(3), (0.5 + 0.1 * k, 0.0, -0.15)), 1.0, instance_id=k)
+               for k in range(2)]
+    spots = []
+    for k, g in enumerate(glasses):
+        belief.pending = task.pending_models(glasses[k:])
+        ts = task.targets(g, belief)
+        assert not isinstance(ts, NoFreeSlot), k
+        t = ts[0]
+        assert t.support == "a plate pile", t.support
+        d = np.linalg.norm(t.T_base_obj[:2, 3] - Tp[:2, 3])
+        assert d + glass.extents[0] / 2 <= floor_radius(plate) + 1e-6  # on the plate's flat floor
+        assert t.T_base_obj[2, 3] > Tp[2, 3] + plate.extents[2] / 2
+        belief.record_placed(task, g, t, t.T_base_obj)
+        spots.append(t.T_base_obj[:2, 3])
+    assert np.linalg.norm(spots[0] - spots[1]) >= glass.extents[0]  # side by side, not into each other
+    # a plate found later does not go onto the glasses
+    late = ObjectPose(plate.obj_id, "plate", make_T(np.eye(3), (0.5, 0.0, -0.15)), 1.0, instance_id=9)
+    belief.pending = [plate]
+    ts = task.targets(late, belief)
+    assert isinstance(ts, NoFreeSlot) or all(np.linalg.norm(t.T_base_obj[:2, 3] - Tp[:2, 3]) > 0.1 for t in ts)
