@@ -20,6 +20,7 @@ sink, seen at its spot).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.placement import nesting_height
@@ -34,7 +35,7 @@ from kitchenbot.tasks.base import (
     footprint,
     upright,
 )
-from kitchenbot.world.attitude import is_upright
+from kitchenbot.world.attitude import faces_down, is_upright
 from kitchenbot.world.gripper import DROP_HEIGHT
 from kitchenbot.world.inventory import ObjectModel
 
@@ -42,6 +43,41 @@ PILE_CLASSES = ("plate", "bowl", "cup")  # items a person piles up on the counte
 PILE_MAX_TOP = 0.20  # m above the counter: a pile higher gets unstable, and the tool must still reach over it
 PILE_CLEARANCE = 0.015  # m above a pile where the item is let go: its pose in the gripper is as good as perception
 # from the zone's far corner (tests/tasks/test_sink_pick_drop_zone.py)
+
+
+def levelled(R: np.ndarray, round_: bool = False) -> np.ndarray:
+    """R turned by the smallest rotation that makes the item's axis vertical the way it faces (up or down): its
+    yaw is kept as far as it can be. A `round_` item (rotationally symmetric) loses its turn about its axis, which
+    changes nothing but keeps its footprint box the disc's square."""
+    z = R[:, 2]
+    goal = np.array([0.0, 0.0, 1.0 if z[2] >= 0 else -1.0])
+    if round_:
+        return np.diag([1.0, np.sign(goal[2]), goal[2]])
+    axis = np.cross(z, goal)
+    s, c = float(np.linalg.norm(axis)), float(z @ goal)
+    if s < 1e-9:
+        return np.array(R, float)
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix() @ R
+
+
+_FLOOR_RADIUS: dict[int, float] = {}
+
+
+def floor_radius(model: ObjectModel, rise: float = 0.003, step: float = 0.005) -> float:
+    """Radius (m) of the flat floor of a dish: out to where its top surface rises more than `rise` above the
+    middle (a plate's rim), from the mesh's highest vertex per `step`-wide ring. Cached per model id."""
+    if model.obj_id not in _FLOOR_RADIUS:
+        V = np.asarray(model.mesh.vertices)
+        r = np.hypot(V[:, 0], V[:, 1])
+        floor = float(V[r < step, 2].max()) if np.any(r < step) else float(V[:, 2].min())
+        rad = float(r.max())
+        for r0 in np.arange(0.0, rad, step):
+            ring = (r >= r0) & (r < r0 + step)
+            if np.any(ring) and float(V[ring, 2].max()) > floor + rise:
+                rad = float(r0)
+                break
+        _FLOOR_RADIUS[model.obj_id] = rad
+    return _FLOOR_RADIUS[model.obj_id]
 
 
 def _piles(placed: list[Placed], tol: float = 0.03) -> list[list[Placed]]:
@@ -115,7 +151,7 @@ class SinkPick(Task):
         out = []
         for pile in _piles(zone_items):
             rank = kinds(pile[-1])
-            if rank is None:
+            if rank is None or self._carries(pile[-1], zone_items):
                 continue
             T = pile_pose(model, pile)
             if T is None:
@@ -130,6 +166,46 @@ class SinkPick(Task):
                 continue  # a bigger item on a smaller pile would overhang its neighbours
             out.append((rank, T[2, 3], T))
         return [T for _, _, T in sorted(out, key=lambda r: (r[0], r[1]))]
+
+    @staticmethod
+    def _carries(top: Placed, zone_items: list[Placed]) -> list[Placed]:
+        """The items standing on `top` off its centre (not part of its pile: see `_plate_top_spots`)."""
+        return [p for p in zone_items if p is not top and p.T_base_obj[2, 3] > top.T_base_obj[2, 3] + 1e-3
+                and bool(np.all(p.lo < top.hi) and np.all(p.hi > top.lo))]
+
+    def _plate_top_spots(self, model: ObjectModel, belief: Holdings, limit: int) -> list[np.ndarray]:
+        """Upright poses standing on the flat floor of a plate that tops a pile, as a person puts glasses and
+        mugs onto a stack of plates when the counter is full: inside the floor's disc (`floor_radius`) and
+        CLEARANCE from what already stands there, off the centre first (two glasses side by side on a dinner
+        plate; one in the middle would take the whole floor); an item wider than the floor in the middle, on
+        an empty plate only. The lowest pile first."""
+        zone_items = [p for p in belief.placed if self._in_zone(p)]
+        r_item = float(np.hypot(*model.extents[:2])) / 2 if not model.is_rotationally_symmetric \
+            else max(model.extents[:2]) / 2
+        out = []
+        for pile in _piles(zone_items):
+            top = pile[-1]
+            if top.cls != "plate" or not is_upright(top.T_base_obj):
+                continue
+            room = floor_radius(self.inventory[top.obj_id]) - r_item
+            on_it = self._carries(top, zone_items)
+            c = top.T_base_obj[:2, 3]
+            cands = [c + room * np.array([np.cos(a), np.sin(a)]) for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+            # off the centre only where two fit side by side (glasses on a dinner plate); else in the middle,
+            # standing on the rim if need be (a mug on a side plate), as one item centred on a pile always was
+            for xy in [*cands, c] if room >= r_item + CLEARANCE / 2 else [c]:
+                T = upright(model, xy, 0.0)
+                T[2, 3] = top.top_z + model.extents[2] / 2 + DROP_HEIGHT
+                if T[2, 3] + model.extents[2] / 2 > PILE_MAX_TOP:
+                    break
+                # the item's disc (a mug: the circle around its box) keeps CLEARANCE from those already there
+                if any(np.linalg.norm(xy - q.T_base_obj[:2, 3]) < r_item + max(q.hi - q.lo) / 2 + CLEARANCE
+                       for q in on_it):
+                    continue
+                out.append(T)
+                on_it = on_it + [Placed(model.obj_id, model.cls, T, *footprint(model, T), None)]
+                break  # one per plate here: the next call sees this one placed
+        return sorted(out, key=lambda T: T[2, 3])[:limit]
 
     def _same_way_piles(self, model: ObjectModel, R: np.ndarray, belief: Holdings) -> list[np.ndarray]:
         """Poses nested onto piles topped by the same model lying the way R does (its axis within ~10 degrees):
@@ -188,7 +264,7 @@ class SinkPick(Task):
         probe = model
         if model.cls in PILE_CLASSES and pose is upright:
             probe = max([model, *(m for m in belief.pending if m.cls == model.cls)], key=lambda m: max(m.extents[:2]))
-        pref = self._lattice(probe, lo, hi) if pose is upright else None
+        pref = self._lattice(probe, lo, hi, None if pose is upright else pose)
         growth, new = self._reserved(model, belief)
         spots: list[np.ndarray] = []
         # the reservations leave no room: first a new pile's spot, then a pile's growth gives way to a placement now
@@ -202,16 +278,25 @@ class SinkPick(Task):
         return spots
 
     @staticmethod
-    def _lattice(model: ObjectModel, lo: np.ndarray, hi: np.ndarray) -> list[tuple[float, float]]:
+    def _lattice(model: ObjectModel, lo: np.ndarray, hi: np.ndarray, pose=None) -> list[tuple[float, float]]:
         """Spots packed edge to edge from the zone's sides (a pile in a corner leaves the rest of the zone in one
-        piece; cups in rows waste no room), tried before the 2 cm grid."""
-        r = max(model.extents[:2]) / 2 + CLEARANCE / 2
-        if model.cls == "plate":  # plate piles in the corners
-            xs, ys = [lo[0] + r, hi[0] - r], [lo[1] + r, hi[1] - r]
+        piece; cups in rows waste no room), tried before the 2 cm grid. Upright by default; given a `pose`
+        function (an item set down the way it lay), from the half-widths of its footprint in that pose, so an
+        item set down turned also goes to the zone's sides instead of its middle, where it would split the free
+        room in two."""
+        if pose is None:
+            r = np.full(2, max(model.extents[:2]) / 2 + CLEARANCE / 2)
+        else:
+            f_lo, f_hi, _ = footprint(model, pose(model, (0.0, 0.0), 0.0))
+            r = np.maximum(-f_lo, f_hi) + CLEARANCE / 2
+        if model.cls == "plate" and pose is None:  # plate piles in the corners
+            xs, ys = [lo[0] + r[0], hi[0] - r[0]], [lo[1] + r[1], hi[1] - r[1]]
         else:
             pitch = 2 * r + 1e-3
-            xs = [*np.arange(lo[0] + r, hi[0] - r + 1e-9, pitch), *np.arange(hi[0] - r, lo[0] + r - 1e-9, -pitch)]
-            ys = [*np.arange(lo[1] + r, hi[1] - r + 1e-9, pitch), *np.arange(hi[1] - r, lo[1] + r - 1e-9, -pitch)]
+            xs = [*np.arange(lo[0] + r[0], hi[0] - r[0] + 1e-9, pitch[0]),
+                  *np.arange(hi[0] - r[0], lo[0] + r[0] - 1e-9, -pitch[0])]
+            ys = [*np.arange(lo[1] + r[1], hi[1] - r[1] + 1e-9, pitch[1]),
+                  *np.arange(hi[1] - r[1], lo[1] + r[1] - 1e-9, -pitch[1])]
         return [(float(x), float(y)) for x in xs for y in ys]
 
     def targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
@@ -251,8 +336,18 @@ class SinkPick(Task):
             # no plate is left to come
             add(self._floor(model, belief, 2, centre_inside="any"), "counter (overhanging)")
         if not out and not any(m.cls == "plate" for m in belief.pending if m is not model):
-            add(self._pile_targets(model, lambda top: 0 if top.cls == "plate" else None, belief)[:2], "a plate pile")
+            add(self._plate_top_spots(model, belief, 2), "a plate pile")
         R = obj.T_base_obj[:3, :3]
+        if faces_down(obj.T_base_obj):
+            # Mouth down in the sink (a bowl tipped over, tilted on the items below): set down level and mouth
+            # down, the tool turning with it by the tilt. Inverted copies nest as well as upright ones, so it goes
+            # onto a pile of its model lying so first, and its level footprint is smaller than the tilted one.
+            Rl = levelled(R, model.is_rotationally_symmetric)
+            for T in self._same_way_piles(model, Rl, belief)[:1]:
+                out.append(PlaceTarget(T, "drop", free_yaw=True, support=f"a {model.cls} pile (upside down)",
+                                       clearance=PILE_CLEARANCE))
+            for T in self._floor(model, belief, 2, as_is(Rl)):
+                out.append(PlaceTarget(T, "drop", free_yaw=True, support="counter (upside down)"))
         if not is_upright(obj.T_base_obj):
             # Not upright in the sink (a glass on its side): no grasp may reach "upright", so also offer the
             # drop zone as it lies now (set down the way it is held): nested onto a pile of the same model

@@ -11,6 +11,7 @@ from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.executive.belief import Belief
 from kitchenbot.tasks import make_task
+from kitchenbot.tasks.sink_pick import floor_radius
 from kitchenbot.transforms import make_T
 from kitchenbot.world.cell import Cell
 from kitchenbot.world.gripper import DROP_HEIGHT
@@ -63,6 +64,11 @@ def test_a_ten_item_sink_fits_in_the_drop_zone(inv, names):
     for a in belief.placed:
         for b in belief.placed:
             if a is b or not _overlap(a, b):
+                continue
+            lower, upper = sorted((a, b), key=lambda p: p.T_base_obj[2, 3])
+            if lower.cls == "plate" and upper.cls != "plate":  # off the centre of a plate: on its flat floor
+                d = np.linalg.norm(upper.T_base_obj[:2, 3] - lower.T_base_obj[:2, 3])
+                assert d + max(upper.hi - upper.lo) / 2 <= floor_radius(inv[lower.obj_id]) + 1e-6 or d < 1e-9
                 continue
             assert np.allclose(a.T_base_obj[:2, 3], b.T_base_obj[:2, 3], atol=1e-9), (a.cls, b.cls)
     # plates only go onto plates, bowls onto bowls, cups onto cups; anything else only onto a plate pile once
@@ -162,6 +168,39 @@ def test_upside_down_bowls_set_down_as_they_lay_nest_onto_each_other(inv):
     assert T[2, 3] == pytest.approx(first.T_base_obj[2, 3] + nesting_height(m))  # the first rests DROP_HEIGHT lower
 
 
+def test_tilted_mouth_down_bowls_are_set_down_level_and_nest_into_one_pile(inv):
+    """Bowls tipped over on the items below (mouth down, 30 degrees off level, each tilted another way) are set
+    down level and mouth down: the first on the counter (its level footprint, not the wider tilted one), the next
+    ones nested onto it, so three tipped bowls take one bowl's room."""
+    from kitchenbot.transforms import rot_x, rot_z
+
+    task = make_task("sink-pick", inv, Cell())
+    belief = Belief()
+    m = inv.by_name("bowl")
+    bowls = [ObjectPose(m.obj_id, "bowl", make_T(rot_z(yaw)[:3, :3] @ rot_x(np.pi - 0.5)[:3, :3],
+                                                 (0.5 + 0.01 * k, 0.0, -0.12)), 1.0, instance_id=k)
+             for k, yaw in enumerate((0.3, 2.0, 4.0))]
+    placed = []
+    for k, bowl in enumerate(bowls):
+        belief.pending = task.pending_models(bowls[k:])
+        ts = task.targets(bowl, belief)
+        level = [t for t in ts if "upside down" in t.support]
+        assert level, [t.support for t in ts]
+        t = level[0]
+        assert t.T_base_obj[2, 2] == pytest.approx(-1.0)  # level, mouth down
+        order = [x.support for x in ts]
+        assert order.index(t.support) < order.index("counter (as it lay)")  # before the tilted pose
+        if k:
+            assert t.support == "a bowl pile (upside down)"
+            np.testing.assert_allclose(t.T_base_obj[:2, 3], placed[0].T_base_obj[:2, 3], atol=1e-9)
+            assert t.T_base_obj[2, 3] == pytest.approx(placed[-1].T_base_obj[2, 3] + nesting_height(m))
+        belief.record_placed(task, bowl, t, t.T_base_obj)
+        placed.append(t)
+    lo = np.min([p.lo for p in belief.placed], 0)
+    hi = np.max([p.hi for p in belief.placed], 0)
+    np.testing.assert_allclose(hi - lo, m.extents[:2], atol=1e-6)  # one bowl's disc
+
+
 def test_an_item_that_fell_into_the_drop_zone_is_done_where_it_lies_elsewhere_not(inv):
     """A dropped item found in the drop zone is done for sink-pick (it takes items as they lie); one on the counter
     outside it is not, and no other task takes an item where it fell."""
@@ -219,3 +258,51 @@ def test_a_neighbour_grazing_a_pile_does_not_close_it_to_an_item_of_its_size(inv
     belief.pending = task.pending_models([dinner[0]])
     assert not [nt for nt in task.targets(dinner[0], belief)
                 if np.allclose(nt.T_base_obj[:2, 3], pile.T_base_obj[:2, 3])]
+
+
+def test_on_a_full_counter_two_glasses_stand_side_by_side_on_a_dinner_plate_pile(inv):
+    """Once the counter is full and no plate is left to come, glasses stand on the flat floor of the plate that
+    tops a pile, off its centre and apart, so a dinner plate takes two glasses (one in the middle took it whole);
+    a plate pile with a glass on it takes no further plate."""
+    from kitchenbot.planning.types import PlaceTarget
+    from kitchenbot.tasks.base import Placed, footprint, upright
+    from kitchenbot.tasks.sink_pick import floor_radius
+
+    cell = Cell()
+    task = make_task("sink-pick", inv, cell)
+    z = cell.spec.drop_zone
+    plate, glass = inv.by_name("dinner_plate"), inv.by_name("glass")
+    belief = Belief()
+    # the zone full (bowls everywhere) but for a dinner plate in its corner
+    lo, hi = np.array(z.origin_xy), np.array(z.origin_xy) + np.array(z.size_xy)
+    Tp = upright(plate, lo + plate.extents[:2] / 2 + 0.005, z.z)
+    Tp[2, 3] -= DROP_HEIGHT
+    belief.placed.append(Placed(plate.obj_id, "plate", Tp, *footprint(plate, Tp), PlaceTarget(Tp, "drop")))
+    bowl = inv.by_name("bowl")
+    for x in np.arange(lo[0] - 0.04, hi[0] + 0.08, 0.06):  # bowls over every bit of the zone the plate leaves
+        for y in np.arange(lo[1] - 0.04, hi[1] + 0.08, 0.06):
+            T = upright(bowl, (x, y), z.z)
+            T[2, 3] -= DROP_HEIGHT
+            f = footprint(bowl, T)
+            if not (np.all(f[0] < belief.placed[0].hi) and np.all(f[1] > belief.placed[0].lo)):
+                belief.placed.append(Placed(bowl.obj_id, "bowl", T, *f, PlaceTarget(T, "drop")))
+    glasses = [ObjectPose(glass.obj_id, "glass", make_T(np.eye(3), (0.5 + 0.1 * k, 0.0, -0.15)), 1.0, instance_id=k)
+               for k in range(2)]
+    spots = []
+    for k, g in enumerate(glasses):
+        belief.pending = task.pending_models(glasses[k:])
+        ts = task.targets(g, belief)
+        assert not isinstance(ts, NoFreeSlot), k
+        t = ts[0]
+        assert t.support == "a plate pile", t.support
+        d = np.linalg.norm(t.T_base_obj[:2, 3] - Tp[:2, 3])
+        assert d + glass.extents[0] / 2 <= floor_radius(plate) + 1e-6  # on the plate's flat floor
+        assert t.T_base_obj[2, 3] > Tp[2, 3] + plate.extents[2] / 2
+        belief.record_placed(task, g, t, t.T_base_obj)
+        spots.append(t.T_base_obj[:2, 3])
+    assert np.linalg.norm(spots[0] - spots[1]) >= glass.extents[0]  # side by side, not into each other
+    # a plate found later does not go onto the glasses
+    late = ObjectPose(plate.obj_id, "plate", make_T(np.eye(3), (0.5, 0.0, -0.15)), 1.0, instance_id=9)
+    belief.pending = [plate]
+    ts = task.targets(late, belief)
+    assert isinstance(ts, NoFreeSlot) or all(np.linalg.norm(t.T_base_obj[:2, 3] - Tp[:2, 3]) > 0.1 for t in ts)
