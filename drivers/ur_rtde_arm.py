@@ -324,6 +324,7 @@ class URArm(Arm):
         servo_settle_tolerance: float = 1e-3,
         servo_settle_time: float = 1.0,
         motion_start_timeout: float = 2.0,
+        motion_slack: float = 2.0,
         upper_range_registers: bool = False,
         watchdog: bool = True,
         preflight: bool = True,
@@ -346,6 +347,8 @@ class URArm(Arm):
         self.servo_settle_tolerance = float(servo_settle_tolerance)
         self.servo_settle_time = float(servo_settle_time)
         self.motion_start_timeout = float(motion_start_timeout)
+        # s a synchronous motion may run past twice its planned duration before it is stopped as stuck
+        self.motion_slack = float(motion_slack)
         self.upper_range_registers = bool(upper_range_registers)
         self.use_watchdog = watchdog
         self.use_preflight = preflight
@@ -718,7 +721,7 @@ class URArm(Arm):
         self._start("J", "moveJ", c, c.moveJ, q.tolist(), float(speed), float(accel), True)
         if not asynchronous:
             dist = float(np.max(np.abs(q - q0)))
-            self.wait(timeout=2.0 * (dist / speed + speed / accel) + 2.0)
+            self.wait(timeout=2.0 * (dist / speed + speed / accel) + self.motion_slack)
 
     def _move_linear(self, T_base_tcp: np.ndarray, speed: float, accel: float, asynchronous: bool) -> None:
         # The workspace is a box (convex) and the base class checked the target, so the straight line stays
@@ -739,7 +742,7 @@ class URArm(Arm):
         self._start("L", "moveL", c, c.moveL, to_rotvec(T_base_tcp).tolist(), float(speed), float(accel), True)
         if not asynchronous:
             dist = float(np.linalg.norm(p1 - p0))
-            self.wait(timeout=2.0 * (dist / speed + speed / accel) + 2.0)
+            self.wait(timeout=2.0 * (dist / speed + speed / accel) + self.motion_slack)
 
     def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool, guarded: bool = False) -> None:
         """Stream servoJ at the RTDE frequency (initPeriod/waitPeriod keep the period), in a thread. Guarded: the
@@ -759,7 +762,7 @@ class URArm(Arm):
         )
         self._servo_thread.start()
         if not asynchronous:
-            self.wait(timeout=float(times[-1]) * 2.0 + self.servo_settle_time + 2.0)
+            self.wait(timeout=float(times[-1]) * 2.0 + self.servo_settle_time + self.motion_slack)
 
     def _servo_loop(self, c: Any, samples: np.ndarray, dt: float, guarded: bool = False) -> None:
         try:

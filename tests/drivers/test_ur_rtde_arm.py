@@ -45,7 +45,9 @@ class FakeClock:
 
 def make_arm(emu: URControllerEmulator, **kw) -> URArm:
     args = dict(receive_timeout=0.1, connect_timeout=2.0, payload_kg=0.9, cog=(0.0, 0.0, 0.06),
-                reconnect_backoff=0.01, watchdog=False, clock=FakeClock())
+                reconnect_backoff=0.01, watchdog=False, clock=FakeClock(),
+                # the emulator is another process: on a loaded host it may lag seconds behind a short move
+                motion_start_timeout=30.0, motion_slack=30.0)
     args.update(kw)
     return URArm(ur_model(CFG.robot.model), CFG.safety_limits(), emu.host, **args)
 
