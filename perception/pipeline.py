@@ -391,11 +391,9 @@ class Perceiver:
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
         if abs(z @ up) >= np.cos(np.radians(45)):
             return 0.0
-        near = np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)
-        if len(near) == 0:
+        P, explained = self._near_points(m, tree, hyp)
+        if len(P) == 0:
             return 0.0
-        P = m.points[near]
-        explained = on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
         for h, _, _ in found:
             if h is hyp:
                 continue
@@ -411,16 +409,22 @@ class Perceiver:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
         return continuation(P, model.points, T, explained, len(own))
 
+    def _near_points(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis) -> tuple[np.ndarray, np.ndarray]:
+        """Map points within the model's diameter of a pose, and which of them the pose puts on its surface."""
+        T = hyp.T_base_obj
+        P = m.points[np.array(tree.query_ball_point(T[:3, 3], self.inventory[hyp.obj_id].diameter), int)]
+        if len(P) == 0:
+            return P, np.zeros(0, bool)
+        return P, on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
+
     def _filled(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
                 found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
         """verify.filled for a pose of an open vessel: map points inside its cavity that no pose explains."""
         model = self.inventory[hyp.obj_id]
         T = hyp.T_base_obj
-        near = np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)
-        if len(near) == 0:
+        P, explained = self._near_points(m, tree, hyp)
+        if len(P) == 0:
             return 0.0
-        P = m.points[near]
-        explained = on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
         for h, _, _ in found:
             if h is not hyp and np.linalg.norm(h.T_base_obj[:3, 3] - T[:3, 3]) < \
                     model.diameter + self.inventory[h.obj_id].diameter:

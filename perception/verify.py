@@ -186,6 +186,17 @@ def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_bas
     return float(_on(P, N, entry, T, tol).mean())
 
 
+def _unexplained_along_axis(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray,
+                            explained: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The unexplained `points` in the object frame of a surface of revolution about z (`model_points`), with the
+    model's axis (x, y), each model point's radius from it, and the model's lowest and highest z."""
+    Ti = inv(T_base_obj)
+    q = points[~explained] @ Ti[:3, :3].T + Ti[:3, 3]
+    axis = np.median(model_points[:, :2], axis=0)
+    r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
+    return q, axis, r_model, model_points[:, 2].min(), model_points[:, 2].max()
+
+
 def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
                  n_own: int, reach: float = CONTINUE_REACH) -> float:
     """Of map points near a pose (`points`, base frame; `explained`: those this pose or another one puts on its
@@ -195,12 +206,8 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
     a bottle fitted by a cup continues past the cup's rim or base."""
     if n_own == 0 or len(points) == 0:
         return 0.0
-    Ti = inv(T_base_obj)
-    q = points[~explained] @ Ti[:3, :3].T + Ti[:3, 3]
-    axis = np.median(model_points[:, :2], axis=0)
-    r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
+    q, axis, r_model, z0, z1 = _unexplained_along_axis(points, model_points, T_base_obj, explained)
     r_q = np.linalg.norm(q[:, :2] - axis, axis=1)
-    z0, z1 = model_points[:, 2].min(), model_points[:, 2].max()
     # Past each end, within that end's own radius (1 cm more: a bottle a little wider than a cup's base; not the
     # reach of a mug's handle, beside which a neighbour may lie).
     r0 = r_model[model_points[:, 2] < z0 + 0.005].max() + 0.01
@@ -220,11 +227,7 @@ def filled(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray,
     by a cup or a glass puts its lid (flat, at the rim, across the opening) there."""
     if n_own == 0 or len(points) == 0:
         return 0.0
-    Ti = inv(T_base_obj)
-    q = points[~explained] @ Ti[:3, :3].T + Ti[:3, 3]
-    axis = np.median(model_points[:, :2], axis=0)
-    r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
-    z0, z1 = model_points[:, 2].min(), model_points[:, 2].max()
+    q, axis, r_model, z0, z1 = _unexplained_along_axis(points, model_points, T_base_obj, explained)
     # The wall's radius per 5 mm of height: the median radius of the model's points there (the wall's two
     # sides; a mug's handle is a small share of a slice).
     edges = np.arange(z0, z1 + 0.005, 0.005)
