@@ -358,25 +358,52 @@ class Perceiver:
 
     def _fine_check(self, m: InstanceMap, found: list[tuple[Hypothesis, int, np.ndarray]]) -> None:
         """Each found pose's `fine` verification part (perception/verify.py): the share of its own map points,
-        less those a nearby pose has on its surface, that lie on its surface at the sensor's precision."""
+        less those a nearby pose has on its surface, that lie on its surface at the sensor's precision; for tall
+        vessels and open ones, `continued` and `filled` (map points past its ends / in its cavity that no nearby
+        pose explains).
+
+        Only poses that pass the verification explain anything: the checks are repeated for the neighbours of
+        poses that fail, without them, until no more fail. (A bottle fitted by two cups along its body: the
+        second cup "explained" where the bottle goes on past the first one's rim, and was then rejected itself;
+        the first one passed on the strength of a pose that was not kept.)"""
         tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
         log.debug("perception: fine tolerance %.1f mm", 1000 * tol)
-        db = self.database
         tree = cKDTree(m.points)
-        for hyp, _, own in found:
-            if hyp.verification is None or len(own) == 0:
-                continue
-            reach = self.inventory[hyp.obj_id].diameter
-            others = [(db[h.obj_id], h.T_base_obj) for h, _, _ in found if h is not hyp and
-                      np.linalg.norm(h.T_base_obj[:3, 3] - hyp.T_base_obj[:3, 3]) <
-                      0.5 * (reach + self.inventory[h.obj_id].diameter)]
-            normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
-            hyp.verification.fine = fine_share(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol, others,
-                                               self.inventory[hyp.obj_id].is_rotationally_symmetric)
-            if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
-                hyp.verification.continued = self._continued(m, tree, hyp, own, found)
-            if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
-                hyp.verification.filled = self._filled(m, tree, hyp, own, found)
+        failed: set[int] = set()
+        todo = set(range(len(found)))
+        while todo:
+            alive = [f for k, f in enumerate(found) if k not in failed]
+            for k in sorted(todo):
+                self._fine_parts(m, tree, tol, found[k][0], found[k][2], alive)
+            newly = {k for k, (h, _, _) in enumerate(found) if k not in failed and h.verification is not None
+                     and h.verification.score < self.settings.verify_threshold}
+            failed |= newly
+            todo = {k for k, (h, _, _) in enumerate(found) if k not in failed and h.verification is not None and
+                    any(self._near_each_other(h, found[j][0]) for j in newly)}
+
+    def _near_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
+        """Whether one pose can explain points the checks of the other look at (within their two diameters)."""
+        return bool(np.linalg.norm(a.T_base_obj[:3, 3] - b.T_base_obj[:3, 3]) <
+                    self.inventory[a.obj_id].diameter + self.inventory[b.obj_id].diameter)
+
+    def _fine_parts(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis, own: np.ndarray,
+                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> None:
+        """The `fine`, `continued` and `filled` parts of one pose, with `found` the poses that may explain
+        points near it."""
+        if hyp.verification is None or len(own) == 0:
+            return
+        db = self.database
+        reach = self.inventory[hyp.obj_id].diameter
+        others = [(db[h.obj_id], h.T_base_obj) for h, _, _ in found if h is not hyp and
+                  np.linalg.norm(h.T_base_obj[:3, 3] - hyp.T_base_obj[:3, 3]) <
+                  0.5 * (reach + self.inventory[h.obj_id].diameter)]
+        normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
+        hyp.verification.fine = fine_share(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol, others,
+                                           self.inventory[hyp.obj_id].is_rotationally_symmetric)
+        if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
+            hyp.verification.continued = self._continued(m, tree, hyp, own, found)
+        if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
+            hyp.verification.filled = self._filled(m, tree, hyp, own, found)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:

@@ -131,3 +131,37 @@ def test_a_lid_across_the_opening_fills_the_cavity(perceiver, inventory):
         assert filled(P2, model.points, T, on_surface(P2, None, entry, T, 0.004), len(own)) < 0.02
         # The lid explained by another pose: nothing unexplained fills the cup.
         assert filled(P, model.points, T, explained | (np.arange(len(P)) >= len(own)), len(own)) < 0.02
+
+
+def test_a_pose_that_fails_explains_nothing_for_its_neighbour(perceiver, inventory):
+    """A lying cup over the first part of a bottle's body (the body goes on 3 cm past its base) and a second cup
+    fitted 3 cm further along, which puts its surface where the body goes on. While the second cup counts,
+    the first one's `continued` sees nothing; the second one fails the verification (its model is seen through),
+    so it explains nothing: the first one is judged again without it and fails too. When the second one passes,
+    the first one keeps its verification."""
+    from kitchenbot.perception.map import InstanceMap
+    from kitchenbot.perception.register import Hypothesis
+    from kitchenbot.perception.verify import Verification
+
+    entry, model = perceiver.database[4], inventory[4]
+    T = make_T(rot_x(np.pi / 2)[:3, :3], np.array([0.4, 0.0, 0.05]))  # lying: axis along -y
+    own, _ = _cup_surface(entry, T, 0.0005)
+    z0 = model.points[:, 2].min()
+    r_base = np.linalg.norm(model.points[model.points[:, 2] < z0 + 0.005, :2]
+                            - np.median(model.points[:, :2], axis=0), axis=1).max()
+    body = _cylinder_side(r_base, z0 - 0.03, z0)
+    body = body[body[:, 0] > -0.3 * r_base]  # the side the cameras see
+    body = body @ T[:3, :3].T + T[:3, 3]
+    T2 = T @ make_T(np.eye(3), np.array([0.0, 0.0, -0.03]))  # 3 cm along the axis towards the body
+    second, _ = _cup_surface(entry, T2, 0.0005, seed=1)
+    points = np.vstack([own, second, body])
+    ids = np.r_[np.zeros(len(own), int), np.ones(len(second), int), np.full(len(body), 2)]
+    m = InstanceMap(points, ids, np.zeros(len(points), int), np.zeros((len(points), 2), int),
+                    np.array([[0.8, 0.0, 0.6]]))
+    for second_free, first_passes in ((0.0, True), (0.8, False)):
+        a = Hypothesis(4, T, verification=Verification(seen=0.9, explained=1.0, free_space=0.0, normals=1.0))
+        b = Hypothesis(4, T2, verification=Verification(seen=1.0 - second_free, explained=1.0,
+                                                        free_space=second_free, normals=1.0))
+        perceiver._fine_check(m, [(a, 0, np.nonzero(ids == 0)[0]), (b, 1, np.nonzero(ids == 1)[0])])
+        assert (a.verification.score >= perceiver.settings.verify_threshold) == first_passes, \
+            (second_free, a.verification, b.verification)
