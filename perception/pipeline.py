@@ -33,7 +33,7 @@ from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, patch_normals,
+from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, overhang, patch_normals,
                                           surface_noise, verify)
 from kitchenbot.transforms import inv
 
@@ -404,6 +404,8 @@ class Perceiver:
             hyp.verification.continued = self._continued(m, tree, hyp, own, found)
         if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
             hyp.verification.filled = self._filled(m, tree, hyp, own, found)
+        if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
+            hyp.verification.overhang = self._overhang(m, tree, hyp, own, found)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
@@ -444,19 +446,42 @@ class Perceiver:
             return P, np.zeros(0, bool)
         return P, on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
 
-    def _filled(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
-                found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
-        """verify.filled for a pose of an open vessel: map points inside its cavity that no pose explains."""
+    def _explained_near(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis,
+                        found: list[tuple[Hypothesis, int, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+        """Map points within the model's diameter of a pose, and which of them it or a nearby pose (`found`)
+        puts on its surface."""
         model = self.inventory[hyp.obj_id]
         T = hyp.T_base_obj
         P, explained = self._near_points(m, tree, hyp)
         if len(P) == 0:
-            return 0.0
+            return P, explained
         for h, _, _ in found:
             if h is not hyp and np.linalg.norm(h.T_base_obj[:3, 3] - T[:3, 3]) < \
                     model.diameter + self.inventory[h.obj_id].diameter:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
-        return filled(P, model.points, T, explained, len(own))
+        return P, explained
+
+    def _filled(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
+                found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
+        """verify.filled for a pose of an open vessel: map points inside its cavity that no pose explains."""
+        P, explained = self._explained_near(m, tree, hyp, found)
+        if len(P) == 0:
+            return 0.0
+        return filled(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
+
+    def _overhang(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
+                  found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
+        """verify.overhang for a pose of a tall vessel that does not stand on its base (axis over 45 deg from
+        up): map points in its base's plane just past its edge that no pose explains. A standing vessel's
+        base rests on something (a plate, a board), whose surface goes on past the edge."""
+        up = self._up()
+        up = np.array([0.0, 0.0, 1.0]) if up is None else up
+        if hyp.T_base_obj[:3, 2] @ up >= np.cos(np.radians(45)):
+            return 0.0
+        P, explained = self._explained_near(m, tree, hyp, found)
+        if len(P) == 0:
+            return 0.0
+        return overhang(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
 
     def _up(self) -> np.ndarray | None:
         """The gravity prior for this scan: None with a cell (the base frame's z), the base frame's up with

@@ -14,7 +14,11 @@ The checks, each a share in [0, 1]:
   within its radius) that neither it nor another pose puts on a surface, per point of its own (`continuation`):
   a bottle or a rolling pin lying there is longer than any cup, its surface goes on where the cup ends.
 
-verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL). Coverage both ways at one voxel (seen,
+- overhang (cups, mugs, glasses not standing): measured points in the plane of the model's base just past its edge
+  that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base.
+
+verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
+1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL). Coverage both ways at one voxel (seen,
 explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
 query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
 evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
@@ -59,6 +63,14 @@ CONTINUE_REACH = 0.03
 # The filled share at which a pose scores 0 (linear from 0 at none; see `filled`): calibrated with
 # perception/calibrate_verify.py on development scenes with distractors (docs/perception.md "A can is closed").
 FILLED_FULL = 1.0
+# The overhang share at which a pose scores 0 (linear from 0 at none; see `overhang`): right poses of cups, mugs
+# and glasses not standing have 0-0.11, upside-down glasses over drink cans and cups on bottles up to 0.23
+# (development scenes with distractors, docs/perception.md "The lid is wider than the base").
+OVERHANG_FULL = 1.0
+# The band past the edge of the model's base (metres, radially: beyond the fit's error, within an item's reach)
+# and the depth of its plane (the noise) where a surface going on counts as overhang.
+OVERHANG_BAND = (0.004, 0.02)
+OVERHANG_PLANE = 0.005
 # Inside the wall by this much (metres; the wall's thickness and the fit's error) counts as the vessel's cavity.
 CAVITY_MARGIN = 0.006
 
@@ -72,17 +84,19 @@ class Verification:
     fine: float = 1.0  # set by the pipeline on the final poses (fine_share)
     continued: float = 0.0  # set by the pipeline on the final poses of tall vessels (continuation)
     filled: float = 0.0  # set by the pipeline on the final poses of open vessels (filled)
+    overhang: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
-                "fine": self.fine, "continued": self.continued, "filled": self.filled}
+                "fine": self.fine, "continued": self.continued, "filled": self.filled, "overhang": self.overhang}
 
     @property
     def score(self) -> float:
         judged = self.seen + self.free_space
         through = self.free_space / judged if judged > 0 else 1.0
         return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL,
-                            1.0 - self.continued / CONTINUED_FULL, 1.0 - self.filled / FILLED_FULL))
+                            1.0 - self.continued / CONTINUED_FULL, 1.0 - self.filled / FILLED_FULL,
+                            1.0 - self.overhang / OVERHANG_FULL))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
@@ -240,3 +254,20 @@ def filled(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray,
     b_q = np.clip(np.digitize(q[:, 2], edges) - 1, 0, len(edges) - 1)
     inside &= np.linalg.norm(q[:, :2] - axis, axis=1) < wall[b_q] - margin
     return float(inside.sum() / n_own)
+
+
+def overhang(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
+             n_own: int, band: tuple[float, float] = OVERHANG_BAND, plane: float = OVERHANG_PLANE) -> float:
+    """Of map points near a pose of a vessel (`model_points` object frame, its axis z, its closed base at the
+    lowest z; `explained`: points this pose or another one puts on its surface), how many lie in the plane of
+    its base (within `plane`) just past the base's edge (`band`, radially), per point of the pose's own
+    (`n_own`). A vessel's base ends at its edge: beside it is empty space or another item. A closed cylinder
+    wider than the base fitted by the vessel upside down or lying (a drink can's lid under a glass's base) goes
+    on past the edge in the same plane: the segment is wider there than the model."""
+    if n_own == 0 or len(points) == 0:
+        return 0.0
+    q, axis, r_model, z0, _ = _unexplained_along_axis(points, model_points, T_base_obj, explained)
+    r0 = r_model[model_points[:, 2] < z0 + 0.005].max()
+    r_q = np.linalg.norm(q[:, :2] - axis, axis=1)
+    ring = (np.abs(q[:, 2] - z0) < plane) & (r_q > r0 + band[0]) & (r_q < r0 + band[1])
+    return float(ring.sum() / n_own)

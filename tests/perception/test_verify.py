@@ -165,3 +165,34 @@ def test_a_pose_that_fails_explains_nothing_for_its_neighbour(perceiver, invento
         perceiver._fine_check(m, [(a, 0, np.nonzero(ids == 0)[0]), (b, 1, np.nonzero(ids == 1)[0])])
         assert (a.verification.score >= perceiver.settings.verify_threshold) == first_passes, \
             (second_free, a.verification, b.verification)
+
+
+def test_a_lid_wider_than_the_base_overhangs_it(perceiver, inventory):
+    """A glass upside down: its own points end at its base's edge, and nothing unexplained lies in the base's
+    plane beyond it. A drink can wider than the glass's base, fitted by it, shows its lid there (a ring 4-20 mm
+    past the edge): those points overhang, unless another pose explains them. A surface in the base's plane
+    farther out (a neighbour's top) or well off the plane does not count."""
+    from kitchenbot.perception.register import on_surface
+    from kitchenbot.perception.verify import overhang
+
+    entry, model = perceiver.database[6], inventory[6]  # the glass
+    T = make_T(rot_x(np.pi)[:3, :3], np.array([0.4, 0.0, 0.08]))  # upside down: its base at the top
+    own, _ = _cup_surface(entry, T, 0.0005)
+    z0 = model.points[:, 2].min()
+    r_base = np.linalg.norm(model.points[model.points[:, 2] < z0 + 0.005, :2]
+                            - np.median(model.points[:, :2], axis=0), axis=1).max()
+    mine = on_surface(own, None, entry, T, 0.004)
+    assert overhang(own, model.points, T, mine, len(own)) < 0.01
+    lid = _disk(r_base + 0.012, z0, n=6000)
+    ring = lid[np.linalg.norm(lid[:, :2], axis=1) > r_base + 0.005]
+    far = _disk(r_base + 0.06, z0, n=6000)
+    far = far[np.linalg.norm(far[:, :2], axis=1) > r_base + 0.03]  # a neighbour's top, a hand's width away
+    below = ring + np.array([0.0, 0.0, 0.02])  # off the base's plane
+    for extra, expect_over in ((ring, True), (far, False), (below, False)):
+        P = np.vstack([own, extra @ T[:3, :3].T + T[:3, 3]])
+        explained = on_surface(P, None, entry, T, 0.004)
+        o = overhang(P, model.points, T, explained, len(own))
+        assert (o > 0.15) == expect_over, o
+    # the ring explained by another pose: nothing overhangs
+    P = np.vstack([own, ring @ T[:3, :3].T + T[:3, 3]])
+    assert overhang(P, model.points, T, np.arange(len(P)) >= 0, len(own)) == 0.0
