@@ -26,6 +26,10 @@ from kitchenbot.perception.types import View
 from kitchenbot.transforms import inv
 
 
+# Over this share of the basin floor's pixels seen on one level above it, the basin is covered (a table over it).
+MAX_COVERED = 0.6
+
+
 @dataclass
 class CellCheck:
     fits: bool
@@ -34,6 +38,13 @@ class CellCheck:
     compared: int  # pixels with both a measured and a predicted depth
     message: str = ""
     covered: float = 0.0  # share of the basin floor's pixels seen on one level well above it (a table over it)
+    max_covered: float = MAX_COVERED  # the share over which the basin counts as covered
+
+    @property
+    def is_covered(self) -> bool:
+        """The basin is covered (a table or a board over the sink): the cell does not fit, whatever the views'
+        registration onto it."""
+        return self.covered > self.max_covered
 
 
 _SCENES: dict = {}  # the last cell's RaycastingScene (building it is cheap, but not free per scan)
@@ -66,7 +77,7 @@ def _level_share(z: np.ndarray, n_floor: int, band: float = 0.02) -> tuple[float
 
 
 def check_cell(views: list[View], cell: Cell, stride: int = 8, tol: float = 0.03, max_behind: float = 0.04,
-               min_compared: int = 300, max_covered: float = 0.6) -> CellCheck:
+               min_compared: int = 300, max_covered: float = MAX_COVERED) -> CellCheck:
     """Compare each view's depth (every `stride`-th pixel) with the cell rendered from its pose. The cell fits
     when at most `max_behind` of the compared pixels are seen more than `tol` behind its surfaces, and at most
     `max_covered` of the basin floor's pixels are seen on one level more than `tol` above the floor."""
@@ -112,4 +123,4 @@ def check_cell(views: list[View], cell: Cell, stride: int = 8, tol: float = 0.03
     elif not fits:
         msg = (f"the configured cell does not fit the scan: {100 * covered:.0f} % of its basin floor is seen on one "
                f"level at z = {level:.3f} m (a table or a board over the sink?); using surfaces found in the data")
-    return CellCheck(fits, b, a, compared, msg, covered)
+    return CellCheck(fits, b, a, compared, msg, covered, max_covered)

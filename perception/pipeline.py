@@ -176,14 +176,22 @@ class Perceiver:
         self._active_cell = None
         if self.cell_mode != "never":
             aligned = views
-            if self.settings.align_to_cell:
+            if self.cell_mode == "auto":
+                # A basin covered by a board (a table over the sink) is seen as covered however the views are
+                # registered onto the cell (a level 3 cm over the floor against pose errors of millimetres):
+                # known before the registration, which is then not needed (it was most of a table scan's map).
+                with timed("cell_check"):
+                    check = check_cell(views, self.cell)
+                if check.fits or not check.is_covered:
+                    check = None
+            if self.settings.align_to_cell and check is None:
                 with timed("align"):
                     aligned = [align_to_cell([v], self.cell)[0][0] for v in views]
-            if self.cell_mode == "auto":
+            if self.cell_mode == "auto" and check is None:
                 with timed("cell_check"):
                     check = check_cell(aligned, self.cell)
-                if not check.fits:
-                    log.warning("perception: %s", check.message)
+            if check is not None and not check.fits:
+                log.warning("perception: %s", check.message)
             if check is None or check.fits:
                 self._active_cell, views = self.cell, aligned
         if self._active_cell is None and len(views) > 1 and self.settings.align_views:
@@ -402,10 +410,12 @@ class Perceiver:
                                            self.inventory[hyp.obj_id].is_rotationally_symmetric)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
             hyp.verification.continued = self._continued(m, tree, hyp, own, found)
+        near = None  # map points near the pose and which of them a pose explains (for filled and overhang)
         if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
-            hyp.verification.filled = self._filled(m, tree, hyp, own, found)
+            near = self._explained_near(m, tree, hyp, found)
+            hyp.verification.filled = self._filled(near, hyp, own)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
-            hyp.verification.overhang = self._overhang(m, tree, hyp, own, found)
+            hyp.verification.overhang = self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
@@ -461,25 +471,23 @@ class Perceiver:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
         return P, explained
 
-    def _filled(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
-                found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
-        """verify.filled for a pose of an open vessel: map points inside its cavity that no pose explains."""
-        P, explained = self._explained_near(m, tree, hyp, found)
+    def _filled(self, near: tuple[np.ndarray, np.ndarray], hyp: Hypothesis, own: np.ndarray) -> float:
+        """verify.filled for a pose of an open vessel: map points inside its cavity that no pose explains
+        (`near`: `_explained_near`)."""
+        P, explained = near
         if len(P) == 0:
             return 0.0
         return filled(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
 
-    def _overhang(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
-                  found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
+    def _overhang(self, near: tuple[np.ndarray, np.ndarray], hyp: Hypothesis, own: np.ndarray) -> float:
         """verify.overhang for a pose of a tall vessel that does not stand on its base (axis over 45 deg from
-        up): map points in its base's plane just past its edge that no pose explains. A standing vessel's
-        base rests on something (a plate, a board), whose surface goes on past the edge."""
+        up): map points in its base's plane just past its edge that no pose explains (`near`:
+        `_explained_near`). A standing vessel's base rests on something (a plate, a board), whose surface goes
+        on past the edge."""
         up = self._up()
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
-        if hyp.T_base_obj[:3, 2] @ up >= np.cos(np.radians(45)):
-            return 0.0
-        P, explained = self._explained_near(m, tree, hyp, found)
-        if len(P) == 0:
+        P, explained = near
+        if hyp.T_base_obj[:3, 2] @ up >= np.cos(np.radians(45)) or len(P) == 0:
             return 0.0
         return overhang(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
 
