@@ -133,6 +133,12 @@ class Verification:
         discs = [(obj.T_base_obj[:3, 3], m.diameter / 2 + self.TOUCH_DISTANCE)]
         discs += [(q.T_base_obj[:3, 3], inv[q.obj_id].diameter / 2 + self.REGION_MARGIN) for q, _ in moved]
         region = Region.around(discs)
+        under = self._covered_from_above([q for q in others if region.contains(q.T_base_obj[None, :3, 3])[0]],
+                                         others)
+        if under is not None:
+            self._log("note", "re-scan: from above, an item of the pick region lies under another", cls=under.cls,
+                      xyz=under.T_base_obj[:3, 3])
+            return False
         why = self._look_down_at(obj.T_base_obj[:3, 3])
         if why:
             self._log("note", "re-scan: no view of the pick region", reason=why)
@@ -155,6 +161,25 @@ class Verification:
             return False
         b.region_perceived(upd.poses, upd.map_points, self.task.pending_models(upd.poses))
         return True
+
+    # An item lies under another as seen from above when one at least COVER_WIDTH as wide as it rests higher up
+    # within COVER_OFFSET of its diameter of its axis (a plate, bowl or cup nested in a copy of itself): the view
+    # straight down sees the top one only, and the oblique views of a scan see the rims of those under it.
+    COVER_WIDTH, COVER_OFFSET = 0.8, 0.25
+
+    def _covered_from_above(self, items: list[ObjectPose], others: list[ObjectPose]) -> ObjectPose | None:
+        """The first of `items` that lies under another of `others` as seen from straight above (see
+        COVER_WIDTH), else None."""
+        inv = self.robot.inventory
+        for q in items:
+            dq = inv[q.obj_id].diameter
+            for r in others:
+                if r is q or r.T_base_obj[2, 3] <= q.T_base_obj[2, 3] + 0.005:
+                    continue
+                if inv[r.obj_id].diameter >= self.COVER_WIDTH * dq and np.linalg.norm(
+                        r.T_base_obj[:2, 3] - q.T_base_obj[:2, 3]) < self.COVER_OFFSET * dq:
+                    return q
+        return None
 
     def _may_have_moved(self, obj: ObjectPose, others: list[ObjectPose]) -> tuple[ObjectPose, str] | None:
         """The first of `others` that may have moved when `obj` was picked, and why (see TOUCH_DISTANCE)."""

@@ -121,3 +121,24 @@ def test_what_may_have_moved_with_a_pick(make_runner):
     assert runner._may_have_moved(picked, [at(width + 0.01, seen=0.1)])[1] == "seen in part"
     assert runner._may_have_moved(picked, [at(width + 0.05, seen=0.1)]) is None  # seen in part, but not touching
     assert runner._may_have_moved(picked, [at(width + 0.01, tilt=np.pi)]) is None  # upside down: not leaning
+
+
+def test_an_item_under_another_from_above_is_left_to_a_rescan(make_runner):
+    """Plates nested in a stack: from straight above the top one hides the one under it (the scan's oblique views
+    see its rim), so the region's one view is not taken; a mug on a plate does not hide it, nor does a plate
+    beside it or a narrower item off its axis."""
+    runner, world = make_runner(task="sink-pick", cups=1)
+    inv = runner.robot.inventory
+    plate = next(m for m in inv.models.values() if m.cls == "plate")
+    mug = next(m for m in inv.models.values() if m.cls == "mug")
+
+    def at(model, x: float, z: float) -> ObjectPose:
+        T = np.eye(4)
+        T[:3, 3] = (x, 0.5, z)
+        return ObjectPose(model.obj_id, model.cls, T, 1.0, instance_id=int(1000 * x + 100 * z))
+
+    lower, upper = at(plate, 0.4, -0.19), at(plate, 0.402, -0.18)
+    assert runner._covered_from_above([lower], [lower, upper]) is lower
+    assert runner._covered_from_above([upper], [lower, upper]) is None
+    assert runner._covered_from_above([lower], [lower, at(mug, 0.4, -0.15)]) is None  # narrower
+    assert runner._covered_from_above([lower], [lower, at(plate, 0.4 + plate.diameter, -0.18)]) is None  # beside
