@@ -11,6 +11,9 @@ from kitchenbot.fakes.placement import drop_onto
 from kitchenbot.perception.types import ObjectPose
 
 
+REGION_VIEW = RunOptions(poll_period=0.05, confirm_empty_scans=1, verify_region_view=True)
+
+
 def _notes(runner, name: str) -> int:
     return sum(1 for e in runner.journal.events(runner.run_id) if e["kind"] == "note" and e["name"] == name)
 
@@ -57,7 +60,7 @@ def test_always_rescan_when_told(make_runner, safe_end):
 def test_a_pick_off_a_stack_is_verified_with_one_view_of_its_region(make_runner, safe_end):
     """Two nested cups: the top one picked leaves a copy of its class where it was. One view straight down at the
     pick spot re-perceives that region (the cup below found again there) instead of a re-scan."""
-    runner, world = make_runner(task="sink-pick", cups=2)
+    runner, world = make_runner(task="sink-pick", cups=2, options=REGION_VIEW)
     report = runner.run()
     safe_end(runner, world)
     assert report.objects_done == 2 and report.collisions == 0
@@ -69,8 +72,7 @@ def test_a_pick_off_a_stack_is_verified_with_one_view_of_its_region(make_runner,
 
 
 def test_a_pick_off_a_stack_rescans_without_the_region_view(make_runner, safe_end):
-    runner, world = make_runner(task="sink-pick", cups=2, options=RunOptions(
-        poll_period=0.05, confirm_empty_scans=1, verify_region_view=False))
+    runner, world = make_runner(task="sink-pick", cups=2)  # the default: no region view
     report = runner.run()
     safe_end(runner, world)
     assert report.objects_done == 2
@@ -82,7 +84,7 @@ def test_a_region_view_that_misses_a_known_item_rescans(make_runner, safe_end):
     """The region's one view does not show the cup left under the picked one (here: a perceiver blind in views
     straight down, as the region's view is; the scan's are oblique): it is not taken as gone; a re-scan decides,
     and finds it."""
-    runner, world = make_runner(task="sink-pick", cups=2)
+    runner, world = make_runner(task="sink-pick", cups=2, options=REGION_VIEW)
     inner = runner.perceiver
 
     class BlindInOneView:
