@@ -152,3 +152,26 @@ def test_an_item_found_again_is_seen_at_least_as_fully_as_before():
     seen.visible_fraction = 0.15
     upd = update_region(_Scene([seen]), None, [known], _view(), _region(), z_floor=0.0)
     assert upd.rescan is None and upd.found[0].visible_fraction == 0.4
+
+def test_the_pipeline_fits_only_the_region(perceiver, inventory, cell):
+    """The real pipeline with `region=`: one view of four items, a region around two of them; only those two are
+    fitted (and right), the rest of the view is left unfitted; update_region keeps the other two known poses."""
+    from kitchenbot.perception.metrics import adi
+    from kitchenbot.perception.synthetic import render, resting_pose, scan_poses
+
+    placed = [(4, resting_pose(inventory, 4, 0.45, 0.09, 0.3, cell)),  # cup
+              (2, resting_pose(inventory, 2, 0.56, -0.06, 0.0, cell)),  # side plate
+              (5, resting_pose(inventory, 5, 0.38, -0.11, 1.0, cell)),  # mug
+              (6, resting_pose(inventory, 6, 0.62, 0.12, 0.0, cell, upside_down=True))]  # glass
+    views, _ = render(inventory, placed, scan_poses(cell)[1:2], cell, noise=0.002)
+    region = Region.around([(placed[0][1][:3, 3], 0.06), (placed[2][1][:3, 3], 0.06)])  # the cup and the mug
+    res = perceiver.perceive(views, region=region.contains)
+    assert sorted(p.obj_id for p in res.poses) == [4, 5]
+    for p in res.poses:
+        T = dict(placed)[p.obj_id]
+        assert adi(p.T_base_obj, T, inventory[p.obj_id].points) < 0.1 * inventory[p.obj_id].diameter
+    known = [ObjectPose(oid, inventory[oid].cls, T, 1.0, instance_id=k) for k, (oid, T) in enumerate(placed)]
+    upd = update_region(perceiver, None, known, views[0], region, z_floor=float(placed[1][1][2, 3]) - 0.01,
+                        min_coverage=0.5)
+    assert upd.rescan is None and upd.kept == [known[1], known[3]]
+    assert sorted(p.obj_id for p in upd.found) == [4, 5] and upd.appeared == []
