@@ -7,9 +7,9 @@ was picked, and nothing else in the sink touched it, so nothing else there moved
 the other poses and the map stay as perceived. Where a neighbour may have moved with it, or it came off a stack,
 and RunOptions.verify_region_view is on (off by default), one view straight down at the pick spot re-perceives
 that region and the rest stays as perceived (incremental perception, perception/region.py), where that view
-settles it. Otherwise (the view does not decide, the item is
-not seen there, the region's view misses an item it should show, nothing left to do) a re-scan and a new
-perception decide, as the first perception after a placement.
+settles it. Otherwise (the view does not decide, the item is not seen there, the region's view misses an item it
+should show, nothing left to do) a re-scan and a new perception decide, as the first perception after a
+placement.
 
 A mixin of TaskRunner (executive/runner.py).
 """
