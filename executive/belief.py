@@ -163,6 +163,15 @@ class Belief:
         self.unplannable = []
         self.pending = list(pending)
 
+    def region_perceived(self, poses: list[ObjectPose], map_points: np.ndarray | None, pending: list) -> None:
+        """One region was perceived again (perception/region.py) and merged with the rest, which stays as
+        perceived: `poses` and `map_points` are the merged ones. Contact marks stay (the sink was not seen
+        anew); what failed to plan with the old scene is tried again."""
+        self.poses = list(poses)
+        self.unplannable = []
+        self.pending = list(pending)
+        self.map.set_base(map_points)
+
     @property
     def map_points(self) -> np.ndarray | None:
         """The map plans keep clear of (BeliefMap.points)."""

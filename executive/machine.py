@@ -33,8 +33,8 @@ STATES: tuple[StateSpec, ...] = (
     StateSpec("select_grasp", 10.0, "choose the next object (task order) and its target place"),
     StateSpec("plan", 60.0, "plan pick (approach, grasp-in, lift) and place (transfer, lower, retreat)"),
     StateSpec("execute", 120.0, "run the plan with asynchronous moves and polling; gripper checks"),
-    StateSpec("verify", 240.0, "the placement view where it settles it, else a re-scan: gone from the sink, "
-                               "present at the target"),
+    StateSpec("verify", 240.0, "the placement view where it settles it, else (if enabled) one view of the pick "
+                               "region, else a re-scan: gone from the sink, present at the target"),
     StateSpec("recover", 120.0, "clear the fault, back out, decide: re-scan, next grasp/object, give up"),
     StateSpec("paused", None, "holding still at a safe point until resumed"),
     StateSpec("stopped", None, "stopped on request (terminal)"),

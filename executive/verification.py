@@ -4,9 +4,12 @@ and why.
 
 Where the view taken at the retreat pose settles it (the item seen at its target: then it is no longer where it
 was picked, and nothing else in the sink touched it, so nothing else there moved) the sink is not scanned again:
-the other poses and the map stay as perceived. Otherwise (the view does not decide, the item is not seen there,
-a neighbour may have moved with it, a stack, nothing left to do) a re-scan and a new perception decide, as the
-first perception after a placement.
+the other poses and the map stay as perceived. Where a neighbour may have moved with it, or it came off a stack,
+and RunOptions.verify_region_view is on (off by default), one view straight down at the pick spot re-perceives
+that region and the rest stays as perceived (incremental perception, perception/region.py), where that view
+settles it. Otherwise (the view does not decide, the item is not seen there, the region's view misses an item it
+should show, nothing left to do) a re-scan and a new perception decide, as the first perception after a
+placement.
 
 A mixin of TaskRunner (executive/runner.py).
 """
@@ -21,7 +24,9 @@ from scipy.spatial import cKDTree
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.verify import target_presence
+from kitchenbot.perception.region import Region, update_region
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.grasps import too_hidden
 from kitchenbot.world.gripper import DROP_HEIGHT
 
 
@@ -35,6 +40,7 @@ class Verification:
     SAME_SUPPORT = 0.01  # m: lowest points this close rest on the same support
     LEANING = np.radians(20.0)  # tilt of the model's axis from vertical (upright or upside down)
     SEEN_IN_PART = 0.8  # visible_fraction below this share of a fully visible item's
+    REGION_MARGIN = 0.03  # m around a neighbour that may have moved: the region its one view re-perceives
 
     def _do_verify(self) -> str:
         """Verify the placement from its view where that settles it; else re-scan (the first perception after a
@@ -93,28 +99,99 @@ class Verification:
         touched it, and the task has items left: recorded as placed without a re-scan. False (nothing changed)
         when a re-scan must decide."""
         b, p = self.belief, self.belief.released
-        if (not self.opt.verify_without_rescan or p is None or p.target_view is None or p.near_before > 1
+        if (not self.opt.verify_without_rescan or p is None or p.target_view is None
                 or p.staged is not None or not any(q is p.obj for q in b.poses)):
             return False
         presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
         if not (presence.decided and presence.present):
             return False  # not seen there (or the view cannot tell): the re-scan looks at the sink too
         others = [q for q in b.poses if q is not p.obj]
-        moved = self._may_have_moved(p.obj, others)
-        if moved is not None:
-            self._log("note", "re-scan: an item may have moved with the one picked", cls=moved[0].cls,
-                      xyz=moved[0].T_base_obj[:3, 3], why=moved[1])
-            return False
+        moved = self._moved_with(p.obj, others)
+        for q, why in moved:
+            self._log("note", "an item may have moved with the one picked", cls=q.cls, xyz=q.T_base_obj[:3, 3],
+                      why=why)
         if not self.task.remaining(others) and not p.staging:
             return False  # nothing left as perceived: scans confirm the sink is empty
-        b.picked_away(p.obj, self.task.pending_models(others))
+        if moved or p.near_before > 1:  # (off a stack: what is left of it is counted again)
+            if not (self.opt.verify_region_view and self._perceive_pick_region(p.obj, others, moved)):
+                return False
+            self._log("note", "verified with one view of the pick region, no re-scan", cls=p.obj.cls)
+        else:
+            b.picked_away(p.obj, self.task.pending_models(others))
+            self._log("note", "verified from the placement view, no re-scan", cls=p.obj.cls)
         self._verify_pending(presence)
-        self._log("note", "verified from the placement view, no re-scan", cls=p.obj.cls)
         self.counts.empty_scans = 0
         return True
 
+    def _perceive_pick_region(self, obj: ObjectPose, others: list[ObjectPose],
+                              moved: list[tuple[ObjectPose, str]]) -> bool:
+        """One view straight down at where `obj` was picked; the region the pick may have changed (the item's own
+        footprint and that of each neighbour that may have moved with it) re-perceived from it and merged into
+        the belief (perception/region.py). False (the belief unchanged) when the view cannot be taken or does
+        not settle it: then a re-scan decides."""
+        inv, b = self.robot.inventory, self.belief
+        m = inv[obj.obj_id]
+        discs = [(obj.T_base_obj[:3, 3], m.diameter / 2 + self.TOUCH_DISTANCE)]
+        discs += [(q.T_base_obj[:3, 3], inv[q.obj_id].diameter / 2 + self.REGION_MARGIN) for q, _ in moved]
+        region = Region.around(discs)
+        under = self._covered_from_above([q for q in others if region.contains(q.T_base_obj[None, :3, 3])[0]],
+                                         others)
+        if under is not None:
+            self._log("note", "re-scan: from above, an item of the pick region lies under another", cls=under.cls,
+                      xyz=under.T_base_obj[:3, 3])
+            return False
+        why = self._look_down_at(obj.T_base_obj[:3, 3])
+        if why:
+            self._log("note", "re-scan: no view of the pick region", reason=why)
+            return False
+        view = self._capture_view(f"region{self.report.attempts}", "region")
+        z_floor = float((m.points @ obj.T_base_obj[:3, :3].T + obj.T_base_obj[:3, 3])[:, 2].min())
+        with self.stages.within("perceive"):
+            upd = update_region(self.perceiver, b.map_base, others, view, region, z_floor)
+        self._check_deadline()
+        self._log("result", "perceive region", coverage=round(upd.coverage, 3), rescan=upd.rescan,
+                  replaced=len(upd.replaced), found=[{"cls": p.cls, "xyz": p.T_base_obj[:3, 3]} for p in upd.found],
+                  appeared=len(upd.appeared))
+        hidden = [f for f in upd.found if self.planner is not None and too_hidden(f, self.planner.settings)]
+        if upd.rescan is None and hidden:
+            # too little of it seen to be grasped (the grasp filter skips it as buried): the scan's views may see
+            # more of it now that the picked item is gone
+            upd.rescan = "seen too little in the region's view to be grasped: " + ", ".join(f.cls for f in hidden)
+        if upd.rescan is not None:
+            self._log("note", "re-scan: one view of the pick region does not settle it", reason=upd.rescan)
+            return False
+        b.region_perceived(upd.poses, upd.map_points, self.task.pending_models(upd.poses))
+        return True
+
+    # An item lies under another as seen from above when one at least COVER_WIDTH as wide as it rests higher up
+    # within COVER_OFFSET of its diameter of its axis (a plate, bowl or cup nested in a copy of itself): the view
+    # straight down sees the top one only, and the oblique views of a scan see the rims of those under it.
+    COVER_WIDTH, COVER_OFFSET = 0.8, 0.25
+
+    def _covered_from_above(self, items: list[ObjectPose], others: list[ObjectPose]) -> ObjectPose | None:
+        """The first of `items` that lies under another of `others` as seen from straight above (see
+        COVER_WIDTH), else None."""
+        inv = self.robot.inventory
+        for q in items:
+            dq = inv[q.obj_id].diameter
+            for r in others:
+                if r is q or r.T_base_obj[2, 3] <= q.T_base_obj[2, 3] + 0.005:
+                    continue
+                if inv[r.obj_id].diameter >= self.COVER_WIDTH * dq and np.linalg.norm(
+                        r.T_base_obj[:2, 3] - q.T_base_obj[:2, 3]) < self.COVER_OFFSET * dq:
+                    return q
+        return None
+
     def _may_have_moved(self, obj: ObjectPose, others: list[ObjectPose]) -> tuple[ObjectPose, str] | None:
         """The first of `others` that may have moved when `obj` was picked, and why (see TOUCH_DISTANCE)."""
+        moved = self._moved_with(obj, others, first=True)
+        return moved[0] if moved else None
+
+    def _moved_with(self, obj: ObjectPose, others: list[ObjectPose], first: bool = False) \
+            -> list[tuple[ObjectPose, str]]:
+        """Those of `others` that may have moved when `obj` was picked, each with why (see TOUCH_DISTANCE);
+        `first`: only the first found."""
+        out: list[tuple[ObjectPose, str]] = []
         inv = self.robot.inventory
         m = inv[obj.obj_id]
         P = m.points[::4] @ obj.T_base_obj[:3, :3].T + obj.T_base_obj[:3, 3]
@@ -131,12 +208,14 @@ class Verification:
             if not np.isfinite(d).any():
                 continue
             if Q[:, 2].min() > P[:, 2].min() + self.SAME_SUPPORT:
-                return q, "rested on it"
-            if np.arccos(min(1.0, abs(float(q.T_base_obj[2, 2])))) > self.LEANING:
-                return q, "leaning"
-            if q.visible_fraction < seen_whole:
-                return q, "seen in part"
-        return None
+                out.append((q, "rested on it"))
+            elif np.arccos(min(1.0, abs(float(q.T_base_obj[2, 2])))) > self.LEANING:
+                out.append((q, "leaning"))
+            elif q.visible_fraction < seen_whole:
+                out.append((q, "seen in part"))
+            if out and first:
+                break
+        return out
 
     def _same_class_near(self, obj: ObjectPose) -> list[ObjectPose]:
         return [q for q in self.belief.poses if q.cls == obj.cls and

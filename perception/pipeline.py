@@ -58,6 +58,9 @@ FINE_ON_TOL = 0.004
 # Tall vessels open at the top, judged by what fills their cavity (verify.filled: a can's lid is no opening; a
 # bowl is left out: what lies in one, a spoon or food scraps, is no evidence against it).
 CAVITY_CLASSES = ("cup", "mug", "glass")
+# perceive(..., region=): an instance with this share of its points in the region is fitted (an item whose origin
+# lies in the region may reach well out of it: a plate across its border)
+REGION_SHARE = 0.2
 
 
 @dataclass
@@ -147,10 +150,12 @@ class Perceiver:
                if isinstance(x, GeometricSegmenter)]
         return out
 
-    def perceive(self, views: list[View], up: np.ndarray | None = np.array([0.0, 0.0, 1.0])) -> PerceptionResult:
+    def perceive(self, views: list[View], up: np.ndarray | None = np.array([0.0, 0.0, 1.0]),
+                 region=None) -> PerceptionResult:
         """Object poses from one scan. `up`: the base frame's up (against gravity); None when the views' frame
         has no known gravity (a BOP image without world poses): the dominant plane of each view is then the
-        support."""
+        support. `region`: a mask over base-frame points (N, 3) -> (N,) bool; only instances with at least
+        REGION_SHARE of their points in it are fitted (incremental perception, perception/region.py)."""
         timings: dict[str, float] = {}
 
         cpu: dict[str, float] = {}
@@ -218,6 +223,8 @@ class Perceiver:
         with timed("pose"):
             queue = list(m.instance_ids)
             next_id = max(queue) + 1 if queue else 0
+            if region is not None:
+                queue = [i for i in queue if np.mean(region(m.points[m.ids == i])) >= REGION_SHARE]
             ids_out = m.ids.copy()
             splits = 0
             found: list[tuple[Hypothesis, int, np.ndarray]] = []

@@ -36,6 +36,13 @@ from kitchenbot.world.gripper import PAD_DEPTH
 from kitchenbot.world.inventory import Inventory
 
 
+def too_hidden(o: ObjectPose, settings) -> bool:
+    """Whether grasp selection skips `o` as buried: hidden (1 - visible_fraction / visible_fraction_unoccluded)
+    more than settings.max_occlusion."""
+    hidden = 1.0 - min(1.0, float(o.visible_fraction) / settings.visible_fraction_unoccluded)
+    return hidden > float(settings.max_occlusion)
+
+
 def object_name(o: ObjectPose, index: int) -> str:
     """Name of a perceived object in the collision world (its instance id, else its index)."""
     return str(o.instance_id if o.instance_id >= 0 else f"i{index}")
@@ -235,7 +242,6 @@ def select_grasps(
     if target is not None and not cands:
         cands = [(len(objects), target)]
         names.append(object_name(target, len(objects)))
-    max_hidden = float(settings.max_occlusion)
     avoid_base = {a.split("_tilt")[0] for a in avoid}
     out: list[Grasp] = []
     any_model = False
@@ -245,8 +251,7 @@ def select_grasps(
     # Phase 1: cheap filters (occlusion, approach from above, reach) over every (object, grasp) pair.
     pending = []
     for k, o in cands:
-        hidden = 1.0 - min(1.0, float(o.visible_fraction) / settings.visible_fraction_unoccluded)
-        if hidden > max_hidden:
+        if too_hidden(o, settings):
             st.occluded += 1
             continue
         try:
