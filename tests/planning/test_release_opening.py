@@ -17,8 +17,12 @@ from kitchenbot.planning.pick_place import RELEASE_GAPS, release_openings
 from kitchenbot.planning.types import PlacePlan, PlaceTarget
 from kitchenbot.transforms import make_T, rot_z
 
-from .test_pick_place import checker  # noqa: F401  (fixture)
-from kitchenbot.planning.fcl_check import verify_place
+from kitchenbot.planning.fcl_check import FclChecker, verify_place
+
+@pytest.fixture(scope="module")
+def checker(planner):
+    return FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
+
 
 ON_ITS_RIM = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # axis level along base x
 Q_LIFTED = np.array([3.0393, -1.2597, 1.9598, -2.235, -1.5653, -0.117])  # the arm above the sink, bowl lifted
@@ -45,7 +49,7 @@ def _situation(planner):
     return b, plate, target
 
 
-def test_a_bowl_set_on_its_rim_beside_a_plate_is_let_go_with_a_narrower_opening(planner, home, monkeypatch, checker):  # noqa: F811
+def test_a_bowl_set_on_its_rim_beside_a_plate_is_let_go_with_a_narrower_opening(planner, home, monkeypatch, checker):
     b, plate, target = _situation(planner)
     np.testing.assert_allclose(plate.T_base_obj[:3, :3] @ plate.T_base_obj[:3, :3].T, np.eye(3), atol=1e-9)
     grasps = planner.select_grasps(home, [b], target=b)
