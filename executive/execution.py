@@ -129,8 +129,9 @@ class Execution:
         if stopped_short:
             self._log("note", "set down on contact before the release pose", cls=obj.cls,
                       tcp=self.arm.tcp_pose()[:3, 3])
-        self._cmd("gripper.open", opening=pick.grasp.spec.opening, release=True)
-        self.gripper.open(pick.grasp.spec.opening)
+        opening = place.release_opening if place.release_opening is not None else pick.grasp.spec.opening
+        self._cmd("gripper.open", opening=opening, release=True)
+        self.gripper.open(opening)
         if stopped_short:  # back up the way it came down (the planned retreat starts at the release pose)
             self._retrace(place.lower, "retreat")
         else:

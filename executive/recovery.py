@@ -368,8 +368,9 @@ class RecoveryActions:
                 try:
                     self._run_trajectory(plan.transfer)
                     self._run_trajectory(plan.lower, guarded=True)
-                    self._cmd("gripper.open", release=True)
-                    self.gripper.open(grasp.spec.opening)
+                    opening = plan.release_opening if plan.release_opening is not None else grasp.spec.opening
+                    self._cmd("gripper.open", opening=opening, release=True)
+                    self.gripper.open(opening)
                     if self.arm.stopped_on_contact:
                         self._retrace(plan.lower, "retreat")
                     else:

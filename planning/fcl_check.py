@@ -235,6 +235,8 @@ def verify_place(checker: FclChecker, planner, plan, grasp, objects, step: float
     return [
         ("transfer", checker.check_path(plan.transfer.q, objects=named, held=held, opening=grasp.spec.width, step=step)),
         ("lower", checker.check_path(plan.lower.q, objects=named, held=held, opening=grasp.spec.width, step=step)),
-        ("retreat", checker.check_path(plan.retreat.q, objects=[*named, placed], opening=grasp.spec.opening,
+        ("retreat", checker.check_path(plan.retreat.q, objects=[*named, placed],
+                                       opening=plan.release_opening if plan.release_opening is not None
+                                       else grasp.spec.opening,
                                        allowed=pads, step=step)),
     ]

@@ -58,6 +58,22 @@ LIFT_CONTACT_TRAVEL = 0.03  # m of lift during which the held object may still t
 # simulator (fakes/collision.py) tolerates such a start contact for 10 cm.
 LIFT_CLEAR_TRAVEL = 0.06
 PLACED_ID = 1_000_000  # instance id of the just-released object in the retreat scene
+# Gaps (m, per pad) the pads open to past the held item's width at release when the grasp's full opening would put
+# a pad into a neighbour at the target (a bowl set on its rim beside a plate in a rack: its rim pinch opens 3.5 cm,
+# 1.5 cm past the rim on each side; the plate stands a few mm from the closed pad). Any opening wider than the item
+# lets it go (a 2 mm gap: as far as the pads' grasp margin).
+RELEASE_GAPS = (0.008, 0.005, 0.002)
+
+
+def release_openings(opening: float, width: float) -> list[float]:
+    """Gripper openings to release an item held at `width` with, widest first: the grasp's own `opening`, then
+    the item's width plus each of RELEASE_GAPS per pad where that is narrower (a tighter spot at the target)."""
+    out = [float(opening)]
+    for gap in RELEASE_GAPS:
+        o = float(width) + 2.0 * gap
+        if o < out[-1] - 1e-3:
+            out.append(o)
+    return out
 
 
 class Planner:
@@ -748,24 +764,43 @@ class Planner:
                 T_rest = T_obj.copy()
                 T_rest[2, 3] = min(T_obj[2, 3], float(np.asarray(tgt.T_base_obj)[2, 3]))
                 placed = ObjectPose(grasp.obj.obj_id, grasp.obj.cls, T_rest, 1.0, instance_id=PLACED_ID)
-                after = self.scene([*objects, placed], map_points, exclude=grasp.obj, opening=grasp.spec.opening)
-                after_scene = after.for_grasp(object_name(placed, 0))
-                # back out along the approach; if that line is blocked or singular, straight up instead
-                for T_back in (T_tcp @ trans(0.0, 0.0, -up), trans(0.0, 0.0, up) @ T_tcp):
-                    r = self._line(after_scene, q_rel, T_back, "retreat", check_start=False)
-                    if not isinstance(r, PlanningFailure):
-                        if after.valid(r[1]):  # the next plan starts here, with the full margins
-                            break
-                        r = CartesianPathFailed("retreat: ends within the collision margin",
-                                                {"pairs": after.colliding_pairs(r[1]), "segment": "retreat"})
+                r = self._retreat(objects, map_points, grasp, placed, q_rel, T_tcp, up)
                 if isinstance(r, PlanningFailure):
                     last = r
                     continue
-                retreat, _ = r
+                retreat, opening = r
                 timings["total_ms"] = (time.perf_counter() - t_start) * 1e3
-                return PlacePlan(tgt, T_obj, T_tcp, transfer, lower, retreat, timings_ms=timings)
+                return PlacePlan(tgt, T_obj, T_tcp, transfer, lower, retreat, timings_ms=timings,
+                                 release_opening=opening)
         assert last is not None
         return last
+
+    def _retreat(self, objects, map_points, grasp: Grasp, placed: ObjectPose, q_rel: np.ndarray, T_tcp: np.ndarray,
+                 up: float) -> tuple[Trajectory, float] | PlanningFailure:
+        """(retreat, gripper opening at release) after letting go of `placed` at q_rel: the open pads back out along
+        the approach (else straight up), ending with the full margins. The widest opening (release_openings: the
+        grasp's own, then down to a few mm per pad past the item's width) whose pads, opened at the release pose,
+        touch nothing but the released item (a neighbour in a rack stands a few mm from a pad) and whose retreat
+        is free; where none is, the grasp's own opening with only the retreat checked (as the release pose itself
+        may then touch: the pads leave the item along the approach)."""
+        first: PlanningFailure | None = None
+        widest = grasp.spec.opening
+        for opening, start_clear in [*((o, True) for o in release_openings(widest, grasp.spec.width)),
+                                     (widest, False)]:
+            after = self.scene([*objects, placed], map_points, exclude=grasp.obj, opening=opening)
+            after_scene = after.for_grasp(object_name(placed, 0))
+            if start_clear and not after_scene.valid(q_rel):
+                continue
+            for T_back in (T_tcp @ trans(0.0, 0.0, -up), trans(0.0, 0.0, up) @ T_tcp):
+                r = self._line(after_scene, q_rel, T_back, "retreat", check_start=False)
+                if not isinstance(r, PlanningFailure):
+                    if after.valid(r[1]):  # the next plan starts here, with the full margins
+                        return r[0], opening
+                    r = CartesianPathFailed("retreat: ends within the collision margin",
+                                            {"pairs": after.colliding_pairs(r[1]), "segment": "retreat"})
+                first = first or r
+        assert first is not None
+        return first
 
     # ---- free motion -----------------------------------------------------------------------------------------------
     def plan_slide(self, q_start: np.ndarray, objects: Sequence[ObjectPose], target: ObjectPose, *,

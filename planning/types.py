@@ -271,6 +271,9 @@ class PlacePlan:
     lower: Trajectory
     retreat: Trajectory
     timings_ms: dict = field(default_factory=dict)
+    # the gripper opening (m) to let go with, which the retreat was planned for: the grasp's own opening, or less
+    # where its pads would meet a neighbour at the target (Planner._retreat); None: the grasp's opening
+    release_opening: float | None = None
     ok: ClassVar[bool] = True
 
     @property
