@@ -286,7 +286,8 @@ class RecoveryActions:
             # nothing of its class recognised there (fallen into a rack, lying on its side against something): it
             # still lies about there, unseen by the sink scans; what the view shows inside the keep-out that
             # neither the cell nor a believed item explains is where it lies: plans keep clear of it
-            self._add_contact_marks(self._unexplained_in(view, keep_out))
+            # (the whole cylinder: the item's top may stand right under where the tool was when it fell)
+            self._add_contact_marks(self._unexplained_in(view, self._keep_out(site, cls, clear_of_tool=False)))
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
         if unseen_rec is not None and unseen_rec.cls == cls:  # nothing stands at its target; handled again from here
@@ -320,12 +321,13 @@ class RecoveryActions:
 
     KEEP_OUT_DEPTH = 0.45  # m below the drop site a fallen item may have come to rest (a rack under the counter)
 
-    def _keep_out(self, site: np.ndarray, cls: str) -> np.ndarray | None:
+    def _keep_out(self, site: np.ndarray, cls: str, clear_of_tool: bool = True) -> np.ndarray | None:
         """Points filling an upright cylinder under the drop site, as wide as the fallen item and reaching from
         KEEP_OUT_DEPTH below the site up to where the item may stand (no scene knows it yet): as map points no
         object explains, the planner keeps clear of them like of any unknown obstacle. The item fell from the
         tool, so the cylinder ends below the tool as it is now (lowered in 2 cm steps until the tool clears it;
-        what is left within the margin is escaped straight up). None if no such cylinder clears the tool."""
+        what is left within the margin is escaped straight up). None if no such cylinder clears the tool.
+        `clear_of_tool=False`: the whole cylinder, wherever the tool is (a region to look in, not an obstacle)."""
         models = [m for m in self.robot.inventory.models.values() if m.cls == cls]
         radius = max((m.diameter for m in models), default=0.3) / 2 + 0.03
         z_lo = float(site[2]) - self.KEEP_OUT_DEPTH
@@ -336,6 +338,8 @@ class RecoveryActions:
         q = self.arm.joint_positions()
         while z_hi > z_lo + 0.02:
             pts = np.concatenate([np.c_[disc, np.full(len(disc), z)] for z in np.arange(z_lo, z_hi, 0.01)])
+            if not clear_of_tool:
+                return pts
             scene = self.planner.scene([], pts)
             if scene.touching_only(scene.colliding_pairs(q)).valid(q):
                 return pts
