@@ -1,13 +1,16 @@
 #!/usr/bin/env python3
 """Run one simulated task scene and report every collision the fake arm stopped on: which planned motion
 (approach, grasp_in, lift, transfer, lower, retreat, or a joint move such as a scan waypoint), which bodies
-("pad hits obj:UID"), the item being handled, and for every item in the sink its true pose against the closest
-believed pose of its class (perceived, or a record of what the robot put down: `prov`; position error, rotation error, visible fraction, verification, own points).
+("pad hits obj:UID"), the item being handled, and for every item in the cell its true pose against the closest
+believed pose of its class (perceived, or a record of what the robot put down: `prov`; position error, rotation
+error, visible fraction, verification, own points; "perceived": false where the belief has none within 10 cm: an
+item nothing in the belief stands for). `log`: the runner's notes and results in order (what it selected,
+planned, recovered, where it looked for a dropped item and what it found), the collisions among them.
 
     KITCHENBOT_PLANNER_MAX_ITERATIONS=200 KITCHENBOT_PLANNER_SEED=0 \\
         python scripts/collision_forensics.py sink-to-dishwasher 800 > f.json
 
-Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events.
+Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events, log.
 """
 
 from __future__ import annotations
