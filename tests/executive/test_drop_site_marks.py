@@ -13,7 +13,7 @@ import pytest
 from kitchenbot.executive.execution import Item
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.transforms import make_T
-from kitchenbot.world.gripper import PAD_ENVELOPE
+from kitchenbot.world.gripper import MAX_OPENING, PAD_ENVELOPE
 
 
 class _RecognisesNothing:
@@ -82,3 +82,26 @@ def test_a_drop_site_seen_empty_leaves_no_marks(make_runner):
     runner._drop_perceiver = lambda: _RecognisesNothing()
     runner._search_drop_site()
     assert len(b.contact_points) == 0
+
+
+def test_marks_that_block_a_move_go_and_a_fallen_items_stay(make_runner):
+    """The arm stands within the margin of contact marks (a stop in the sink): the move out is planned without
+    the marks around the arm; the marks on an item fallen outside the sink stay (before, every mark went, and a
+    later transfer ran into that item)."""
+    runner, world = make_runner(cups=1)
+    _connected(runner)
+    b = runner.belief
+    q0 = runner.arm.joint_positions()
+    T = runner.arm.tcp_pose()
+    pad = np.array([[0.0, y, z] for y in (MAX_OPENING / 2, -MAX_OPENING / 2) for z in (-0.04, -0.02, 0.0)])
+    b.mark_contact(pad @ T[:3, :3].T + T[:3, 3])  # at the open pads' inner faces
+    fallen = np.array([[-0.20, 0.70, 0.06], [-0.20, 0.70, 0.08]])  # on the counter, away from the arm
+    b.mark_contact(fallen)
+    plan = runner.planner.plan_move(q0, np.asarray(runner.robot.config.scan_waypoints[0], float),
+                                    objects=b.scene_objects(), map_points=b.map_points)
+    assert plan.kind == "start_in_collision"  # the situation: the marks block the start
+
+    runner._move_joints(np.asarray(runner.robot.config.scan_waypoints[0], float), "scan waypoint 0")
+
+    assert np.allclose(runner.arm.joint_positions(), runner.robot.config.scan_waypoints[0], atol=1e-3)
+    assert len(b.contact_points) == 2 and np.allclose(b.contact_points, fallen)
