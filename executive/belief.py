@@ -197,9 +197,20 @@ class Belief:
         self.map.add_contacts(pts, self.scene_epoch)
         return len(pts)
 
-    def drop_contacts(self) -> None:
-        """Forget every contact mark (they block a move the arm must make)."""
-        self.map.keep_contacts(np.zeros(len(self.map.contact_points), bool))
+    def drop_contacts(self, near: np.ndarray | None = None, radius: float = 0.0) -> int:
+        """Forget the contact marks within `radius` of any of the points `near` (N, 3), every one without `near`:
+        they block a move the arm must make. Returns how many went."""
+        c = self.map.contact_points
+        if near is None:
+            gone = np.ones(len(c), bool)
+        else:
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(np.asarray(near, float).reshape(-1, 3)).query(c, distance_upper_bound=radius) \
+                if len(c) else (np.zeros(0), None)
+            gone = np.isfinite(d)
+        self.map.keep_contacts(~gone)
+        return int(gone.sum())
 
     @contextlib.contextmanager
     def keeping_out(self, pts: np.ndarray | None):

@@ -120,8 +120,9 @@ class Motions:
             return
         b = self.belief
         if self.planner is not None:
-            plan, escaped, scale = None, False, 1.0
-            for _ in range(3):
+            plan, escaped, scale, tries, narrowed = None, False, 1.0, 0, False
+            while tries < 3:
+                tries += 1
                 plan = self.planner.plan_move(q_now, q, objects=b.scene_objects(), map_points=b.map_points,
                                               timeout_scale=scale)
                 if plan.ok:
@@ -131,9 +132,17 @@ class Motions:
                     scale *= self.TIMEOUT_GROWTH
                 if plan.kind in ("start_in_collision", "goal_in_collision") and len(b.contact_points):
                     # the marks of a stop (RecoveryActions._mark_contact) block where the arm is or must go: they
-                    # have done their part (the arm backed off); a move they make impossible is planned without them
-                    self._log("note", "contact marks dropped: they block the move", what=what, reason=str(plan))
-                    b.drop_contacts()
+                    # have done their part (the arm backed off); a move they make impossible is planned without
+                    # those around the arm there (marks elsewhere, e.g. on an item fallen outside the sink, stay);
+                    # without any if that is not enough
+                    q_at = q_now if plan.kind == "start_in_collision" else q
+                    n = 0 if narrowed else b.drop_contacts(self._arm_points(q_at), self.MARKS_BLOCKING_RADIUS)
+                    if n:
+                        narrowed, tries = True, tries - 1  # (a try of its own, as dropping them all was)
+                    else:
+                        n = b.drop_contacts()
+                    self._log("note", "contact marks dropped: they block the move", what=what, reason=str(plan),
+                              dropped=n, left=len(b.contact_points))
                     continue
                 if plan.kind == "start_in_collision" and not escaped:
                     escaped = True  # stopped within the margin of something (a protective stop): jog out first
@@ -146,6 +155,18 @@ class Motions:
             self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
         dist = float(np.max(np.abs(q - q_now)))
         self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
+
+    MARKS_BLOCKING_RADIUS = 0.12  # m around the arm's axis and tool: marks there may block a configuration
+
+    def _arm_points(self, q: np.ndarray, step: float = 0.03) -> np.ndarray:
+        """Points every 3 cm along the arm's chain of joint origins to the TCP at `q` (base frame)."""
+        robot = self.planner.robot
+        P = [np.asarray(T)[:3, 3] for T in robot.joint_placements(q)] + [robot.fk_tcp(q)[:3, 3]]
+        out = [P[0]]
+        for a, c in zip(P[:-1], P[1:]):
+            n = max(1, int(np.ceil(np.linalg.norm(c - a) / step)))
+            out.extend(a + (c - a) * (k / n) for k in range(1, n + 1))
+        return np.asarray(out)
 
     def _move_joints_via(self, q: np.ndarray, what: str, via: np.ndarray) -> None:
         """_move_joints; when it finds no path, by way of `via` (home: a pose the planner connects easily to the

@@ -21,6 +21,7 @@ from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutErro
 from kitchenbot.executive.belief import SAME_ITEM_RADIUS
 from kitchenbot.executive.failures import Failure, StepFailed, Stopped
 from kitchenbot.executive.recovery_rules import CAMERA, rule_for
+from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
 from kitchenbot.world.gripper import DROP_HEIGHT
@@ -282,6 +283,11 @@ class RecoveryActions:
                              for o in placed)]  # (where something was placed, whatever perception calls it)
         self._log("result", "drop site", at=site, found=[p.T_base_obj[:3, 3] for p in found])
         if not found:
+            # nothing of its class recognised there (fallen into a rack, lying on its side against something): it
+            # still lies about there, unseen by the sink scans; what the view shows inside the keep-out that
+            # neither the cell nor a believed item explains is where it lies: plans keep clear of it
+            # (the whole cylinder: the item's top may stand right under where the tool was when it fell)
+            self._add_contact_marks(self._unexplained_in(view, self._keep_out(site, cls, clear_of_tool=False)))
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
         if unseen_rec is not None and unseen_rec.cls == cls:  # nothing stands at its target; handled again from here
@@ -301,14 +307,27 @@ class RecoveryActions:
         b.record_found(placed)
         self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
 
+    def _unexplained_in(self, view, region: np.ndarray | None) -> np.ndarray | None:
+        """Centres of the 2 cm voxels of what `view` sees within 1 cm of `region`'s points (a keep-out) that neither
+        the cell nor an item in the belief explains; None without a region."""
+        if region is None or not len(region):
+            return None
+        from scipy.spatial import cKDTree
+
+        P = point_map(view, stride=2).reshape(-1, 3).astype(float)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        d, _ = cKDTree(region).query(P, distance_upper_bound=0.01)
+        return self.planner.unexplained(P[np.isfinite(d)], self.belief.scene_objects())
+
     KEEP_OUT_DEPTH = 0.45  # m below the drop site a fallen item may have come to rest (a rack under the counter)
 
-    def _keep_out(self, site: np.ndarray, cls: str) -> np.ndarray | None:
+    def _keep_out(self, site: np.ndarray, cls: str, clear_of_tool: bool = True) -> np.ndarray | None:
         """Points filling an upright cylinder under the drop site, as wide as the fallen item and reaching from
         KEEP_OUT_DEPTH below the site up to where the item may stand (no scene knows it yet): as map points no
         object explains, the planner keeps clear of them like of any unknown obstacle. The item fell from the
         tool, so the cylinder ends below the tool as it is now (lowered in 2 cm steps until the tool clears it;
-        what is left within the margin is escaped straight up). None if no such cylinder clears the tool."""
+        what is left within the margin is escaped straight up). None if no such cylinder clears the tool.
+        `clear_of_tool=False`: the whole cylinder, wherever the tool is (a region to look in, not an obstacle)."""
         models = [m for m in self.robot.inventory.models.values() if m.cls == cls]
         radius = max((m.diameter for m in models), default=0.3) / 2 + 0.03
         z_lo = float(site[2]) - self.KEEP_OUT_DEPTH
@@ -319,6 +338,8 @@ class RecoveryActions:
         q = self.arm.joint_positions()
         while z_hi > z_lo + 0.02:
             pts = np.concatenate([np.c_[disc, np.full(len(disc), z)] for z in np.arange(z_lo, z_hi, 0.01)])
+            if not clear_of_tool:
+                return pts
             scene = self.planner.scene([], pts)
             if scene.touching_only(scene.colliding_pairs(q)).valid(q):
                 return pts

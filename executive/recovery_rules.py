@@ -75,7 +75,8 @@ ACTIONS: dict[str, str] = {
     "search_drop_site": "an item that slipped out (or a placement not seen at its target) outside the sink: the "
                         "camera straight down at the spot, perception without the cell, and an item of its class "
                         "found within 25 cm is picked up again from there (`recovered_drops`); where it cannot be "
-                        "seen, a keep-out cylinder stays for the run",
+                        "seen, a keep-out cylinder stays for the run; where it is seen but not recognised, what "
+                        "the view shows inside that cylinder and nothing believed explains stays marked",
 }
 
 

@@ -154,6 +154,12 @@ class Planner:
         kw = {} if opening is None else {"opening": opening}
         return self.world.scene(objs, voxels, h, **kw)
 
+    def unexplained(self, points: np.ndarray | None, objects: Sequence[ObjectPose] = ()) -> np.ndarray:
+        """Centres of the voxels of `points` (base frame: a view's, not the fused map) that neither the cell nor
+        one of `objects` explains: where something unknown stands, as the map's unexplained points become
+        obstacles (CollisionWorld.unexplained_voxels)."""
+        return self.world.unexplained_voxels(points, self._scene_objects(objects))
+
     def without_points_of(self, map_points: np.ndarray | None, obj: ObjectPose) -> np.ndarray | None:
         """`map_points` less those that `obj` explains where it was perceived: after it has been taken away they
         are a record of where it was, and with nothing there any more to explain them they would be planned

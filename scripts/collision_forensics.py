@@ -1,13 +1,16 @@
 #!/usr/bin/env python3
 """Run one simulated task scene and report every collision the fake arm stopped on: which planned motion
 (approach, grasp_in, lift, transfer, lower, retreat, or a joint move such as a scan waypoint), which bodies
-("pad hits obj:UID"), the item being handled, and for every item in the sink its true pose against the closest
-perceived pose of its class (position error, rotation error, visible fraction, verification, own points).
+("pad hits obj:UID"), the item being handled, and for every item in the cell its true pose against the closest
+believed pose of its class (perceived, or a record of what the robot put down: `prov`; position error, rotation
+error, visible fraction, verification, own points; "perceived": false where the belief has none within 10 cm: an
+item nothing in the belief stands for). `log`: the runner's notes and results in order (what it selected,
+planned, recovered, where it looked for a dropped item and what it found), the collisions among them.
 
     KITCHENBOT_PLANNER_MAX_ITERATIONS=200 KITCHENBOT_PLANNER_SEED=0 \\
         python scripts/collision_forensics.py sink-to-dishwasher 800 > f.json
 
-Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events.
+Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events, log.
 """
 
 from __future__ import annotations
@@ -25,11 +28,12 @@ def main(task: str, seed: int, slip: float = 0.05) -> dict:
     cfg = load_config(None).model_copy(update={"drivers": DriversConfig()})
     cfg.sim.slip_probability = slip
     events: list[dict] = []
+    log: list[str] = []  # the runner's notes and results (not its device commands), in order
     moving = {"name": None}
 
     def hook(runner) -> None:
         arm, cls = runner.robot.arm, type(runner)
-        run_traj, move_joints, event = cls._run_trajectory, cls._move_joints, arm._event
+        run_traj, move_joints, event, note = cls._run_trajectory, cls._move_joints, arm._event, cls._log
 
         def _run_trajectory(self, traj, carrying=False, guarded=False):
             moving["name"] = getattr(traj, "name", "?")
@@ -42,13 +46,21 @@ def main(task: str, seed: int, slip: float = 0.05) -> dict:
         def _event(kind, detail="", t=None):
             if kind == "motion" and "collision:" in detail:
                 events.append(describe(runner, moving["name"], detail))
+                log.append(f"COLLISION {moving['name']}: {detail}")
             return event(kind, detail, t)
 
-        cls._run_trajectory, cls._move_joints, arm._event = _run_trajectory, _move_joints, _event
+        def _log(self, kind, name, /, **payload):
+            if kind in ("note", "result") and name != "arm.execute_trajectory":
+                short = {k: (np.round(np.asarray(v, float), 3).tolist() if isinstance(v, np.ndarray) else v)
+                         for k, v in payload.items() if k not in ("q", "timings_ms")}
+                log.append(f"{self.state} {kind} {name} {short}"[:400])
+            return note(self, kind, name, **payload)
+
+        cls._run_trajectory, cls._move_joints, arm._event, cls._log = _run_trajectory, _move_joints, _event, _log
 
     rep = run_task(cfg, task, seed, progress=False, journal_path=False, runner_hook=hook)
     return {"task": task, "seed": seed, "delivered": rep.truth["end"]["delivered"],
-            "wanted": rep.truth["start"]["in_sink"], "collisions": rep.collisions, "events": events}
+            "wanted": rep.truth["start"]["in_sink"], "collisions": rep.collisions, "events": events, "log": log}
 
 
 def describe(runner, motion: str | None, detail: str) -> dict:
@@ -59,7 +71,7 @@ def describe(runner, motion: str | None, detail: str) -> dict:
         rec["target"] = {"cls": it.cls, "p": np.round(it.T_base_obj[:3, 3], 3).tolist(), "iid": it.instance_id}
     for uid, so in w.objects.items():
         p = so.T_base_obj[:3, 3]
-        near = [o for o in runner.belief.poses if o.obj_id == so.model.obj_id]
+        near = [o for o in runner.belief.scene_objects() if o.obj_id == so.model.obj_id]
         best = min(near, key=lambda o: np.linalg.norm(o.T_base_obj[:3, 3] - p), default=None)
         e = {"uid": uid, "cls": so.model.cls, "true_p": np.round(p, 3).tolist(), "held": uid == w.held_uid}
         if best is not None and np.linalg.norm(best.T_base_obj[:3, 3] - p) < 0.1:
@@ -67,7 +79,8 @@ def describe(runner, motion: str | None, detail: str) -> dict:
             e.update(err_cm=round(100 * float(np.linalg.norm(best.T_base_obj[:3, 3] - p)), 2),
                      rot_deg=round(float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))), 1),
                      visible=round(best.visible_fraction, 2), verification=round(best.verification, 2),
-                     points=len(best.points), iid=best.instance_id)
+                     points=len(best.points) if best.points is not None else 0, iid=best.instance_id,
+                     prov=runner.belief.provenance(best))
         else:
             e["perceived"] = False
         rec["objects"].append(e)

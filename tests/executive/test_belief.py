@@ -106,3 +106,18 @@ def test_tasks_read_the_belief_and_do_not_change_it():
         assert (b.placed, b.pending) == before
         assert [np.allclose(a.T_base_obj, c.T_base_obj) for a, c in zip(t1, t2)] == [True] * len(t1)
         assert not [k for k in vars(task) if k not in ("inventory", "cell")]  # no run state on the task
+
+
+def test_contact_marks_that_block_a_move_go_and_the_others_stay():
+    """Marks around the arm where a move starts block it and go; a mark elsewhere (on an item fallen outside the
+    sink) stays: before, every mark went with them and a later transfer ran into that item."""
+    b = Belief()
+    near_tool = np.array([[0.50, 0.00, -0.10], [0.52, 0.02, -0.08]])
+    fallen = np.array([[-0.20, 0.44, 0.12]])
+    b.mark_contact(near_tool)
+    b.mark_contact(fallen)
+    arm = np.array([[0.0, 0.0, 0.16], [0.5, 0.0, 0.0], [0.5, 0.0, -0.05]])
+    assert b.drop_contacts(arm, 0.12) == 2
+    assert np.allclose(b.contact_points, fallen)
+    assert b.drop_contacts(arm, 0.12) == 0
+    assert b.drop_contacts() == 1 and len(b.contact_points) == 0
