@@ -26,9 +26,16 @@ from kitchenbot.tasks.base import (
     upright,
 )
 from kitchenbot.world.attitude import is_upright
+from kitchenbot.world.gripper import DROP_HEIGHT
 from kitchenbot.world.inventory import ObjectModel
 
 MAX_STACK = 6
+# m: a stack stands no taller than this above the stacking area (about six nested builtin cups, 0.23 m). A cup that
+# does not nest (straight sides: it rests on the rim of the one below, a whole cup height higher) reaches it at two
+# or three: the next one starts a stack of its own, as a person stands non-nesting cups side by side rather than in a
+# tower that tips and that the gripper, holding a cup by its side, can no longer reach over.
+MAX_STACK_HEIGHT = 0.25
+STACK_RADIUS = 0.03  # m: cups whose centres are this close stand on one stack
 
 
 def nest_offset_of(model: ObjectModel) -> float:
@@ -106,12 +113,23 @@ class CupStacking(Task):
     def _stack_targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
         model = self.inventory[obj.obj_id]
         stacked = [p for p in belief.placed if p.obj_id == obj.obj_id and p.target.kind in ("stack", "stack_base")]
-        top: list[PlaceTarget] = []
-        if stacked and len(stacked) < MAX_STACK:
-            T = on_top_of_same(model, stacked, nest_offset_of(model))
-            if T is not None:
-                top = [PlaceTarget(T, "stack", free_yaw=True, support=f"stack of {model.name}")]
         area = self.cell.spec.stacking_area
+        top: list[PlaceTarget] = []
+        # each stack of this type (cups standing on one spot), the highest first: on its top while it holds fewer
+        # than MAX_STACK cups and stays under MAX_STACK_HEIGHT with this one
+        stacks: list[list] = []
+        for p in stacked:
+            for s in stacks:
+                if np.hypot(*(p.T_base_obj[:2, 3] - s[0].T_base_obj[:2, 3])) < STACK_RADIUS:
+                    s.append(p)
+                    break
+            else:
+                stacks.append([p])
+        for s in sorted(stacks, key=lambda s: -max(p.T_base_obj[2, 3] for p in s)):
+            T = on_top_of_same(model, s, nest_offset_of(model)) if len(s) < MAX_STACK else None
+            if T is not None and T[2, 3] - DROP_HEIGHT + model.extents[2] / 2 - area.z <= MAX_STACK_HEIGHT:
+                top.append(PlaceTarget(T, "stack", free_yaw=True, support=f"stack of {model.name}"))
+        top = top[:2]
         lo = np.array(area.origin_xy)
         # A new stack of the same type after the top of the existing one (the planner takes the first it reaches),
         # as a person starts another stack when the first one's top cannot be reached with the cup's grasps (a

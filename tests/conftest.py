@@ -60,6 +60,47 @@ def write_own_dishware(folder, cup: bool = False):
     return {i: (name, cls) for i, (name, cls, _) in enumerate(specs, start=1)}
 
 
+def write_own_dishware_b(folder):
+    """A second models/ folder of unseen dishware, with other proportions than `write_own_dishware`'s: a shallow
+    pasta plate with a wide flat rim, a straight-walled conical bowl, a tall mug with a big handle, a stemmed wine
+    glass and a small ramekin (thick, straight walls). Meshes (mm) and diameters only. Returns {obj_id: (name,
+    expected class)}."""
+    from kitchenbot.world.dishware import _profile_closed, lathe, tube
+    from kitchenbot.world.inventory import Inventory, ObjectModel, _diameter
+
+    def vessel(outer, thickness):
+        return lathe(_profile_closed(np.array(outer, float), thickness))
+
+    pasta = vessel([(0, 0), (0.050, 0), (0.054, 0.003), (0.062, 0.012), (0.080, 0.030), (0.092, 0.036),
+                    (0.120, 0.040), (0.145, 0.044)], 0.005)
+    cone = vessel([(0, 0), (0.022, 0), (0.025, 0.002)] + [(0.025 + 0.060 * z / 0.075, z)
+                                                         for z in np.linspace(0.006, 0.075, 8)], 0.004)
+    mug = vessel([(0, 0), (0.034, 0), (0.038, 0.002)] + [(0.040, z) for z in np.linspace(0.008, 0.125, 8)], 0.005)
+    s = np.linspace(-np.pi / 2 + 0.25, np.pi / 2 - 0.25, 24)
+    mug += tube(np.stack([0.036 + 0.045 * np.cos(s), np.zeros_like(s), 0.0625 + 0.045 * np.sin(s)], 1), 0.007)
+    zs = np.linspace(0, 1, 10)
+    stem_h, bowl_h, bowl_r, t = 0.075, 0.110, 0.043, 0.0022
+    bowl = np.column_stack([0.0045 + (bowl_r - 0.0045) * np.sin(zs * np.pi * 0.62) ** 0.8 / np.sin(np.pi * 0.62) ** 0.8,
+                            stem_h + zs * bowl_h])
+    inner = np.column_stack([np.maximum(bowl[:, 0] - t, 0.0), bowl[:, 1] + t * 0.5])
+    inner[0] = (0.0, stem_h + 2 * t)
+    wine = lathe(np.vstack([[(0, 0), (0.036, 0), (0.036, 0.002), (0.022, 0.004), (0.007, 0.008), (0.0045, 0.012),
+                             (0.0045, stem_h * 0.95)], bowl[1:], [(bowl_r - t * 0.5, stem_h + bowl_h + t * 0.3)],
+                            inner[::-1][:-1], [(0.0, inner[0, 1])]]))
+    ramekin = vessel([(0, 0), (0.040, 0), (0.044, 0.003)] + [(0.045, z) for z in np.linspace(0.008, 0.050, 5)],
+                     0.0065)
+    specs = [("pasta_plate", "plate", pasta, (0.93, 0.92, 0.88)), ("conical_bowl", "bowl", cone, (0.35, 0.45, 0.70)),
+             ("tall_mug", "mug", mug, (0.75, 0.30, 0.20)), ("wine_glass", "glass", wine, (0.80, 0.88, 0.93)),
+             ("ramekin", "bowl", ramekin, (0.95, 0.95, 0.95))]
+    models = []
+    for i, (name, _, mesh, colour) in enumerate(specs, start=1):
+        mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
+        mesh.compute_vertex_normals()
+        models.append(ObjectModel(i, name, "?", mesh, _diameter(np.asarray(mesh.vertices)), colour=colour))
+    Inventory(models).save_bop(folder)
+    return {i: (name, cls) for i, (name, cls, _, _) in enumerate(specs, start=1)}
+
+
 @pytest.fixture(scope="session")
 def own_dishware(tmp_path_factory):
     """(models_dir, {obj_id: (name, expected class)}) of dishware this project has never seen."""
