@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.executive.stage_times import diff as stage_diff
+from kitchenbot.executive.unrecognised import Unrecognised, unrecognised_things
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.region import Region, update_region
 from kitchenbot.perception.types import ObjectPose
@@ -63,6 +64,10 @@ class Verification:
                 t = b.attempts_for(q)
                 rs = sorted(set(t.reasons)) if t is not None else []
                 why.append(f"{q.cls} ({', '.join(rs) or 'no attempts left'})")
+            things = self._unrecognised_in_sink()
+            if things:
+                why.append(f"{len(things)} unrecognised thing(s) no pose explains (buried, seen too little, or not "
+                           "dishware): " + ", ".join(t.describe() for t in things))
             self.report.message = f"{len(left)} object(s) left in the sink: " + "; ".join(why)
             self.report.safe = self._make_safe()
             return "give_up"
@@ -92,6 +97,19 @@ class Verification:
             self.report.safe = self._make_safe()
             return "give_up"
         return "complete"
+
+    def _unrecognised_in_sink(self) -> list[Unrecognised]:
+        """What the map shows in the basin that neither the cell nor a perceived item explains, grouped into
+        things (executive/unrecognised.py): named when the run gives up, as the items left are."""
+        b = self.belief
+        if self.planner is None or b.map.base is None or not len(b.map.base):
+            return []
+        lo, hi = self.robot.cell.sink_interior
+        vox = self.planner.unexplained(b.map.base, b.scene_objects())
+        things = unrecognised_things(vox, self.planner.world.voxel_size, lo, hi)
+        for t in things:
+            self._log("note", "something in the sink no pose explains", xyz=t.centre, extent=t.extent)
+        return things
 
     def _verified_from_target_view(self) -> bool:
         """The released item is seen at its target in its retreat view, it was picked from the latest
