@@ -52,35 +52,47 @@ def resting(planner):
     return lambda *a, **k: _resting(planner, *a, **k)
 
 
-@pytest.fixture
-def grasps_hold():
-    """grasps_hold(model_name, prefix, every): the simulator's Fin-Ray model (its own contact test) holds the
-    model with every `every`-th grasp whose name starts with `prefix`, at about the grasp's expected width."""
-    from kitchenbot.executive.config import CellConfig
+def _sim_holds(inventory, model, specs, width_tol: float | None = None) -> None:
+    """The simulator's Fin-Ray model (its own contact test) holds `model` with each grasp of `specs`, placed at
+    the tool as the grasp says (closing within `width_tol` of the grasp's expected width, where given)."""
     from kitchenbot.fakes.gripper import FakeGripper
     from kitchenbot.fakes.world import SimWorld
     from kitchenbot.transforms import inv
     from kitchenbot.world.cell import Cell
-    from kitchenbot.world.inventory import Inventory
+
+    cfg = CellConfig()
+    world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
+    for spec in specs:
+        uid = world.add_object(model, world.T_base_tcp() @ inv(spec.T_obj_tcp))
+        g = FakeGripper(world)
+        g.connect()
+        g.open(spec.opening)
+        r = g.grasp(0.8)
+        assert r.holding and world.held_uid == uid, spec.name
+        if width_tol is not None:
+            assert abs(r.opening - spec.width) < width_tol, spec.name
+        g.open(spec.opening)
+        world.remove_object(uid)
+        g.disconnect()
+
+
+@pytest.fixture
+def sim_holds():
+    """sim_holds(inventory, model, specs, width_tol=None): the simulated Fin-Ray holds `model` with each grasp."""
+    return _sim_holds
+
+
+@pytest.fixture
+def grasps_hold():
+    """grasps_hold(model_name, prefix, every): the simulator's Fin-Ray model (its own contact test) holds the
+    model with every `every`-th grasp whose name starts with `prefix`, at about the grasp's expected width."""
 
     def check(name: str, prefix: str, every: int) -> None:
-        cfg = CellConfig()
         inventory = ensure_grasps(Inventory.builtin())
-        world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
         m = inventory.by_name(name)
         specs = [g for g in m.grasps if g.name.startswith(prefix)][::every]
         assert specs, f"{name} has no {prefix} grasps"
-        for spec in specs:
-            uid = world.add_object(m, world.T_base_tcp() @ inv(spec.T_obj_tcp))
-            g = FakeGripper(world)
-            g.connect()
-            g.open(spec.opening)
-            r = g.grasp(0.8)
-            assert r.holding and world.held_uid == uid, spec.name
-            assert abs(r.opening - spec.width) < 0.006, spec.name
-            g.open(spec.opening)
-            world.remove_object(uid)
-            g.disconnect()
+        _sim_holds(inventory, m, specs, width_tol=0.006)
 
     return check
 

@@ -192,17 +192,12 @@ def test_antipodal_pairs_respect_the_opening():
     assert synthesise_grasps(cube(0.12)) == []
 
 
-def test_a_flat_wide_rim_is_pinched_at_a_slant_from_above():
+def test_a_flat_wide_rim_is_pinched_at_a_slant_from_above(sim_holds):
     """A pasta plate whose wide rim lies nearly flat (8 degrees): its straight pinches close nearly vertically, so
     they are approached nearly level (the wrist then meets the basin's walls when the plate lies on the sink floor
     or on a stack). Slanted pinches of the rim come in from above it, tilted down by more than 37 degrees, and the
     simulated Fin-Ray holds the plate with them."""
-    from kitchenbot.executive.config import CellConfig
-    from kitchenbot.fakes.gripper import FakeGripper
-    from kitchenbot.fakes.world import SimWorld
     from kitchenbot.planning.grasp_synthesis import PINCH_MAX_WIDTH, synthesise_grasps
-    from kitchenbot.transforms import inv
-    from kitchenbot.world.cell import Cell
     from kitchenbot.world.dishware import _profile_closed, lathe
     from kitchenbot.world.inventory import Inventory, ObjectModel
 
@@ -219,17 +214,6 @@ def test_a_flat_wide_rim_is_pinched_at_a_slant_from_above():
                and g.T_obj_tcp[2, 3] > z_top - 0.03]
     # three kinds at least (each repeated all around the rim); straight pinches alone give one (at the rounded edge)
     assert len(slanted) >= 36
-    cfg = CellConfig()
-    world = SimWorld(Cell(), Inventory([plate]), T_flange_tcp=cfg.safety_limits().T_flange_tcp,
-                     q=np.array(cfg.robot.home))
     for g in slanted[::6]:
         assert g.width < PINCH_MAX_WIDTH and g.opening > g.width
-        uid = world.add_object(plate, world.T_base_tcp() @ inv(g.T_obj_tcp))
-        gripper = FakeGripper(world)
-        gripper.connect()
-        gripper.open(g.opening)
-        r = gripper.grasp(0.8)
-        assert r.holding and world.held_uid == uid, g.name
-        gripper.open(g.opening)
-        world.remove_object(uid)
-        gripper.disconnect()
+    sim_holds(Inventory([plate]), plate, slanted[::6])
