@@ -102,10 +102,10 @@ class Verification:
         """What the map shows in the basin that neither the cell nor a perceived item explains, grouped into
         things (executive/unrecognised.py): named when the run gives up, as the items left are."""
         b = self.belief
-        if self.planner is None or b.map.base is None or not len(b.map.base):
+        if self.planner is None or b.map_base is None or not len(b.map_base):
             return []
         lo, hi = self.robot.cell.sink_interior
-        vox = self.planner.unexplained(b.map.base, b.scene_objects())
+        vox = self.planner.unexplained(b.map_base, b.scene_objects())
         things = unrecognised_things(vox, self.planner.world.voxel_size, lo, hi)
         for t in things:
             self._log("note", "something in the sink no pose explains", xyz=t.centre, extent=t.extent)
@@ -200,15 +200,8 @@ class Verification:
                     return q
         return None
 
-    def _may_have_moved(self, obj: ObjectPose, others: list[ObjectPose]) -> tuple[ObjectPose, str] | None:
-        """The first of `others` that may have moved when `obj` was picked, and why (see TOUCH_DISTANCE)."""
-        moved = self._moved_with(obj, others, first=True)
-        return moved[0] if moved else None
-
-    def _moved_with(self, obj: ObjectPose, others: list[ObjectPose], first: bool = False) \
-            -> list[tuple[ObjectPose, str]]:
-        """Those of `others` that may have moved when `obj` was picked, each with why (see TOUCH_DISTANCE);
-        `first`: only the first found."""
+    def _moved_with(self, obj: ObjectPose, others: list[ObjectPose]) -> list[tuple[ObjectPose, str]]:
+        """Those of `others` that may have moved when `obj` was picked, each with why (see TOUCH_DISTANCE)."""
         out: list[tuple[ObjectPose, str]] = []
         inv = self.robot.inventory
         m = inv[obj.obj_id]
@@ -231,8 +224,6 @@ class Verification:
                 out.append((q, "leaning"))
             elif q.visible_fraction < seen_whole:
                 out.append((q, "seen in part"))
-            if out and first:
-                break
         return out
 
     def _same_class_near(self, obj: ObjectPose) -> list[ObjectPose]:

@@ -117,12 +117,12 @@ def test_what_may_have_moved_with_a_pick(make_runner):
 
     picked = at(0.0)
     far, beside = at(width + 0.05), at(width + 0.01)
-    assert runner._may_have_moved(picked, [far, beside]) is None  # touching, but beside it on the same support
-    assert runner._may_have_moved(picked, [at(width + 0.01, z=0.03)])[1] == "rested on it"
-    assert runner._may_have_moved(picked, [at(width + 0.01, tilt=0.6)])[1] == "leaning"
-    assert runner._may_have_moved(picked, [at(width + 0.01, seen=0.1)])[1] == "seen in part"
-    assert runner._may_have_moved(picked, [at(width + 0.05, seen=0.1)]) is None  # seen in part, but not touching
-    assert runner._may_have_moved(picked, [at(width + 0.01, tilt=np.pi)]) is None  # upside down: not leaning
+    assert runner._moved_with(picked, [far, beside]) == []  # touching, but beside it on the same support
+    assert runner._moved_with(picked, [at(width + 0.01, z=0.03)])[0][1] == "rested on it"
+    assert runner._moved_with(picked, [at(width + 0.01, tilt=0.6)])[0][1] == "leaning"
+    assert runner._moved_with(picked, [at(width + 0.01, seen=0.1)])[0][1] == "seen in part"
+    assert runner._moved_with(picked, [at(width + 0.05, seen=0.1)]) == []  # seen in part, but not touching
+    assert runner._moved_with(picked, [at(width + 0.01, tilt=np.pi)]) == []  # upside down: not leaning
 
 
 def test_an_item_under_another_from_above_is_left_to_a_rescan(make_runner):
