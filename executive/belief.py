@@ -11,7 +11,7 @@
 - the **scene epoch**: how often the scene changed (placements, slides); planning failures and contact marks in
   the sink are per epoch.
 
-"The same item" is defined once (:func:`same_item`): the same class within SAME_ITEM_RADIUS.
+"The same item" is defined once (:func:`same_item`, world/same_item.py): the same class within SAME_ITEM_RADIUS.
 
 The tasks read a belief (``Task.targets(obj, belief)``: ``placed``, ``pending``) and never change it; the runner
 and its recovery change it through these operations only.
@@ -29,21 +29,7 @@ from kitchenbot.executive import machine as M
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import MapPoints
 from kitchenbot.tasks.base import Placed
-
-#: m: two poses of one class this close are taken for the same item (a perceived pose against an item the robot
-#: put there; attempts kept per class and place; a found item against one placed earlier). Perception puts an
-#: item within ~2 cm of where it is; different items of one class are at least a rim apart.
-SAME_ITEM_RADIUS = 0.04
-
-
-def same_item(cls_a: str, p_a: np.ndarray, cls_b: str, p_b: np.ndarray, radius: float = SAME_ITEM_RADIUS,
-              dims: int = 3) -> bool:
-    """Whether items of class `cls_a` at `p_a` and `cls_b` at `p_b` (base frame, m) are one item: the same class
-    and within `radius` (in the first `dims` coordinates: 2 compares xy only)."""
-    if cls_a != cls_b:
-        return False
-    d = np.asarray(p_a, float)[:dims] - np.asarray(p_b, float)[:dims]
-    return bool(np.linalg.norm(d) < radius)
+from kitchenbot.world.same_item import SAME_ITEM_RADIUS, same_item  # noqa: F401 (SAME_ITEM_RADIUS: re-exported)
 
 
 @dataclass

@@ -18,13 +18,13 @@ from __future__ import annotations
 import numpy as np
 
 from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutError, LimitViolation, ProtectiveStopError
-from kitchenbot.executive.belief import SAME_ITEM_RADIUS
 from kitchenbot.executive.failures import Failure, StepFailed, Stopped
 from kitchenbot.executive.recovery_rules import CAMERA, rule_for
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
 from kitchenbot.world.gripper import DROP_HEIGHT
+from kitchenbot.world.same_item import SAME_ITEM_RADIUS
 
 
 class RecoveryActions:

@@ -29,9 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose, View
+from kitchenbot.world.same_item import same_item
 
-#: m: two poses of one class this close are one item (as the executive's belief counts them)
-SAME_ITEM = 0.04
 #: m: a known map point whose depth the view measures within this of its own is seen (not behind something)
 SEEN_TOL = 0.015
 
@@ -166,8 +165,7 @@ def update_region(perceiver, map_points: np.ndarray | None, known: list[ObjectPo
     else:
         res = perceiver.perceive([view])
     found = [p for p in res.poses if region.contains(p.T_base_obj[None, :3, 3])[0]
-             and not any(p.cls == k.cls and np.linalg.norm(p.T_base_obj[:3, 3] - k.T_base_obj[:3, 3]) < SAME_ITEM
-                         for k in kept)]
+             and not any(same_item(p.cls, p.T_base_obj[:3, 3], k.cls, k.T_base_obj[:3, 3]) for k in kept)]
     pairs, lost, appeared = match_known(replaced, found)
     for k, f in pairs:
         # One view confirms less of an item than the scan's views did; a pick only uncovers what stays: the
