@@ -89,15 +89,23 @@ def pad_span(
     if scene is None:
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(model.mesh))
-    y, z, p = T_obj_tcp[:3, 1], T_obj_tcp[:3, 2], T_obj_tcp[:3, 3]
-    widths = []
+    T = np.asarray(T_obj_tcp, float)
+    span = _pad_spans(scene, T[None, :3, 1], T[None, :3, 2], T[None, :3, 3], half_length)[0]
+    return float(span) if np.isfinite(span) else None
+
+
+def _pad_spans(scene: o3d.t.geometry.RaycastingScene, y: np.ndarray, z: np.ndarray, p: np.ndarray,
+               half_length: float = 0.06) -> np.ndarray:
+    """pad_span for n TCP poses at once (closing axes `y`, approach axes `z`, TCP points `p`: n x 3): the widest
+    extent of the mesh along the closing axis through the TCP and 5 mm either side along the pads' depth; -inf
+    where every line misses."""
+    span = np.full(len(p), -np.inf)
     for depth in (-0.005, 0.0, 0.005):
         c = p + z * depth
-        rays = np.array([[*(c - y * half_length), *y], [*(c + y * half_length), *(-y)]], np.float32)
-        t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-        if np.all(np.isfinite(t)):
-            widths.append(2 * half_length - t[0] - t[1])
-    return float(max(widths)) if widths else None
+        t0, _ = _cast(scene, c - y * half_length, y)
+        t1, _ = _cast(scene, c + y * half_length, -y)
+        span = np.fmax(span, np.where(np.isfinite(t0) & np.isfinite(t1), 2 * half_length - t0 - t1, -np.inf))
+    return span
 
 
 # The planner's pad boxes (world.gripper.PAD_ENVELOPE), for the check that a grasp's open pads do not cut into
@@ -475,13 +483,7 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
         # The width the Fin-Ray pads close to: they conform to the wall, so a slanted pinch closes to the wall's span
         # along the closing line through the TCP (what pad_span measures), not to the rigid pads' gap; that line
         # must cross the wall.
-        yt, h = y[todo], 0.06
-        span = np.full(len(todo), -np.inf)
-        for depth in (-0.005, 0.0, 0.005):  # as pad_span: the widest of three lines along the pads' depth
-            at = t[todo] + z[todo] * depth
-            t0, _ = _cast(scene, at - yt * h, yt)
-            t1, _ = _cast(scene, at + yt * h, -yt)
-            span = np.fmax(span, np.where(np.isfinite(t0) & np.isfinite(t1), 2 * h - t0 - t1, -np.inf))
+        span = _pad_spans(scene, y[todo], z[todo], t[todo])
         on_pair &= ~slant[todo] | (np.isfinite(span) & (span > 0) & (span < PINCH_MAX_WIDTH))
         closed = np.where(slant[todo], span, closed)
         ok = np.isfinite(closed) & on_pair & (area >= MIN_CONTACT)
