@@ -187,6 +187,10 @@ def _owners(P: np.ndarray, instance_points: Sequence[np.ndarray | None], n: int)
     return owner
 
 
+# m from its own fitted model's surface within which the grasp target's (the held item's) observed points are its
+# own: as far as a pose perception gives may be off (1.6 cm and turned 100 deg about the vertical, a lying mug:
+# its real surface lies up to 3.5 cm from the fitted one); farther out they are something else the instance took in
+OWN_REACH = 0.04
 _SURFACES: dict[int, tuple] = {}  # id(mesh) -> (mesh, open3d RaycastingScene)
 
 
@@ -272,7 +276,7 @@ class CollisionWorld:
         explain_radius: float = 0.015,
         min_points: int = 3,
         instance_points: Sequence[np.ndarray | None] = (),
-        instance_reach: float = 0.03,
+        instance_reach: float = OWN_REACH,
         self_explaining: Sequence[bool] | None = None,
     ) -> np.ndarray:
         """Centres of voxels holding >= `min_points` map points that nothing explains: not a cell box, not a
@@ -303,7 +307,7 @@ class CollisionWorld:
         objects: Sequence[SceneObject],
         explain_radius: float = 0.015,
         instance_points: Sequence[np.ndarray | None] = (),
-        instance_reach: float = 0.03,
+        instance_reach: float = OWN_REACH,
         self_explaining: Sequence[bool] | None = None,
     ) -> np.ndarray:
         """Mask of the (N, 3) `points` that perceived objects explain.
@@ -312,10 +316,13 @@ class CollisionWorld:
         `explain_radius`. A point of instance ``objects[i]`` (``instance_points[i]`` holds them) is explained
         where some object's model surface lies within `explain_radius` of it: where the fitted model does not
         cover its own points, the real item is there and the model is not, so they stay obstacles. Only the
-        objects marked in `self_explaining` (None: all) may explain their own points anyway, as before: within
-        `explain_radius` of the instance's points that lie within `instance_reach` of its box (the grasp
-        target and the held item, so a pose a little off leaves no phantom obstacle beside the item the pads
-        close on; an instance that took in a neighbour must not hide the neighbour)."""
+        objects marked in `self_explaining` (None: all) may explain their own points anyway, where those lie
+        within `instance_reach` of the object's own fitted model surface (the grasp target and the held item, so
+        a pose a little off leaves no phantom obstacle beside the item the pads close on); and points of no
+        instance within `explain_radius` of such points. Own points farther from the model stay obstacles: the
+        instance took in something beside it (a mug next to a bowl segmented into the bowl's instance) that no
+        model stands for, and the grasp, the lift and the transport must keep clear of it. No box explains an
+        instance's points (a neighbour's, or the target's own, inside a box of air)."""
         P = np.asarray(points, float).reshape(-1, 3)
         hit = np.zeros(len(P), bool)
         n = len(objects)
@@ -330,25 +337,31 @@ class CollisionWorld:
             lo, hi = boxes[k]
             Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
             in_box = np.all((Pl >= lo - explain_radius) & (Pl <= hi + explain_radius), axis=1)
-            # the box explains points of no instance and of instances that may explain themselves
-            free_owner = owner < 0
-            if not all(own_ok[:n]):
-                free_owner |= np.isin(owner, [j for j in range(n) if own_ok[j]])
-            hit |= in_box & free_owner
+            # the box explains points of no instance
+            hit |= in_box & (owner < 0)
             # any point on (near) this model's surface
             cand = in_box & ~hit
             if cand.any():
                 hit[np.flatnonzero(cand)[_surface_distance(o.model, Pl[cand]) <= explain_radius]] = True
-            ip = instance_points[k] if k < len(instance_points) else None
-            if own_ok[k] and ip is not None and len(ip):
-                ip = np.asarray(ip, float).reshape(-1, 3)
-                il = (ip - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
-                inst.append(ip[np.all((il >= lo - instance_reach) & (il <= hi + instance_reach), axis=1)])
+            if own_ok[k]:
+                # its own points near its own fitted model (within instance_reach of the surface)
+                mine = np.flatnonzero((owner == k) & ~hit)
+                if len(mine):
+                    near = _surface_distance(o.model, Pl[mine]) <= instance_reach
+                    hit[mine[near]] = True
+                ip = instance_points[k] if k < len(instance_points) else None
+                if ip is not None and len(ip):
+                    ip = np.asarray(ip, float).reshape(-1, 3)
+                    il = (ip - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
+                    inb = np.all((il >= lo - instance_reach) & (il <= hi + instance_reach), axis=1)
+                    ip, il = ip[inb], il[inb]
+                    if len(ip):
+                        inst.append(ip[_surface_distance(o.model, il) <= instance_reach])
         if inst and not hit.all():
             from scipy.spatial import cKDTree
 
-            # instance points explain points of no instance and their own instance's (not a neighbour's)
-            may = ~hit & ((owner < 0) | np.isin(owner, [j for j in range(n) if own_ok[j]]))
+            # an instance's points near its model explain points of no instance beside them
+            may = ~hit & (owner < 0)
             if may.any():
                 d, _ = cKDTree(np.vstack(inst)).query(P[may], distance_upper_bound=explain_radius)
                 idx = np.flatnonzero(may)
