@@ -1,7 +1,9 @@
 """What the robot believes during a task run, in one place, changed only through the named operations below.
 
 - **poses**: the latest perception (provenance: "perceived"); what the robot put down is kept as **placed**
-  records (provenance: "placed", or "staged" for items set down on the counter to be grasped again);
+  records (provenance: "placed", or "staged" for items set down on the counter to be grasped again, "seen" once
+  a view has replaced a staged record's pose: an item settles where it is let go, so a staged record is looked at
+  before its regrasp);
 - **the map**: the latest perception's map points, plus **contact marks** (where a stopped motion met something
   no model shows) and **keep-outs** (where a fallen item may lie unseen), which plans keep clear of;
 - **pending**: the models the task still has to move (from the latest perception);
@@ -126,6 +128,7 @@ class Belief:
     unseen_placement: Placed | None = None  # the record of a placement its check did not see
     dropped: int = 0  # items that left the gripper on the way
     first_total: int | None = None  # the task's items in the first perception
+    seen_staged: set = field(default_factory=set)  # instance ids of staged records whose pose a view gave
     _next_id: int = 0
 
     # ---- perception and the map ------------------------------------------------------------------------------
@@ -318,8 +321,10 @@ class Belief:
             self.unverified.remove(record.cls)
 
     def record_found(self, p: Placed) -> None:
-        """A dropped item found outside its target: it waits there to be picked up again, as a staged one."""
+        """A dropped item found outside its target: it waits there to be picked up again, as a staged one (its pose
+        is what the view showed)."""
         self.staged.append(p)
+        self.seen_staged.add(p.instance_id)
 
     # ---- what the robot put down ----------------------------------------------------------------------------
     def record_placed(self, task, obj: ObjectPose, target, T_base_obj: np.ndarray) -> Placed:
@@ -335,6 +340,22 @@ class Belief:
         self.attempts = [t for t in self.attempts
                          if not same_item(t.cls, t.pos, p.cls, p.T_base_obj[:3, 3])]
         self.staged.append(p)
+
+    def needs_look(self, p: Placed) -> bool:
+        """Whether the staged record `p` is only where it was put down: no view has shown where it settled."""
+        return any(q.instance_id == p.instance_id for q in self.staged) and p.instance_id not in self.seen_staged
+
+    def looked_at(self, task, p: Placed, T_seen: np.ndarray | None) -> Placed:
+        """A view was taken of the staged item `p`: it lies at `T_seen` (its record moves there, the same instance,
+        footprint anew from `task`), or None when the view did not show it (the record stays). Not looked at
+        again either way."""
+        self.seen_staged.add(p.instance_id)
+        if T_seen is None:
+            return p
+        q = task.placed_record(as_pose(p), p.target, T_seen, p.instance_id)
+        self.placed = [q if r.instance_id == p.instance_id else r for r in self.placed]
+        self.staged = [q if r.instance_id == p.instance_id else r for r in self.staged]
+        return q
 
     def unplace(self, p: Placed) -> None:
         """It left its place (a staged item picked up again, a placement found elsewhere)."""
@@ -357,10 +378,11 @@ class Belief:
         return seen + placed
 
     def provenance(self, obj: ObjectPose) -> str:
-        """Where the belief's pose of `obj` comes from: "staged" / "placed" (a record of what the robot put down),
+        """Where the belief's pose of `obj` comes from: "staged" / "placed" (a record of what the robot put down;
+        "staged, seen": a staged item's record a view has replaced),
         "released" (put down, not verified yet), "perceived" (the latest perception), or "unknown"."""
         if any(p.instance_id == obj.instance_id for p in self.staged):
-            return "staged"
+            return "staged, seen" if obj.instance_id in self.seen_staged else "staged"
         if any(p.instance_id == obj.instance_id for p in self.placed):
             return "placed"
         if obj.instance_id == 99_999 or (self.released is not None and obj is self.released.obj):

@@ -11,6 +11,10 @@ settles it. Otherwise (the view does not decide, the item is not seen there, the
 should show, nothing left to do) a re-scan and a new perception decide, as the first perception after a
 placement.
 
+An item staged on the counter for a regrasp is recorded where it was put down, and it settles when let go (it
+rolls, turns, tips): before it is grasped again, one view straight down at it replaces its record with where the
+view shows it (``_look_at_staged``; once per record, Belief.needs_look).
+
 A mixin of TaskRunner (executive/runner.py).
 """
 
@@ -21,6 +25,7 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
+from kitchenbot.drivers.errors import DriverTimeoutError
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.unrecognised import Unrecognised, unrecognised_things
@@ -28,6 +33,7 @@ from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.region import Region, update_region
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.grasps import too_hidden
+from kitchenbot.tasks.base import Placed
 from kitchenbot.world.gripper import DROP_HEIGHT
 
 
@@ -229,6 +235,57 @@ class Verification:
     def _same_class_near(self, obj: ObjectPose) -> list[ObjectPose]:
         return [q for q in self.belief.poses if q.cls == obj.cls and
                 np.linalg.norm(q.T_base_obj[:3, 3] - obj.T_base_obj[:3, 3]) < self.opt.gone_radius]
+
+    # m (horizontal) from its record within which an item of its class seen on the counter is the staged item: it
+    # settles within a few cm of where it was let go (it may roll over on its side, as far as its height)
+    STAGED_SEARCH = 0.08
+
+    def _look_at_staged(self, st: Placed) -> Placed:
+        """One view straight down at the staged item `st` before its regrasp; the item of its class the view shows
+        within STAGED_SEARCH of the record (and nearer to it than to any other record) replaces the record, at the
+        record's height (it rests on the counter: the lowest points agree). The record returned: the new one, or
+        `st` when no view is had or the view does not show it."""
+        b = self.belief
+        site = np.asarray(st.T_base_obj, float)[:3, 3]
+        seen = None
+        try:
+            why = self._look_down_at(site) if self.planner is not None else "no planner"
+            if why:
+                self._log("note", "no view of the staged item", cls=st.cls, xyz=site, reason=why)
+            else:
+                view = self._capture_view(f"staged{self.report.attempts}", "staged", spot=True)
+                with self.stages.within("perceive"):
+                    res = self._drop_perceiver().perceive([view])
+                seen = self._staged_in(st, res.poses)
+        except (StepFailed, DriverTimeoutError) as e:
+            self._log("note", "no view of the staged item", cls=st.cls, xyz=site, reason=str(e))
+        if seen is None:
+            b.looked_at(self.task, st, None)
+            self._log("result", "staged item", cls=st.cls, xyz=site, seen=False)
+            return st
+        m = self.robot.inventory[st.obj_id]
+        T = np.array(seen.T_base_obj, float)
+        low = lambda T_: float((m.points @ T_[:3, :3].T)[:, 2].min() + T_[2, 3])  # noqa: E731
+        T[2, 3] += low(st.T_base_obj) - low(T)
+        R = np.asarray(st.T_base_obj, float)[:3, :3].T @ T[:3, :3]
+        self._log("result", "staged item", cls=st.cls, xyz=T[:3, 3], seen=True,
+                  moved_cm=round(100 * float(np.linalg.norm(T[:3, 3] - site)), 1),
+                  turned_deg=round(float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))), 1))
+        return b.looked_at(self.task, st, T)
+
+    def _staged_in(self, st: Placed, poses: list[ObjectPose]) -> ObjectPose | None:
+        """The pose among `poses` that is the staged item `st` (see _look_at_staged), None if none is."""
+        others = [p.T_base_obj[:2, 3] for p in self.belief.placed if p.instance_id != st.instance_id]
+        xy = np.asarray(st.T_base_obj, float)[:2, 3]
+        best, best_d = None, self.STAGED_SEARCH
+        for p in poses:
+            d = float(np.linalg.norm(p.T_base_obj[:2, 3] - xy))
+            if p.cls != st.cls or d >= best_d:
+                continue
+            if any(np.linalg.norm(p.T_base_obj[:2, 3] - o) < d for o in others):
+                continue  # nearer to another item put down there
+            best, best_d = p, d
+        return best
 
     def _verify_pending(self, presence=None) -> None:
         """Verify the last placement against fresh poses: gone from the sink, present at its target (`presence`:

@@ -1,0 +1,73 @@
+"""An item staged on the counter settles when let go: its record (where it was put down) is looked at, and replaced
+by what the view shows, before a grasp is planned on it (executive/verification.py, ``_look_at_staged``). Oracle
+perception: the executive's mechanism is under test."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kitchenbot.planning.types import PlaceTarget
+from kitchenbot.transforms import make_T, rot_z
+
+
+def _staged_mug(runner, world, T_put, T_true):
+    """A mug recorded as staged at T_put (where it was put down) that really lies at T_true."""
+    from kitchenbot.executive.belief import as_pose
+
+    for dev in (runner.arm, runner.gripper, runner.camera):
+        dev.connect()
+    mug = runner.robot.inventory.by_name("mug")
+    world.add_object(mug, T_true)
+    b = runner.belief
+    obj = as_pose(type("R", (), {"obj_id": mug.obj_id, "cls": "mug", "T_base_obj": T_put, "instance_id": -1})())
+    T_release = T_put.copy()
+    T_release[2, 3] += 0.01
+    rec = b.record_placed(runner.task, obj, PlaceTarget(T_release, "stage", support="counter (regrasp)"), T_put)
+    b.record_staged(rec)
+    return rec
+
+
+def test_a_staged_item_is_looked_at_and_its_record_replaced_before_its_regrasp(make_runner):
+    """Put down at one spot, the mug settled 3.2 cm away with its handle turned 146 deg: a grasp planned on the
+    record hits it. Selected for its regrasp, the record is replaced by the view's pose (before: selected as
+    recorded); the record a view gave is not looked at again."""
+    runner, world = make_runner(task="sink-to-dishwasher")
+    mug = runner.robot.inventory.by_name("mug")
+    zone = runner.robot.cell.spec.drop_zone
+    z = zone.z + mug.extents[2] / 2
+    xy = np.array(zone.origin_xy) + np.array(zone.size_xy) / 2
+    T_put = make_T(np.eye(3), (xy[0], xy[1], z))
+    T_true = make_T(rot_z(np.radians(146.0))[:3, :3], (xy[0] + 0.026, xy[1] - 0.0186, z))
+    rec = _staged_mug(runner, world, T_put, T_true)
+    b = runner.belief
+    assert b.provenance(type("P", (), {"instance_id": rec.instance_id})()) == "staged"
+    q0 = runner.arm.joint_positions().copy()
+    assert runner._do_select_grasp() == "selected"
+    sel = runner.item.obj
+    assert sel.cls == "mug" and runner.item.staged is not None
+    assert np.linalg.norm(sel.T_base_obj[:3, 3] - T_true[:3, 3]) < 0.005
+    R = T_true[:3, :3].T @ sel.T_base_obj[:3, :3]
+    assert np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))) < 5.0
+    assert not np.allclose(runner.arm.joint_positions(), q0)  # the arm moved to look
+    # the belief holds the new record (as staged, seen), once
+    assert len(b.staged) == 1 and np.allclose(b.staged[0].T_base_obj, sel.T_base_obj)
+    assert b.provenance(sel) == "staged, seen" and not b.needs_look(b.staged[0])
+    q1 = runner.arm.joint_positions().copy()
+    assert runner._do_select_grasp() == "selected"
+    assert np.allclose(runner.arm.joint_positions(), q1)  # no second look
+
+
+def test_a_staged_item_not_seen_keeps_its_record(make_runner):
+    """Nothing of its class within reach of the record in the view: the record stays (and is not looked at
+    again)."""
+    runner, world = make_runner(task="sink-to-dishwasher")
+    mug = runner.robot.inventory.by_name("mug")
+    zone = runner.robot.cell.spec.drop_zone
+    z = zone.z + mug.extents[2] / 2
+    xy = np.array(zone.origin_xy) + np.array(zone.size_xy) / 2
+    T_put = make_T(np.eye(3), (xy[0], xy[1], z))
+    T_far = make_T(np.eye(3), (xy[0] + 0.2, xy[1], z))  # not this one: too far from where it was put down
+    rec = _staged_mug(runner, world, T_put, T_far)
+    assert runner._do_select_grasp() == "selected"
+    assert np.allclose(runner.item.obj.T_base_obj, rec.T_base_obj)
+    assert not runner.belief.needs_look(runner.belief.staged[0])
