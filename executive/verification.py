@@ -239,6 +239,7 @@ class Verification:
     # m (horizontal) from its record within which an item of its class seen on the counter is the staged item: it
     # settles within a few cm of where it was let go (it may roll over on its side, as far as its height)
     STAGED_SEARCH = 0.08
+    STAGED_AGREE = (0.01, 15.0)  # (m, deg): a view's pose this close to the record confirms it
 
     def _look_at_staged(self, st: Placed) -> Placed:
         """One view straight down at the staged item `st` before its regrasp; the item of its class the view shows
@@ -267,11 +268,17 @@ class Verification:
         T = np.array(seen.T_base_obj, float)
         low = lambda T_: float((m.points @ T_[:3, :3].T)[:, 2].min() + T_[2, 3])  # noqa: E731
         T[2, 3] += low(st.T_base_obj) - low(T)
-        R = np.asarray(st.T_base_obj, float)[:3, :3].T @ T[:3, :3]
-        self._log("result", "staged item", cls=st.cls, xyz=T[:3, 3], seen=True,
-                  moved_cm=round(100 * float(np.linalg.norm(T[:3, 3] - site)), 1),
-                  turned_deg=round(float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))), 1))
-        return b.looked_at(self.task, st, T)
+        R0 = np.asarray(st.T_base_obj, float)[:3, :3]
+        moved = float(np.linalg.norm(T[:3, 3] - site))
+        turned = float(np.degrees(np.arccos(np.clip((np.trace(R0.T @ T[:3, :3]) - 1) / 2, -1, 1))))
+        if m.is_rotationally_symmetric:  # only its axis counts
+            turned = float(np.degrees(np.arccos(np.clip(R0[:, 2] @ T[:3, 2], -1, 1))))
+        # the view agrees with the record (within what a pose fit is off by): it lies where it was put down, and
+        # the record of that is the better pose
+        agrees = moved < self.STAGED_AGREE[0] and turned < self.STAGED_AGREE[1]
+        self._log("result", "staged item", cls=st.cls, xyz=T[:3, 3], seen=True, agrees=agrees,
+                  moved_cm=round(100 * moved, 1), turned_deg=round(turned, 1))
+        return b.looked_at(self.task, st, None if agrees else T)
 
     def _staged_in(self, st: Placed, poses: list[ObjectPose]) -> ObjectPose | None:
         """The pose among `poses` that is the staged item `st` (see _look_at_staged), None if none is."""
