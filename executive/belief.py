@@ -127,6 +127,7 @@ class Belief:
     drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
     unseen_placement: Placed | None = None  # the record of a placement its check did not see
     dropped: int = 0  # items that left the gripper on the way
+    drops_found: int = 0  # of those, seen again: fallen back into the sink (the scans see it) or found where it fell
     first_total: int | None = None  # the task's items in the first perception
     seen_staged: set = field(default_factory=set)  # instance ids of staged records whose pose a view gave
     _next_id: int = 0
@@ -300,6 +301,19 @@ class Belief:
         """An item left the gripper on the way (slipped, let go over the cell) about above `where`."""
         self.dropped += 1
         self.drop_site = np.array(where, float)
+
+    def record_drop_found(self) -> None:
+        """The item that dropped last is not lost: it fell back into the sink or was found where it fell."""
+        self.drops_found = min(self.drops_found + 1, self.dropped)
+
+    def unaccounted(self, done: int) -> tuple[int, int]:
+        """First-scan items neither in the sink nor placed, with `done` placed: (lost, never there). As many as
+        dropped on the way and were not seen again are lost; any more were never there (a duplicate detection in
+        the first scan that no later scan confirmed). A drop seen again is not lost, else a run where a slipped
+        item was found and placed and the first scan counted one item twice reads as one lost."""
+        missing = max((self.first_total or 0) - done - len(self.unverified) - len(self.staged), 0)
+        lost = min(missing, self.dropped - self.drops_found)
+        return lost, missing - lost
 
     def record_unseen(self, obj: ObjectPose, record: Placed, site: np.ndarray) -> None:
         """A placement was not seen at its target: kept there as an obstacle (`record`), counted as unverified,

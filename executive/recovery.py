@@ -250,6 +250,8 @@ class RecoveryActions:
             return
         lo, hi = self.robot.cell.sink_interior
         if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
+            if unseen_rec is None:
+                b.record_drop_found()
             return  # it fell back into the sink: the re-scan finds it
         cls = self.item.obj.cls
         keep_out = self._keep_out(site, cls)
@@ -290,6 +292,8 @@ class RecoveryActions:
             self._add_contact_marks(self._unexplained_in(view, self._keep_out(site, cls, clear_of_tool=False)))
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
+        if unseen_rec is None:
+            b.record_drop_found()
         if unseen_rec is not None and unseen_rec.cls == cls:  # nothing stands at its target; handled again from here
             b.found_unseen(unseen_rec)
             self._log("note", "the item not seen at its target lies near it", cls=cls, xyz=obj.T_base_obj[:3, 3],

@@ -194,18 +194,25 @@ def _staged_standing(staged) -> bool:
 class StageWhenBlocked(StageForRegrasp):
     """For tasks whose targets admit few grasps (rack poses): stage also when every grasp that reaches a target
     has its lift blocked a second time (the first time the blocker is tried first), or when the full place plan
-    finds no release for a grasp the grasp filter accepted."""
+    fails for every grasp the grasp filter accepted: no release (`no_feasible_placement`), or a straight line
+    (`cartesian_path_failed`: the lowering, or the open pads' retreat past the rack's neighbours). The grasp filter
+    checks the release pose only; with the grasps the item offers where it lies, the lowering or the retreat ran
+    into the rack each time, and from the counter the next pick offers others (a cup grasped from above on its
+    side releases with the pads level, not hanging between its neighbours)."""
 
     name = "stage_when_blocked"
     when = "as stage_for_regrasp, also when every grasp that reaches a target has its lift blocked a second " \
-           "time (`cartesian_path_failed` again), or the place finds no release (`no_feasible_placement`)"
+           "time (`cartesian_path_failed` again), or the place fails for every grasp tried: no release " \
+           "(`no_feasible_placement`) or its lowering or retreat blocked (`cartesian_path_failed`)"
     does = "as stage_for_regrasp"
+
+    PLACE_KINDS = ("no_feasible_placement", "cartesian_path_failed")
 
     def applies(self, failure, obj, belief, req):
         if failure is None:
             return False
         if failure.stage == "place":
-            return failure.kind == "no_feasible_placement"
+            return failure.kind in self.PLACE_KINDS
         t = belief.attempts_for(obj)
         return failure.kind == "cartesian_path_failed" and t is not None and failure.kind in t.reasons
 

@@ -87,16 +87,13 @@ class Verification:
         if b.staged:
             problems.append(f"{len(b.staged)} object(s) left on the counter after a regrasp failed: "
                             f"{', '.join(st.cls for st in b.staged)}")
-        # First-scan items neither in the sink nor placed: as many as were dropped on the way (slips, a held item
-        # let go over the cell) are lost; any more were never there (a duplicate detection in the first scan
-        # that no later scan confirmed): noted, not a failure.
-        missing = (b.first_total or 0) - self.report.objects_done - len(b.unverified) - len(b.staged)
-        lost = min(max(missing, 0), b.dropped)
+        # First-scan items neither in the sink nor placed: dropped and not seen again, or never there (Belief.unaccounted)
+        lost, never = b.unaccounted(self.report.objects_done)
         if lost > 0:
             problems.append(f"{lost} object(s) dropped during the run are neither in the sink nor placed "
                             "(out of reach?)")
-        if missing - lost > 0:
-            self.report.message = (f"{missing - lost} first-scan detection(s) never confirmed by a later scan "
+        if never > 0:
+            self.report.message = (f"{never} first-scan detection(s) never confirmed by a later scan "
                                    "(duplicates?)")
         if problems:
             self.report.message = "sink empty, but " + "; ".join(problems)

@@ -121,3 +121,18 @@ def test_contact_marks_that_block_a_move_go_and_the_others_stay():
     assert np.allclose(b.contact_points, fallen)
     assert b.drop_contacts(arm, 0.12) == 0
     assert b.drop_contacts() == 1 and len(b.contact_points) == 0
+
+
+def test_a_drop_seen_again_is_not_lost_and_a_duplicate_is_not_a_drop():
+    # the first scan counted 5 items, one of them twice; one item slipped out, was found again and placed:
+    # all 4 real items are placed, nothing is lost (before: the missing one was put down to the drop)
+    b = Belief()
+    b.record_first_total(5)
+    b.record_dropped(np.array([0.5, 0.0, 0.1]))
+    assert b.unaccounted(4) == (1, 0)  # not seen again (yet): it may lie out of reach
+    b.record_drop_found()
+    assert b.unaccounted(4) == (0, 1)  # one first-scan detection never confirmed
+    assert b.unaccounted(5) == (0, 0)
+    b.record_drop_found()  # (found twice does not make more than dropped)
+    b.record_dropped(np.array([0.5, 0.0, 0.1]))
+    assert b.unaccounted(3) == (1, 1)

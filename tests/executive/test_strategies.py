@@ -25,6 +25,7 @@ from kitchenbot.planning.types import (
     CartesianPathFailed,
     NoCollisionFreeGrasp,
     NoFeasiblePlacement,
+    PlannerTimeout,
     StartInCollision,
 )
 from kitchenbot.tasks import make_task
@@ -314,3 +315,21 @@ def test_a_grasp_that_closed_on_nothing_is_not_planned_again_for_that_item(inv):
     assert planner.avoided == ["side_03"]
     plan_item(request(task, b, glass, planner), strategies_for(task), {})
     assert planner.avoided == []
+
+
+def test_a_cup_whose_retreat_from_the_rack_is_blocked_for_every_grasp_is_staged(inv):
+    """sink-to-dishwasher: every grasp that reaches a rack spot has its place plan fail on a straight line (the
+    open pads' retreat between the rack's neighbours): staged on the counter, where the next pick offers other
+    grasps. A transfer that found no path is not a reason to stage."""
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    names = iter(f"side_{k:02d}" for k in range(10))
+    planner = Situation(lambda staging, n: _Ok(grasp=_Grasp(_Spec(next(names)))),
+                        place=lambda targets: _Ok() if targets[0].kind == "stage"
+                        else CartesianPathFailed("retreat: ends within the collision margin"))
+    plan = plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), counts := {})
+    assert plan.strategy == "stage_when_blocked" and plan.staging
+    assert planner.calls.count("place") == 3 + 1  # the three grasps of the direct pick, then the staging place
+    planner = Situation(lambda staging, n: _Ok(grasp=_Grasp(_Spec(next(names)))),
+                        place=lambda targets: _Ok() if targets[0].kind == "stage" else PlannerTimeout("t"))
+    with pytest.raises(StepFailed):
+        plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), {})
