@@ -46,7 +46,7 @@ def synthesis_key(model: ObjectModel) -> str:
     h.update(repr((SYNTHESIS_VERSION, MAX_OPENING, PAD_DEPTH, PAD_ENVELOPE, FINGERS, FRICTION_COEFF, SURFACE_SAMPLES,
                    APPROACHES, CONTACT_DEPTHS, OPEN_SLACKS, WIDTH_TOLERANCE, CONTACT_TOLERANCE, MIN_CONTACT,
                    CENTRE_WEIGHT, MAX_GRASPS, PINCH_MAX_WIDTH, WRAP_CONE_DEG, ROUND_COPIES, PINCH_TILTS,
-                   PINCH_TILT_AZIMUTHS, SLANTED_PINCH_CLASSES, model.cls in SLANTED_PINCH_CLASSES)).encode())
+                   PINCH_TILT_AZIMUTHS, SLANTED_PINCH_CLASSES, model.cls in SLANTED_PINCH_CLASSES, MAX_RIM_SLANT)).encode())
     return h.hexdigest()[:20]
 
 
@@ -307,12 +307,21 @@ PINCH_MAX_WIDTH = 0.02  # m: narrower pairs pinch one wall (a rim), wider ones g
 # (a pasta plate's wide rim, a saucer's), whose straight pinches close nearly vertically and so are approached
 # level only (the wrist then meets the basin's walls).
 PINCH_TILTS = (45.0,)
-# Only plates (classes whose walls lie nearly flat) get them: on a vessel's steep walls the straight pinches come from
-# above already, and slanted ones there took places in the spread (13 per round item) from those (a conical bowl
-# lost pinches it was taken by, development seed of sink-to-dishwasher: 2/5 placed instead of 4/5).
+# Plates (classes whose walls lie nearly flat) get them among their standard grasps: lying flat, a saucer's straight
+# pinches are all approached level and none is collision-free on the sink floor, the slanted ones are what takes it.
+# On a vessel's steep walls the straight pinches come from above already, and slanted ones mixed in took places in
+# the spread (13 per round item) from those (a conical bowl lost pinches it was taken by, development seed of
+# sink-to-dishwasher: 2/5 placed instead of 4/5). A vessel lying on its side is different: the top of its rim is a
+# wall lying flat too, whose straight pinches close vertically and so come in level (into the basin's walls, or
+# beside the body into what it lies in: a tumbler lying in a bowl). So vessels get slanted pinches as well, spread
+# on their own after every straight grasp (which stay exactly as before) and named as fallbacks
+# (planning.grasps.FALLBACK_GRASPS): tried only when fewer straight grasps are feasible than a pick checks.
 SLANTED_PINCH_CLASSES = ("plate",)
 PINCH_TILT_AZIMUTHS = 4
-SYNTHESIS_VERSION = 10  # part of the cache key: bump when the method changes
+SLANTED_PINCH = "slant"  # name prefix of the slanted pinches among a plate's standard grasps
+RIM_SLANT = "rimslant"  # name prefix of a vessel's slanted pinches (fallbacks)
+MAX_RIM_SLANT = MAX_GRASPS // 2  # a vessel's slanted pinches kept, on top of its MAX_GRASPS straight ones
+SYNTHESIS_VERSION = 12  # part of the cache key: bump when the method changes
 
 
 def _cast(scene: o3d.t.geometry.RaycastingScene, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -400,7 +409,7 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
     max_width = MAX_OPENING - 0.01
     centres, axes = _antipodal_pairs(scene, P, N, max_width)
     slant = np.zeros(len(centres), bool)
-    if PINCH_TILTS and model.cls in SLANTED_PINCH_CLASSES:
+    if PINCH_TILTS:
         more = _slanted_pinch_pairs(scene, P, N)
         centres, axes = np.vstack([centres, more[0]]), np.vstack([axes, more[1]])
         slant = np.concatenate([slant, np.ones(len(more[0]), bool)])
@@ -503,16 +512,24 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
         Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = ca, -sa, sa, ca, 1.0
         R, t = Rz @ R, np.einsum("nij,nj->ni", Rz, t)
         y, z = R[:, :, 1], R[:, :, 2]
-    kept = _spread(best, t, y, z, w, MAX_GRASPS // ROUND_COPIES if round_ else MAX_GRASPS)
+    per = ROUND_COPIES if round_ else 1
+    if model.cls in SLANTED_PINCH_CLASSES:
+        kept = _spread(best, t, y, z, w, MAX_GRASPS // per)
+        fallback = set()
+    else:  # a vessel: its straight grasps as if there were no slanted ones, then its slanted ones as fallbacks
+        kept = _spread({i: v for i, v in best.items() if not slant[i]}, t, y, z, w, MAX_GRASPS // per)
+        more = _spread({i: v for i, v in best.items() if slant[i]}, t, y, z, w, MAX_RIM_SLANT // per)
+        kept, fallback = kept + more, set(more)
     out = []
     for rank, i in enumerate(kept):
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R[i], t[i]
+        prefix = RIM_SLANT if i in fallback else SLANTED_PINCH if slant[i] else "ap"
         if not round_:
-            out.append(GraspSpec(f"ap{rank:03d}", T, opening=best[i][1], width=best[i][2]))
+            out.append(GraspSpec(f"{prefix}{rank:03d}", T, opening=best[i][1], width=best[i][2]))
             continue
         for k in range(ROUND_COPIES):
-            out.append(GraspSpec(f"ap{rank:02d}_{k:02d}", rot_z(2 * np.pi * k / ROUND_COPIES) @ T,
+            out.append(GraspSpec(f"{prefix}{rank:02d}_{k:02d}", rot_z(2 * np.pi * k / ROUND_COPIES) @ T,
                                  opening=best[i][1], width=best[i][2]))
     return out
 
