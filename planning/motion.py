@@ -288,12 +288,13 @@ def cartesian_line(
     n = max(1, int(np.ceil(max(dist / step, ang * 0.2 / step))))
     slerp = Slerp([0.0, 1.0], rots)
     r = reach_bounds(scene)
+    R_line = slerp(np.arange(1, n + 1) / n).as_matrix()  # every step's orientation at once (the same values)
     Q = [q_start]
     q = q_start
     for k in range(1, n + 1):
         s = k / n
         T = np.eye(4)
-        T[:3, :3] = slerp([s]).as_matrix()[0]
+        T[:3, :3] = R_line[k - 1]
         T[:3, 3] = p0 + s * (p1 - p0)
         res = robot.ik(T, q, max_seeds=0)
         if res.q is None:

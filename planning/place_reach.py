@@ -13,7 +13,9 @@ same code, so they agree.
 Kept per candidate in a canonical form (joints wrapped near zero): collisions and the workspace do not change under
 2*pi turns of a joint, and a query wraps each joint to the value nearest its own reference configuration, as the
 closed-form IK would (``RobotModel.ik_all``). A release pose without a closed-form branch (a wrist singularity)
-is solved numerically from the query's configuration each time, as before (rare).
+is solved numerically from the query's configuration each time, as before, unless it is clearly out of reach
+(planning.ur_ik.surely_unreachable: numerical IK cannot succeed there, and near the reach limit such poses were most
+of the planner's numerical IK).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import numpy as np
 
 from kitchenbot.planning.collision import CollisionWorld, Scene
 from kitchenbot.planning.robot import RobotModel
-from kitchenbot.planning.ur_ik import ik_flange_batch
+from kitchenbot.planning.ur_ik import ik_flange_batch, surely_unreachable
 from kitchenbot.transforms import trans
 
 # Entries kept before the cache is emptied (one entry: one item model, grasp and target; up to ~1 kB per pose kept).
@@ -114,8 +116,12 @@ class PlaceReach:
         for (pi, _), q, k in zip(idx, Qc, keep):
             if k:
                 poses[pi].branches.append(_Candidate(q))
-        for pose, any_branch in zip(poses, ok.any(axis=1)):
-            pose.numeric = not any_branch and self._within_reach(pose.T_tcp)
+        # numerical IK (per query) only where it may find something: not where the pose is clearly out of reach
+        none = ~ok.any(axis=1)
+        if none.any():
+            none[none] = ~surely_unreachable(robot.ur, T_flange[none])
+        for pose, maybe in zip(poses, none):
+            pose.numeric = bool(maybe) and self._within_reach(pose.T_tcp)
         # only poses that may still yield a release are kept (an unreachable target's entry keeps next to nothing)
         entry.raises[i] = [p for p in poses if p.branches or p.numeric]
         return entry.raises[i]

@@ -145,3 +145,42 @@ def ik_flange_batch(model: URModel, T_base_flange: np.ndarray, tol: float = 1e-6
     ok = ok & (np.linalg.norm(Tq[..., :3, 3] - T[:, None, :3, 3], axis=-1) < tol) \
         & (np.linalg.norm((Tq[..., :3, :3] - T[:, None, :3, :3]).reshape(n, 8, 9), axis=-1) < 1e-5)
     return Q, ok
+
+
+# Margins of surely_unreachable: a target more than ~1e-5 off every reachable pose cannot be reached by numerical IK
+# (it stops only below a 1e-5 twist error), and a pose that close moves r, s5 and c3 by far less than these.
+_R_MARGIN = 1e-3  # m: the wrist centre's distance from the base axis against d4
+_S5_MARGIN = 1e-2  # |sin q5| below it: near the wrist singularity (q6, q2+q3+q4 sensitive), never sure
+_C3_MARGIN = 0.05  # the elbow's cosine beyond +-1 by more than this (about a centimetre out of the arm's reach)
+
+
+def surely_unreachable(model: URModel, T_base_flange: np.ndarray) -> np.ndarray:
+    """(N,) True where no joint configuration reaches the flange pose, by a margin: the wrist centre is off the
+    shoulder's circle (r < d4) or every branch's elbow is out of reach (|cos q3| > 1), each clearly, with no branch
+    near the wrist singularity. Numerical IK (which accepts a 1e-5 twist error) cannot succeed there, so callers
+    may skip it; where this is False and ik_flange_batch finds no branch, only numerical IK can tell."""
+    T = np.asarray(T_base_flange, float).reshape(-1, 4, 4)
+    d1, _, _, d4, d5, d6 = model.d
+    a2, a3 = model.a[1], model.a[2]
+    p05 = T[:, :3, 3] - d6 * T[:, :3, 2]
+    r = np.hypot(p05[:, 0], p05[:, 1])
+    off_circle = r < abs(d4) - _R_MARGIN
+    clear = r > abs(d4) + _R_MARGIN
+    psi = np.arctan2(p05[:, 1], p05[:, 0])
+    phi = np.arcsin(np.clip(d4 / np.where(clear, r, 1.0), -1.0, 1.0))
+    q1 = np.stack([psi + phi, psi + np.pi - phi], axis=1)
+    T16 = _rigid_inv(_dh_batch(q1, d1, 0.0, model.alpha[0])) @ T[:, None]
+    R = T16[..., :3, :3]
+    c5 = np.clip(R[..., 2, 2], -1.0, 1.0)
+    q5 = np.stack([np.arccos(c5), -np.arccos(c5)], axis=2)
+    s5 = np.sin(q5)
+    regular = np.abs(s5) >= _S5_MARGIN
+    s5s = np.where(regular, s5, 1.0)
+    Rb = R[:, :, None]
+    q6 = np.arctan2(-Rb[..., 2, 1] / s5s, Rb[..., 2, 0] / s5s)
+    T46 = _dh_batch(q5, d5, 0.0, model.alpha[4]) @ _dh_batch(q6, d6, 0.0, model.alpha[5])
+    T14 = T16[:, :, None] @ _rigid_inv(T46)
+    x, y = T14[..., 0, 3], T14[..., 1, 3]
+    c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2 * a2 * a3)
+    elbow_out = regular & (np.abs(c3) > 1.0 + _C3_MARGIN)  # (n, 2, 2): per shoulder and wrist branch
+    return off_circle | (clear & elbow_out.reshape(len(T), 4).all(axis=1))

@@ -70,3 +70,47 @@ def test_batch_ik_gives_the_branches_of_the_single_pose_solver():
         assert single == batch
         total += len(single)
     assert total > 4 * 119  # most random poses have several branches
+
+
+def test_surely_unreachable_only_where_numerical_ik_fails():
+    """Poses around the edge of the reach: where surely_unreachable says so, numerical IK from every seed finds
+    nothing; poses the closed form reaches are never flagged; and most poses clearly beyond reach are."""
+    from kitchenbot.planning.ur_ik import ik_flange_batch, surely_unreachable
+
+    cfg = load_config("config/sim.yaml")
+    r = RobotModel.from_config(cfg)
+    m = r.ur
+    rng = np.random.default_rng(11)
+    Ts = []
+    for _ in range(60):
+        q = rng.uniform(-np.pi, np.pi, 6)
+        T = fk_flange(m, q)
+        # push the pose outwards from the shoulder by 0 to 6 cm: reachable, at the edge, or clearly beyond
+        out = T[:3, 3] - np.array([0.0, 0.0, m.d[0]])
+        T[:3, 3] += out / np.linalg.norm(out) * rng.uniform(0.0, 0.06) * (1.0 if rng.uniform() < 0.8 else 0.0)
+        Ts.append(T)
+    # and poses stretched to the reach limit (straight arm), then beyond it
+    for q2 in np.linspace(-2.5, -0.5, 10):
+        for extra in (0.0, 0.002, 0.03):
+            q = np.array([0.3, q2, 0.0, -1.2, 1.4, 0.2])
+            T = fk_flange(m, q)
+            out = T[:3, 3] - np.array([0.0, 0.0, m.d[0]])
+            T[:3, 3] += out / np.linalg.norm(out) * extra
+            Ts.append(T)
+    Ts = np.array(Ts)
+    sure = surely_unreachable(m, Ts)
+    _, ok = ik_flange_batch(m, Ts)
+    assert not (sure & ok.any(axis=1)).any()
+    assert sure.sum() >= 10
+    T_tcp = Ts @ r.T_flange_tcp
+    for T, s in zip(T_tcp, sure):
+        if s:  # numerical IK from the whole seed spread (limits ignored: wrapping cannot make a pose reachable)
+            for seed in r.seeds:
+                _, err, _ = r._dls(pin_se3(T), seed, 200, 1e-5, 1e-6)
+                assert err >= 1e-5
+
+
+def pin_se3(T):
+    import pinocchio as pin
+
+    return pin.SE3(np.asarray(T, float))
