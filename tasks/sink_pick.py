@@ -248,7 +248,10 @@ class SinkPick(Task):
                 continue
             if cls == model.cls:
                 continue
-            spot = area_spots(big, lo, hi, z, taken, upright, 1, centre_inside=True)
+            # where that pile will start (`_floor`'s lattice: plates in a corner): a spot reserved in the
+            # zone's middle would leave the rest in pieces too small for the next pile
+            spot = area_spots(big, lo, hi, z, taken, upright, 1, preferred=self._lattice(big, lo, hi),
+                              centre_inside=True)
             if spot:
                 ph = Placed(big.obj_id, big.cls, spot[0], *footprint(big, spot[0]), None)
                 taken.append(ph)
