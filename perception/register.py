@@ -270,15 +270,19 @@ def icp_to_model(q: np.ndarray, entry: ModelEntry, T_obj_base: np.ndarray, dists
                 d6, j = entry.oriented_tree.query(X, distance_upper_bound=math.hypot(dmax, NORMAL_WEIGHT))
                 np.minimum(j, len(mp) - 1, out=j)
                 # Near in space and facing within ~60 deg of the query normal (normals of 1 cm voxel centres
-                # on a rim or a tight curve are rough).
-                diff = p - mp[j]
+                # on a rim or a tight curve are rough). The matches' points and normals gathered once.
+                mj, nj = mp[j], mn[j]
+                diff = p - mj
                 ok = (d6 < np.inf) & (np.einsum("ij,ij->i", diff, diff) <= dmax2) & \
-                    (np.einsum("ij,ij->i", pn, mn[j]) > 0.5)
+                    (np.einsum("ij,ij->i", pn, nj) > 0.5)
             k = int(np.count_nonzero(ok))
             if k < 6:
                 break
-            jo = j[ok]
-            p, m, n = p[ok], mp[jo], mn[jo]
+            if qn is None:
+                jo = j[ok]
+                p, m, n = p[ok], mp[jo], mn[jo]
+            else:
+                p, m, n = p[ok], mj[ok], nj[ok]
             r = np.einsum("ij,ij->i", p - m, n)
             Jk = J[:k]
             Jk[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]  # p x n, written out (np.cross is slow on small arrays)

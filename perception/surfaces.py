@@ -57,6 +57,9 @@ class Surface:
     cell: float
     footprint: np.ndarray  # (nu, nv) bool, small holes filled
     inliers: int = 0
+    # (nu, nv) bool: cells over which the scan measured something more than 2 cm behind the plane (a sink's
+    # opening, a drain, the floor past a table's edge); None: not known (every cell open)
+    opened: np.ndarray | None = None
 
     def height(self, P: np.ndarray) -> np.ndarray:
         """Signed distance of points (..., 3) from the plane, positive on the free side."""
@@ -101,6 +104,23 @@ class Surface:
     def under_hull(self, P: np.ndarray) -> np.ndarray:
         """Which points (N, 3) project into the convex hull of the footprint (grown by one cell)."""
         return _in(self.hull(), P, self)
+
+    def closed(self, P: np.ndarray) -> np.ndarray:
+        """Which points (N, 3) project into the footprint, or into a hole of it within its hull that the scan
+        never saw through (`opened`): the surface hidden there by what stands on it (a pile's shadow), not an
+        opening."""
+        out = self.covers(P)
+        rest = np.nonzero(~out)[0]
+        if len(rest) == 0 or self.opened is None:
+            return out
+        rest = rest[self.under_hull(P[rest])]
+        i = np.floor((P[rest] @ self.u - self.origin[0]) / self.cell).astype(np.int64)
+        j = np.floor((P[rest] @ self.v - self.origin[1]) / self.cell).astype(np.int64)
+        ok = (i >= 0) & (i < self.opened.shape[0]) & (j >= 0) & (j < self.opened.shape[1])
+        shut = np.ones(len(rest), bool)
+        shut[ok] = ~self.opened[i[ok], j[ok]]
+        out[rest[shut]] = True
+        return out
 
     @property
     def area(self) -> float:
@@ -202,13 +222,15 @@ class SurfaceMap:
         return False
 
     def inside_solid(self, P: np.ndarray, depth: float = 0.01) -> np.ndarray:
-        """Points more than `depth` behind a surface, inside its footprint (a pose may not put a model there)."""
+        """Points more than `depth` behind a surface, inside its footprint (a pose may not put a model there);
+        behind a support also in the holes of its footprint that were never seen through (`Surface.closed`:
+        a glass was fitted sunk into a table, in the board's hole under a pile, only its base above it)."""
         out = np.zeros(len(P), bool)
         for s in self.surfaces:
             cand = ~out & (s.height(P) < -depth)
             if cand.any():
                 idx = np.nonzero(cand)[0]
-                out[idx[s.covers(P[idx])]] = True
+                out[idx[s.closed(P[idx]) if s.kind == "support" else s.covers(P[idx])]] = True
         return out
 
 
@@ -345,7 +367,22 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
             if not s.footprint.any() or s.footprint.sum() * cfg.cell**2 < cfg.min_area:
                 continue
         out.append(s)
+    for s in out:
+        if s.kind == "support":
+            s.opened = _opened(s, V)
     return SurfaceMap(out, up, cfg)
+
+
+def _opened(s: Surface, V: np.ndarray) -> np.ndarray:
+    """The cells of a support's footprint grid over which points V (the fused scan) lie more than 2 cm behind
+    its plane: where the scan saw through it."""
+    B = V[s.height(V) < -0.02]
+    i = np.floor((B @ s.u - s.origin[0]) / s.cell).astype(np.int64)
+    j = np.floor((B @ s.v - s.origin[1]) / s.cell).astype(np.int64)
+    ok = (i >= 0) & (i < s.footprint.shape[0]) & (j >= 0) & (j < s.footprint.shape[1])
+    opened = np.zeros(s.footprint.shape, bool)
+    opened[i[ok], j[ok]] = True
+    return opened
 
 
 def _long_parts(grid: np.ndarray, cfg: SurfaceConfig) -> np.ndarray:

@@ -206,3 +206,35 @@ def test_a_lying_bottle_gets_no_pose(perceiver, inventory, cell, use_cell):
                   database=perceiver.database)
     r_ = p.perceive(views)
     assert _right(r_, placed, inventory) == {0} and len(r_.poses) == 1
+
+
+def test_under_a_support_is_solid_where_it_was_never_seen_through(inventory, cell):
+    """A board over the basin with a box standing on it: the box hides 0.05 m^2 of the board (a hole in its
+    footprint too large to fill). A glass sunk into the board there (only its base above it) puts its body in
+    solid matter: nothing was seen behind the board in that hole. The sink's opening in the counter was seen
+    through (the basin floor below it): a point in the basin is not solid."""
+    lo, hi = cell.sink_interior
+    w = cell.spec.sink.wall
+    cx, cy = (lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2
+    board = _box(cx, cy, -0.03, (hi[0] - lo[0] + 2 * w, hi[1] - lo[1] + 2 * w, 0.03))
+    box = _box(cx, cy, 0.0, (0.25, 0.20, 0.10))
+    views, _ = render(inventory, [], scan_poses(cell), cell, noise=0.002,
+                      extra=[(board, (0.62, 0.45, 0.30)), (box, (0.8, 0.6, 0.2))])
+    sm = find_surfaces(views)
+    table = [s for s in sm.supports if abs(s.offset) < 0.005]
+    assert len(table) == 1
+    under_box = np.array([[cx, cy, -0.05], [cx + 0.08, cy - 0.05, -0.08]])
+    assert not table[0].covers(under_box).any()  # the box's shadow is a hole in the board's footprint ...
+    assert sm.inside_solid(under_box).all()  # ... but never seen through: solid
+    # A glass upside down, sunk into the board under the box, its base 2 cm over the board.
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    T[:3, 3] = [cx, cy, 0.02 + inventory[6].points[:, 2].min()]  # upside down: its base on top, at 2 cm
+    P = inventory[6].points @ T[:3, :3].T + T[:3, 3]
+    assert sm.inside_solid(P).mean() > 0.6
+
+    # An empty sink: the counter's opening was seen through; the basin's inside is no solid.
+    views, _ = render(inventory, [], scan_poses(cell), cell, noise=0.002)
+    sm = find_surfaces(views)
+    inside = np.array([[cx, cy, lo[2] + 0.05], [cx + 0.1, cy + 0.05, lo[2] + 0.10]])
+    assert not sm.inside_solid(inside).any()
