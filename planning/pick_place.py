@@ -315,13 +315,14 @@ class Planner:
                     held = Held(self.inventory[obj.obj_id], inv(spec.T_obj_tcp), spec.width)
                     pre = self.world.scene(others, voxels, held)  # full margins above the release (plan_place)
                     release = pre.for_release(None)  # a variant of it: the same geometry, the grasp margins
-                    self._placeable[key] = any(
+                    ok = any(
                         self._place_tcp_options(t, spec.T_obj_tcp, q, release, first_only=True, obj_id=obj.obj_id,
                                                 pre_scene=pre)
                         for t in targets
                     )
-                    if len(self._placeable) > 5000:
+                    if len(self._placeable) >= 5000:  # bounded: emptied before this answer is kept, not after
                         self._placeable.clear()
+                    self._placeable[key] = ok
                 return self._placeable[key]
 
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,

@@ -142,3 +142,17 @@ def test_grasps_to_avoid_are_not_planned_nor_their_tilted_variants(planner, home
     assert again.grasp.spec.name.split("_tilt")[0] != name
     grasps = planner.select_grasps(home, [cup], target=cup, avoid_grasps=[name])
     assert grasps and all(g.spec.name.split("_tilt")[0] != name for g in grasps)
+
+
+def test_the_placeable_cache_emptied_when_full_still_answers(planner, home, resting):
+    """The cache of which grasps can reach the placement is bounded (emptied at 5000 answers): the grasp whose answer
+    fills it still gets that answer (it was emptied after keeping it, then read back: a KeyError ended a
+    sink-to-dishwasher run with own dishware, whose vessels have more grasps to check)."""
+    bowl = resting("bowl", (0.5, 0.0), 1, upside_down=True)
+    targets = SlotBook(planner.cell).targets_for(planner.inventory.by_name("bowl"))
+    planner._placeable.clear()
+    for k in range(4999):
+        planner._placeable[("filler", k)] = False
+    res = planner.select_grasps(home, [bowl], place_target=targets[:4])
+    assert isinstance(res, list) and res
+    assert len(planner._placeable) < 5000
