@@ -153,27 +153,31 @@ def test_no_collision_free_path_means_no_motion(make_runner, safe_end):
     assert notes
 
 
+class _FirstScanTwice:
+    """A perceiver whose first perception also reports its first pose a second time, 15 cm away (a duplicate
+    detection); later perceptions are the real one's."""
+
+    def __init__(self, real):
+        self.real, self.calls = real, 0
+
+    def perceive(self, views):
+        from dataclasses import replace
+
+        res = self.real.perceive(views)
+        self.calls += 1
+        if self.calls == 1 and res.poses:
+            p = res.poses[0]
+            T = p.T_base_obj.copy()
+            T[0, 3] += 0.15  # a ghost 15 cm away
+            res.poses.append(replace(p, T_base_obj=T, instance_id=p.instance_id + 500))
+        return res
+
+
 def test_a_duplicate_first_scan_detection_is_noted_not_failed(make_runner, safe_end):
     """The first scan sees one cup twice (a duplicate detection); later scans do not. Nothing was dropped, so the
     run succeeds and says so; with a real drop (a slip) the same count would fail the run."""
-    from dataclasses import replace
-
     runner, world = make_runner()
-    real = runner.perceiver
-    calls = {"n": 0}
-
-    class FirstScanTwice:
-        def perceive(self, views):
-            res = real.perceive(views)
-            calls["n"] += 1
-            if calls["n"] == 1 and res.poses:
-                p = res.poses[0]
-                T = p.T_base_obj.copy()
-                T[0, 3] += 0.15  # a ghost 15 cm away
-                res.poses.append(replace(p, T_base_obj=T, instance_id=p.instance_id + 500))
-            return res
-
-    runner.perceiver = FirstScanTwice()
+    runner.perceiver = _FirstScanTwice(runner.perceiver)
     report = runner.run()
     safe_end(runner, world)
     assert report.status == "succeeded", report.message
@@ -185,24 +189,8 @@ def test_a_duplicate_first_scan_detection_and_a_slip_found_again_do_not_fail_the
     """The first scan sees the cup twice (a duplicate), and the cup slips out during its lift and falls back into
     the sink, where it is picked again and placed: every item is placed, so the run succeeds. Before, the end
     check put the missing first-scan count down to the drop and ended it failed."""
-    from dataclasses import replace
-
     runner, world = make_runner()
-    real = runner.perceiver
-    calls = {"n": 0}
-
-    class FirstScanTwice:
-        def perceive(self, views):
-            res = real.perceive(views)
-            calls["n"] += 1
-            if calls["n"] == 1 and res.poses:
-                p = res.poses[0]
-                T = p.T_base_obj.copy()
-                T[0, 3] += 0.15  # a ghost 15 cm away
-                res.poses.append(replace(p, T_base_obj=T, instance_id=p.instance_id + 500))
-            return res
-
-    runner.perceiver = FirstScanTwice()
+    runner.perceiver = _FirstScanTwice(runner.perceiver)
     attach = world.attach
     slipped = {"n": 0}
 

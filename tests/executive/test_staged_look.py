@@ -27,16 +27,21 @@ def _staged_mug(runner, world, T_put, T_true):
     return rec
 
 
+def _put_down_spot(runner):
+    """Where a mug is put down upright in the middle of the drop zone: (T_put, its xy, its centre's height)."""
+    mug = runner.robot.inventory.by_name("mug")
+    zone = runner.robot.cell.spec.drop_zone
+    z = zone.z + mug.extents[2] / 2
+    xy = np.array(zone.origin_xy) + np.array(zone.size_xy) / 2
+    return make_T(np.eye(3), (xy[0], xy[1], z)), xy, z
+
+
 def test_a_staged_item_is_looked_at_and_its_record_replaced_before_its_regrasp(make_runner):
     """Put down at one spot, the mug settled 3.2 cm away with its handle turned 146 deg: a grasp planned on the
     record hits it. Selected for its regrasp, the record is replaced by the view's pose (before: selected as
     recorded); the record a view gave is not looked at again."""
     runner, world = make_runner(task="sink-to-dishwasher")
-    mug = runner.robot.inventory.by_name("mug")
-    zone = runner.robot.cell.spec.drop_zone
-    z = zone.z + mug.extents[2] / 2
-    xy = np.array(zone.origin_xy) + np.array(zone.size_xy) / 2
-    T_put = make_T(np.eye(3), (xy[0], xy[1], z))
+    T_put, xy, z = _put_down_spot(runner)
     T_true = make_T(rot_z(np.radians(146.0))[:3, :3], (xy[0] + 0.026, xy[1] - 0.0186, z))
     rec = _staged_mug(runner, world, T_put, T_true)
     b = runner.belief
@@ -61,11 +66,7 @@ def test_a_staged_item_not_seen_keeps_its_record(make_runner):
     """Nothing of its class within reach of the record in the view: the record stays (and is not looked at
     again)."""
     runner, world = make_runner(task="sink-to-dishwasher")
-    mug = runner.robot.inventory.by_name("mug")
-    zone = runner.robot.cell.spec.drop_zone
-    z = zone.z + mug.extents[2] / 2
-    xy = np.array(zone.origin_xy) + np.array(zone.size_xy) / 2
-    T_put = make_T(np.eye(3), (xy[0], xy[1], z))
+    T_put, xy, z = _put_down_spot(runner)
     T_far = make_T(np.eye(3), (xy[0] + 0.2, xy[1], z))  # not this one: too far from where it was put down
     rec = _staged_mug(runner, world, T_put, T_far)
     assert runner._do_select_grasp() == "selected"
@@ -77,11 +78,7 @@ def test_a_staged_item_seen_where_it_was_put_down_keeps_its_record(make_runner):
     """The view shows it within a pose fit's error of where it was put down (5 mm, 8 deg): the record, which
     stands it exactly on the counter, stays."""
     runner, world = make_runner(task="sink-to-dishwasher")
-    mug = runner.robot.inventory.by_name("mug")
-    zone = runner.robot.cell.spec.drop_zone
-    z = zone.z + mug.extents[2] / 2
-    xy = np.array(zone.origin_xy) + np.array(zone.size_xy) / 2
-    T_put = make_T(np.eye(3), (xy[0], xy[1], z))
+    T_put, xy, z = _put_down_spot(runner)
     T_true = make_T(rot_z(np.radians(8.0))[:3, :3], (xy[0] + 0.005, xy[1], z))
     rec = _staged_mug(runner, world, T_put, T_true)
     assert runner._do_select_grasp() == "selected"
