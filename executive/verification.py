@@ -34,7 +34,14 @@ from kitchenbot.perception.region import Region, update_region
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.grasps import too_hidden
 from kitchenbot.tasks.base import Placed
+from kitchenbot.transforms import rotation_angle
 from kitchenbot.world.gripper import DROP_HEIGHT
+
+
+def _lowest(model, T_base_obj: np.ndarray) -> float:
+    """Height of the lowest of `model`'s points with the item at T_base_obj (what it rests on)."""
+    T = np.asarray(T_base_obj, float)
+    return float((model.points @ T[:3, :3].T + T[:3, 3])[:, 2].min())
 
 
 class Verification:
@@ -166,7 +173,7 @@ class Verification:
             self._log("note", "re-scan: no view of the pick region", reason=why)
             return False
         view = self._capture_view(f"region{self.report.attempts}", "region")
-        z_floor = float((m.points @ obj.T_base_obj[:3, :3].T + obj.T_base_obj[:3, 3])[:, 2].min())
+        z_floor = _lowest(m, obj.T_base_obj)
         with self.stages.within("perceive"):
             upd = update_region(self.perceiver, b.map_base, others, view, region, z_floor)
         self._check_deadline()
@@ -263,11 +270,10 @@ class Verification:
             return st
         m = self.robot.inventory[st.obj_id]
         T = np.array(seen.T_base_obj, float)
-        low = lambda T_: float((m.points @ T_[:3, :3].T)[:, 2].min() + T_[2, 3])  # noqa: E731
-        T[2, 3] += low(st.T_base_obj) - low(T)
+        T[2, 3] += _lowest(m, st.T_base_obj) - _lowest(m, T)
         R0 = np.asarray(st.T_base_obj, float)[:3, :3]
         moved = float(np.linalg.norm(T[:3, 3] - site))
-        turned = float(np.degrees(np.arccos(np.clip((np.trace(R0.T @ T[:3, :3]) - 1) / 2, -1, 1))))
+        turned = float(np.degrees(rotation_angle(R0.T @ T[:3, :3])))
         if m.is_rotationally_symmetric:  # only its axis counts
             turned = float(np.degrees(np.arccos(np.clip(R0[:, 2] @ T[:3, 2], -1, 1))))
         # the view agrees with the record (within what a pose fit is off by): it lies where it was put down, and
