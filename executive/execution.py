@@ -50,6 +50,10 @@ class Execution:
     # A lowering stopped by contact this close above its release pose has set the item down on its support (the
     # held item sat lower in the fingers than its perceived pose said): it is let go there, as from a guarded move.
     RELEASE_IF_STOPPED_WITHIN = 0.03  # m of TCP descent left
+    # A grasp closes on the item at the width its pads meet it (GraspSpec.width: a rim's thickness, a body's span);
+    # the pads stopping more than this away from it hold something else (a neighbour, two rims of a stack) or the
+    # item some other way than planned (its pose was off): every later plan's held item would be wrong.
+    GRIP_WIDTH_TOLERANCE = 0.003  # m
 
     def _do_plan(self) -> str:
         """The task's strategies, in order, until one plans (executive/strategies.py)."""
@@ -111,6 +115,12 @@ class Execution:
         if not res.holding:  # verify with the gripper: is it holding?
             raise StepFailed("grasp_missed", f"the gripper closed on nothing grasping the {obj.cls}",
                              opening=res.opening)
+        width = pick.grasp.spec.width
+        if abs(res.opening - width) > self.GRIP_WIDTH_TOLERANCE:  # holding, but not the item as planned
+            self._let_go_in_place(pick.grasp.spec.opening, res.opening)
+            raise StepFailed("grasp_missed", f"the gripper closed at {1000 * res.opening:.1f} mm grasping the "
+                             f"{obj.cls}, not at the grasp's {1000 * width:.1f} mm: not holding it as planned",
+                             opening=res.opening, expected=width)
         self._run_trajectory(pick.lift, carrying=True)
         self._run_trajectory(place.transfer, carrying=True)
         try:
@@ -144,6 +154,13 @@ class Execution:
         if self.opt.verify_target_view:
             self.belief.released.target_view = self._target_view(T_expected[:3, 3])
         return "executed"
+
+    def _let_go_in_place(self, planned: float, gripped: float) -> None:
+        """Open where the grasp closed (nothing lifted yet): to the grasp's planned opening, or just wider than the
+        pads stand where they stopped wider than that (a gripper lets go only when it opens)."""
+        opening = min(max(planned, gripped + 0.002), self.gripper.max_opening)
+        self._cmd("gripper.open", opening=opening, why="not holding the item as planned: let go")
+        self.gripper.open(opening)
 
     def _execute_slide(self) -> str:
         """Close the fingers, press on the item, slide it, go back up; the re-scan (verify) sees where it went."""

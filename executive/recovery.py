@@ -212,7 +212,8 @@ class RecoveryActions:
             return
         pick = self.item.pick
         if pick is not None:
-            if not self._holding():
+            # open (never close: pads that let go of an item wider than planned would close on it again)
+            if not self._holding() and self.gripper.opening() < pick.grasp.spec.opening:
                 self._cmd("gripper.open", opening=pick.grasp.spec.opening)
                 self.gripper.open(pick.grasp.spec.opening)
             if self._retrace(pick.grasp_in, "back_out"):  # it was on the grasp-in line

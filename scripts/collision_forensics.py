@@ -69,6 +69,15 @@ def describe(runner, motion: str | None, detail: str) -> dict:
     it = runner.item.obj if runner.item is not None else None
     if it is not None:
         rec["target"] = {"cls": it.cls, "p": np.round(it.T_base_obj[:3, 3], 3).tolist(), "iid": it.instance_id}
+        pick = runner.item.pick
+        if w.held_uid is not None and pick is not None:  # the held item in the hand: as planned against as it is
+            g = pick.grasp  # E: the true item's pose in the planned item's frame
+            E = np.linalg.inv(g.obj.T_base_obj) @ g.T_base_tcp @ w.T_tcp_held
+            rec["in_hand"] = {"grasp": pick.grasp.spec.name, "width": round(float(pick.grasp.spec.width), 4),
+                              "opening": round(float(w.gripper_opening), 4),
+                              "err_cm": round(100 * float(np.linalg.norm(E[:3, 3])), 2),
+                              "rot_deg": round(float(np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2,
+                                                                                    -1, 1)))), 1)}
     for uid, so in w.objects.items():
         p = so.T_base_obj[:3, 3]
         near = [o for o in runner.belief.scene_objects() if o.obj_id == so.model.obj_id]
