@@ -29,7 +29,7 @@ from kitchenbot.drivers.errors import DriverTimeoutError
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.unrecognised import Unrecognised, unrecognised_things
-from kitchenbot.executive.verify import target_presence
+from kitchenbot.executive.verify import depth_agreement, target_presence
 from kitchenbot.perception.region import Region, update_region
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.grasps import too_hidden
@@ -279,8 +279,16 @@ class Verification:
         # the view agrees with the record (within what a pose fit is off by): it lies where it was put down, and
         # the record of that is the better pose
         agrees = moved < self.STAGED_AGREE[0] and turned < self.STAGED_AGREE[1]
+        fits = {}
+        if not agrees:
+            # Which pose does the view bear out? A mug's fit from above can put its handle on the wrong side (its
+            # origin, the box centre, then 3 cm off): the record, where it was put down, may be the right one. The
+            # view's pose replaces it only where it explains the view's depth better.
+            rec_fit, new_fit = (depth_agreement(view, m, X) for X in (st.T_base_obj, T))
+            fits = {"record_fit": round(rec_fit.agree, 3), "view_fit": round(new_fit.agree, 3)}
+            agrees = rec_fit.decided and rec_fit.agree >= new_fit.agree
         self._log("result", "staged item", cls=st.cls, xyz=T[:3, 3], seen=True, agrees=agrees,
-                  moved_cm=round(100 * moved, 1), turned_deg=round(turned, 1))
+                  moved_cm=round(100 * moved, 1), turned_deg=round(turned, 1), **fits)
         return b.looked_at(self.task, st, None if agrees else T)
 
     def _staged_in(self, st: Placed, poses: list[ObjectPose]) -> ObjectPose | None:

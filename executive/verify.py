@@ -61,6 +61,13 @@ def target_presence(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol:
     return best
 
 
+def depth_agreement(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol: float = 0.012,
+                    stride: int = 2) -> Presence:
+    """How well the item at T_base_obj explains the view's depth, at this pose only (no settling offsets): two
+    poses of one item compared on the same view."""
+    return _presence_at(view, model, T_base_obj, tol, 40, 0.5, stride)
+
+
 def _presence_at(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol: float, min_pixels: int,
                  threshold: float, stride: int) -> Presence:
     T_cam_obj = inv(view.T_base_cam) @ T_base_obj

@@ -84,3 +84,38 @@ def test_a_staged_item_seen_where_it_was_put_down_keeps_its_record(make_runner):
     assert runner._do_select_grasp() == "selected"
     assert np.allclose(runner.item.obj.T_base_obj, rec.T_base_obj)
     assert not runner.belief.needs_look(runner.belief.staged[0])
+
+
+def test_a_view_whose_fit_turns_the_handle_the_other_way_does_not_replace_a_right_record(make_runner):
+    """The mug lies where it was put down, but the view's fit puts its handle on the other side (turned 147 deg
+    about its body's axis: its origin, the box centre, 3 cm off): the record explains the view's depth better and
+    stays (before, any view's pose beyond 1 cm / 15 deg replaced it, and a side grasp's finger met the handle)."""
+    from dataclasses import replace
+
+    from kitchenbot.transforms import trans
+
+    runner, world = make_runner(task="sink-to-dishwasher")
+    T_put, _, _ = _put_down_spot(runner)
+    rec = _staged_mug(runner, world, T_put, T_put)
+    mug = runner.robot.inventory.by_name("mug")
+    top = mug.points[mug.points[:, 2] > mug.points[:, 2].max() - 0.004]
+    c = np.append(top[:, :2].mean(axis=0), 0.0)  # the body's axis (the rim's centre) in the model's frame
+    T_flip = T_put @ trans(*c) @ rot_z(np.radians(147.0)) @ trans(*(-c))
+    assert 0.025 < np.linalg.norm(T_flip[:3, 3] - T_put[:3, 3]) < 0.04
+    oracle = runner._drop_perceiver()
+
+    class HandleFlipped:
+        def perceive(self, views):
+            res = oracle.perceive(views)
+            res.poses = [replace(p, T_base_obj=T_flip.copy()) if p.cls == "mug" else p for p in res.poses]
+            return res
+
+    runner._drop_perceiver = lambda: HandleFlipped()
+    logged = []
+    log = runner._log
+    runner._log = lambda kind, name, /, **kw: (logged.append((name, kw)), log(kind, name, **kw))[1]
+    assert runner._do_select_grasp() == "selected"
+    assert np.allclose(runner.item.obj.T_base_obj, rec.T_base_obj)
+    assert np.allclose(runner.belief.staged[0].T_base_obj, T_put)
+    look = next(kw for name, kw in logged if name == "staged item")
+    assert look["seen"] and look["view_fit"] < look["record_fit"]
