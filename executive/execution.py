@@ -151,8 +151,6 @@ class Execution:
         T_expected = np.array(place.T_base_obj, float)
         T_expected[2, 3] = min(T_expected[2, 3], float(place.target.T_base_obj[2, 3]))
         self._expect_placed(place.target, T_expected, it.staging)
-        if self.opt.verify_target_view:
-            self.belief.released.target_view = self._target_view(T_expected[:3, 3])
         return "executed"
 
     def _let_go_in_place(self, planned: float, gripped: float) -> None:
@@ -185,6 +183,10 @@ class Execution:
         if self.planner is not None and b.map_base is not None:
             # the map still holds the points where it stood: nothing explains them now that it is gone
             b.set_map_base(self.planner.without_points_of(b.map_base, obj))
+        if self.opt.verify_target_view:
+            # a put-down after a fault too: what was let go there (perhaps not the item believed, which the sink
+            # then still shows) must not be forgotten when only the sink is looked at, or the spot looks free
+            b.released.target_view = self._target_view(T_rest[:3, 3])
 
     def _descent_left(self, lower: Trajectory) -> float:
         """How far (m) the TCP is above where the lowering `lower` ends."""
