@@ -107,9 +107,11 @@ class PlaceReach:
         wrist = T_base_tcp[:3, 3] - T_base_tcp[:3, :3] @ self.robot.T_flange_tcp[:3, 3]
         return bool(np.linalg.norm(wrist - np.array([0.0, 0.0, ur.d[0]])) <= reach)
 
-    def _solve_row(self, entry: _Entry, i: int, dz: float, T_obj_tcp: np.ndarray, cell_release: Scene | None) -> list[_Pose]:
+    def _solve_row(self, entry: _Entry, i: int, dz: float, T_obj_tcp: np.ndarray,
+                   cell_release: Callable[[], Scene] | None) -> list[_Pose]:
         """Raise `i` of an entry: every turn's closed-form IK branches at once (planning.ur_ik.ik_flange_batch),
-        those the cell alone leaves free (one batched check)."""
+        those the cell alone (`cell_release()`, asked only where there are branches to check) leaves free (one
+        batched check)."""
         robot = self.robot
         rows = [trans(0.0, 0.0, float(dz)) @ To0 for To0 in entry.live]
         poses = [_Pose(To, To @ T_obj_tcp) for To in rows]
@@ -130,7 +132,7 @@ class PlaceReach:
             else:
                 Qc[k] = w
         if cell_release is not None and keep.any():
-            keep[keep] = cell_release.valid_batch(Qc[keep])
+            keep[keep] = cell_release().valid_batch(Qc[keep])
         for (pi, _), q, k in zip(idx, Qc, keep):
             if k:
                 poses[pi].branches.append(_Candidate(q))
@@ -155,15 +157,25 @@ class PlaceReach:
         `release_scene` an OnDemand: both scenes from it, built when a candidate first needs them."""
         self.stats["queries"] += 1
         robot = self.robot
-        cell_release = cell_pre = None
         on_demand = release_scene if isinstance(release_scene, OnDemand) else None
-        if release_scene is not None:
-            cell_release, cell_pre = self._cell_only(release_scene)
-            key = key + self._cell_key(release_scene)
         has_release = release_scene is not None
         has_pre = pre_scene is not None or on_demand is not None
-        if not has_pre:
-            cell_pre = None
+        cell_release = cell_pre = None
+        if has_release:
+            # the cell-only scenes when first needed: a query whose rows are all solved, or have no IK branch to
+            # check, needs none of them
+            src, cell = release_scene, []
+
+            def cell_release() -> Scene:
+                if not cell:
+                    cell.extend(self._cell_only(src))
+                return cell[0]
+
+            if has_pre:
+                def cell_pre() -> Scene:
+                    cell_release()
+                    return cell[1]
+            key = key + self._cell_key(release_scene)
         key = key + (has_pre,)
         entry = self._entries.get(key)
         if entry is None:
@@ -195,7 +207,7 @@ class PlaceReach:
                     if has_pre:
                         if c is not None and c.pre_free is None:  # checked once against the cell alone
                             c.q_pre = robot.ik_q(trans(0.0, 0.0, up) @ pose.T_tcp, c.q, max_seeds=0)
-                            c.pre_free = c.q_pre is not None and (cell_pre is None or cell_pre.valid(c.q_pre))
+                            c.pre_free = c.q_pre is not None and (cell_pre is None or cell_pre().valid(c.q_pre))
                         if c is not None and not c.pre_free:
                             continue
                         if c is not None and np.array_equal(q, c.q):
