@@ -193,7 +193,7 @@ class PlaceReach:
                     q = robot.ik_q(pose.T_tcp, q_ref, max_seeds=2, max_iter=40)
                     cands = [] if q is None else [(None, q)]
                 elif pose.branches:
-                    W = _wrap_rows(robot, np.array([c.q for c in pose.branches]), q_ref)
+                    W = robot.wrap_near_rows(np.array([c.q for c in pose.branches]), q_ref)
                     cands = list(zip(pose.branches, W))
                 else:
                     continue
@@ -230,18 +230,3 @@ class PlaceReach:
         h = scene.held
         held = (None,) if h is None else (id(h.model), np.asarray(h.T_tcp_obj, float).tobytes(), float(h.width))
         return held + (round(float(scene.opening), 6),)
-
-
-_TURNS = np.array([0.0, -1.0, 1.0, -2.0, 2.0])
-
-
-def _wrap_rows(robot: RobotModel, Q: np.ndarray, ref: np.ndarray) -> list[np.ndarray | None]:
-    """RobotModel.wrap_near for each row of Q (N, 6) at once (None where a joint has no value inside the limits)."""
-    k0 = np.round((ref - Q) / (2 * np.pi))
-    cand = Q[:, None, :] + 2 * np.pi * (k0[:, None, :] + _TURNS[None, :, None])  # (N, 5, 6)
-    ok = (cand >= robot.lower - 1e-9) & (cand <= robot.upper + 1e-9)
-    dist = np.where(ok, np.abs(cand - ref), np.inf)
-    out = np.take_along_axis(cand, np.argmin(dist, axis=1)[:, None, :], axis=1)[:, 0, :]
-    out = np.clip(out, robot.lower, robot.upper)
-    good = ok.any(axis=1).all(axis=1)
-    return [q if g else None for q, g in zip(out, good)]
