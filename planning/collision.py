@@ -634,12 +634,12 @@ class Scene:
         if self._pool_obj is None or self._pool_version != self._shared["version"]:
             pool = pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager(self.model, self.gm, 1)
             gd = pool.getGeometryDatas()[0]
+            reqs, mine = gd.collisionRequests, self.gd.collisionRequests  # views: one Python proxy each
+            want, now = list(self.gd.activeCollisionPairs), list(gd.activeCollisionPairs)
             for k in range(len(self.pair_names)):
-                gd.collisionRequests[k].security_margin = self.gd.collisionRequests[k].security_margin
-                if self.gd.activeCollisionPairs[k]:
-                    gd.activateCollisionPair(k)
-                else:
-                    gd.deactivateCollisionPair(k)
+                reqs[k].security_margin = mine[k].security_margin
+                if want[k] != now[k]:
+                    gd.activateCollisionPair(k) if want[k] else gd.deactivateCollisionPair(k)
             self._pool_obj, self._pool_version = pool, self._shared["version"]
         return self._pool_obj
 
