@@ -480,8 +480,8 @@ class Scene:
         self._pool_obj, self._pool_version = None, -1
         self._tcp_in_j6 = robot.model.frames[robot.tcp_id].placement.translation.copy()
         self._ws_lo = np.asarray(robot.limits.workspace.lower, float)
-        self._q_lo, self._q_hi = robot.lower - 1e-9, robot.upper + 1e-9  # the joint limits as valid() allows them
         self._ws_hi = np.asarray(robot.limits.workspace.upper, float)
+        self._q_lo, self._q_hi = robot.lower - 1e-9, robot.upper + 1e-9  # the joint limits as valid() allows them
         self.pair_names = [(self.names[i], self.names[j]) for i, j in pairs]
         # pairs with the gripper or the held item (their margin is the grasp margin in for_grasp's variants)
         self._gripper_pair = [a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held" for a, b in self.pair_names]
