@@ -233,6 +233,42 @@ class Held:
     width: float  # pad distance while holding it
 
 
+def _collision_pairs(layout: tuple) -> list[tuple[int, int]]:
+    """The pairs a scene checks, from its layout ((group, joint index, name or None for the environment) per
+    geometry). Self: links two or more joints apart; the tool and the held object vs links 1..4. The environment
+    against everything on the robot side but the shoulder column and housing."""
+    out = []
+    n = len(layout)
+    for i in range(n):
+        gi, ji, ni = layout[i]
+        for j in range(i + 1, n):
+            gj, jj, nj = layout[j]
+            if gi == "env" and gj == "env":
+                continue
+            if "env" in (gi, gj):
+                name = ni if gi != "env" else nj
+                if name == "link1" or name == "link2_housing":
+                    continue  # fixed above the base on the counter; never reaches the cell geometry
+                out.append((i, j))
+                continue
+            # both on the robot side
+            if {gi, gj} <= {"tool", "held"}:
+                continue
+            if abs(ji - jj) < 2:
+                continue
+            if gi == gj == "robot" and {ji, jj} in ({3, 5}, {4, 6}):
+                # structurally apart: the wrist-2 motor turns in a plane beyond the wrist-1 housing (never meets
+                # the forearm); wrist 1 and wrist 3 sit side by side d5 apart at most (their capsules come
+                # within the margin at q5 = 0 without touching)
+                continue
+            if "tool" in (gi, gj) or "held" in (gi, gj):
+                other = jj if gi in ("tool", "held") else ji
+                if other > 4:
+                    continue
+            out.append((i, j))
+    return out
+
+
 class CollisionWorld:
     """Static collision geometry of one cell + robot + tool; makes per-query :class:`Scene` objects."""
 
@@ -257,6 +293,9 @@ class CollisionWorld:
         self.gripper = gripper or GripperGeometry()
         self.voxel_size = float(voxel_size)
         self.capsules = link_capsules(robot)
+        # the capsules' coal geometry and placements, built once: every scene shares them (as the meshes' BVHs)
+        self.capsule_geoms = [capsule_geometry(c) for c in self.capsules]
+        self._pair_cache: dict[tuple, list[tuple[int, int]]] = {}  # scene layout -> its collision pairs
         self._bvh_cache: dict[int, tuple] = {}  # id(mesh) -> (mesh, BVH)
         self._proxy_cache: dict[int, coal.Box] = {}
 
@@ -408,8 +447,7 @@ class Scene:
             self.names.append(name)
             return gid
 
-        for c in world.capsules:
-            geom, T = capsule_geometry(c)
+        for c, (geom, T) in zip(world.capsules, world.capsule_geoms):
             add(c.name, c.joint, T, geom, "robot")
         T_j6_flange = robot.model.frames[robot.flange_id].placement.homogeneous  # joint-6 frame -> flange
         self._T_j6_flange = T_j6_flange
@@ -425,43 +463,28 @@ class Scene:
             tree = coal.makeOctree(self.voxels, world.voxel_size)
             add("voxels", 0, np.eye(4), tree, "env")
 
-        # Pairs. Self: links two or more joints apart; the tool and the held object vs links 1..4.
-        n = len(self.names)
-        self.pair_margin: list[float] = []
-        for i in range(n):
-            gi, ji = self.group[i], self.link_index[i]
-            for j in range(i + 1, n):
-                gj, jj = self.group[j], self.link_index[j]
-                if gi == "env" and gj == "env":
-                    continue
-                if "env" in (gi, gj):
-                    r = i if gi != "env" else j
-                    if self.names[r] == "link1" or self.names[r] == "link2_housing":
-                        continue  # fixed above the base on the counter; never reaches the cell geometry
-                    gm.addCollisionPair(pin.CollisionPair(i, j))
-                    continue
-                # both on the robot side
-                if {gi, gj} <= {"tool", "held"}:
-                    continue
-                if abs(ji - jj) < 2:
-                    continue
-                if gi == gj == "robot" and {ji, jj} in ({3, 5}, {4, 6}):
-                    # structurally apart: the wrist-2 motor turns in a plane beyond the wrist-1 housing (never meets
-                    # the forearm); wrist 1 and wrist 3 sit side by side d5 apart at most (their capsules come
-                    # within the margin at q5 = 0 without touching)
-                    continue
-                if "tool" in (gi, gj) or "held" in (gi, gj):
-                    other = jj if gi in ("tool", "held") else ji
-                    if other > 4:
-                        continue
-                gm.addCollisionPair(pin.CollisionPair(i, j))
+        # Pairs: they depend on the layout only (each geometry's group, joint and, off the environment, name), the
+        # same for every scene with the same held item (or none) and number of obstacles: computed once per layout
+        layout = tuple((self.group[i], self.link_index[i], None if self.group[i] == "env" else self.names[i])
+                       for i in range(len(self.names)))
+        pairs = world._pair_cache.get(layout)
+        if pairs is None:
+            pairs = world._pair_cache[layout] = _collision_pairs(layout)
+            if len(world._pair_cache) > 256:
+                world._pair_cache.clear()
+                world._pair_cache[layout] = pairs
+        for i, j in pairs:
+            gm.addCollisionPair(pin.CollisionPair(i, j))
         self.gd = pin.GeometryData(gm)
         self._bp = None
         self._pool_obj, self._pool_version = None, -1
         self._tcp_in_j6 = robot.model.frames[robot.tcp_id].placement.translation.copy()
         self._ws_lo = np.asarray(robot.limits.workspace.lower, float)
         self._ws_hi = np.asarray(robot.limits.workspace.upper, float)
-        self.pair_names = [(self.names[p.first], self.names[p.second]) for p in gm.collisionPairs]
+        self._q_lo, self._q_hi = robot.lower - 1e-9, robot.upper + 1e-9  # the joint limits as valid() allows them
+        self.pair_names = [(self.names[i], self.names[j]) for i, j in pairs]
+        # pairs with the gripper or the held item (their margin is the grasp margin in for_grasp's variants)
+        self._gripper_pair = [a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held" for a, b in self.pair_names]
         self._zone: tuple[Scene, int, float] | None = None  # (strict variant, target geometry, radius): for_grasp
         self._set_margins({}, world.margin)
 
@@ -483,13 +506,17 @@ class Scene:
 
     # ---- margins and allowed contacts --------------------------------------------------------------------
     def _set_margins(self, allowed: dict[tuple[str, str], bool], default_margin: float, gripper_margin: float | None = None) -> None:
-        gm, gd = self.gm, self.gd
+        gd = self.gd
+        reqs = gd.collisionRequests  # a view on the requests: one Python proxy for all pairs (~1 us a pair less)
+        active = list(gd.activeCollisionPairs)
         for k, (a, b) in enumerate(self.pair_names):
             m = default_margin
-            if gripper_margin is not None and (a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held"):
+            if gripper_margin is not None and self._gripper_pair[k]:
                 m = gripper_margin
-            gd.collisionRequests[k].security_margin = m
-            gd.activateCollisionPair(k) if not allowed.get((a, b), False) else gd.deactivateCollisionPair(k)
+            reqs[k].security_margin = m
+            on = not (allowed and allowed.get((a, b), False))
+            if on != active[k]:  # (de)activating is needed only where the state changes
+                gd.activateCollisionPair(k) if on else gd.deactivateCollisionPair(k)
 
     def allowing(self, pairs: Iterable[tuple[str, str]]) -> "Scene":
         """A copy of this scene (same margins) in which the given (name, name) pairs are not checked."""
@@ -575,8 +602,7 @@ class Scene:
     def valid(self, q: np.ndarray) -> bool:
         """True when q is within the joint limits and nothing collides (within the margins)."""
         q = np.asarray(q, float)
-        robot = self.world.robot
-        if (q < robot.lower - 1e-9).any() or (q > robot.upper + 1e-9).any():
+        if (q < self._q_lo).any() or (q > self._q_hi).any():
             return False
         if pin.computeCollisions(self.model, self.data, self._broadphase(), q, True):
             return False
@@ -608,12 +634,12 @@ class Scene:
         if self._pool_obj is None or self._pool_version != self._shared["version"]:
             pool = pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager(self.model, self.gm, 1)
             gd = pool.getGeometryDatas()[0]
+            reqs, mine = gd.collisionRequests, self.gd.collisionRequests  # views: one Python proxy each
+            want, now = list(self.gd.activeCollisionPairs), list(gd.activeCollisionPairs)
             for k in range(len(self.pair_names)):
-                gd.collisionRequests[k].security_margin = self.gd.collisionRequests[k].security_margin
-                if self.gd.activeCollisionPairs[k]:
-                    gd.activateCollisionPair(k)
-                else:
-                    gd.deactivateCollisionPair(k)
+                reqs[k].security_margin = mine[k].security_margin
+                if want[k] != now[k]:
+                    gd.activateCollisionPair(k) if want[k] else gd.deactivateCollisionPair(k)
             self._pool_obj, self._pool_version = pool, self._shared["version"]
         return self._pool_obj
 

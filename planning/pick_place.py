@@ -27,7 +27,7 @@ from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
-from kitchenbot.planning.place_reach import PlaceReach
+from kitchenbot.planning.place_reach import OnDemand, PlaceReach
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.settings import PlanningSettings
 from kitchenbot.planning.timing import time_parameterise
@@ -311,13 +311,14 @@ class Planner:
             def flt(obj, spec, T_base_tcp):
                 key = (obj.obj_id, spec.name, tuple(t.T_base_obj.tobytes() for t in targets), world_key, voxels.tobytes())
                 if key not in self._placeable:
-                    others = self._scene_objects(objects, exclude=obj)
                     held = Held(self.inventory[obj.obj_id], inv(spec.T_obj_tcp), spec.width)
-                    pre = self.world.scene(others, voxels, held)  # full margins above the release (plan_place)
-                    release = pre.for_release(None)  # a variant of it: the same geometry, the grasp margins
+
+                    def build(obj=obj, held=held):
+                        pre = self.world.scene(self._scene_objects(objects, exclude=obj), voxels, held)  # full margins above the release (plan_place)
+                        return pre.for_release(None), pre  # the release: a variant of it, the grasp margins
+                    scenes = OnDemand(held, held.width, build)  # most queries never need them (planning/place_reach.py)
                     ok = any(
-                        self._place_tcp_options(t, spec.T_obj_tcp, q, release, first_only=True, obj_id=obj.obj_id,
-                                                pre_scene=pre)
+                        self._place_tcp_options(t, spec.T_obj_tcp, q, scenes, first_only=True, obj_id=obj.obj_id)
                         for t in targets
                     )
                     if len(self._placeable) >= 5000:  # bounded: emptied before this answer is kept, not after
@@ -663,7 +664,7 @@ class Planner:
         return turns
 
     def _place_tcp_options(self, target: PlaceTarget, T_obj_tcp: np.ndarray, q_ref: np.ndarray,
-                           release_scene: Scene | None = None, first_only: bool = False, obj_id: int | None = None,
+                           release_scene: Scene | OnDemand | None = None, first_only: bool = False, obj_id: int | None = None,
                            pre_scene: Scene | None = None):
         """[(T_base_obj, T_base_tcp, q)] reachable release poses for `target` with this grasp, closest first.
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from kitchenbot.planning.collision import CollisionWorld, Scene
+from kitchenbot.planning.collision import CollisionWorld, Held, Scene
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.ur_ik import ik_flange_batch, surely_unreachable
 from kitchenbot.transforms import trans
@@ -59,6 +59,24 @@ class _Entry:
     live: list[np.ndarray]  # the target's turns whose approach is from above
 
 
+class OnDemand:
+    """A query's (release, pre-place) scenes, built when first needed. What the cell-only relaxation needs (the
+    held item, the pads' opening) is known at once; the scenes themselves (~3 ms each to build) only where a
+    candidate survives the relaxation, which most grasp-filter queries never reach (on a development run 46 of
+    1808 queries checked a candidate against their own scene)."""
+
+    def __init__(self, held: Held | None, opening: float, build: Callable[[], tuple[Scene, Scene]]):
+        self.held = held
+        self.opening = float(opening)
+        self._build = build
+        self._scenes: tuple[Scene, Scene] | None = None
+
+    def scenes(self) -> tuple[Scene, Scene]:
+        if self._scenes is None:
+            self._scenes = self._build()
+        return self._scenes
+
+
 class PlaceReach:
     """The release-pose geometry cache of one planner (one robot, cell and settings)."""
 
@@ -70,7 +88,7 @@ class PlaceReach:
         self.stats = {"poses_solved": 0, "queries": 0}
 
     # ---- the cell alone ----------------------------------------------------------------------------------------
-    def _cell_only(self, release_scene: Scene) -> tuple[Scene, Scene]:
+    def _cell_only(self, release_scene: Scene | OnDemand) -> tuple[Scene, Scene]:
         """(release, pre-place) scenes with the cell and the held item only: the query scenes' relaxation."""
         h = release_scene.held
         key = (None,) if h is None else (id(h.model), np.asarray(h.T_tcp_obj, float).tobytes(), float(h.width))
@@ -89,9 +107,11 @@ class PlaceReach:
         wrist = T_base_tcp[:3, 3] - T_base_tcp[:3, :3] @ self.robot.T_flange_tcp[:3, 3]
         return bool(np.linalg.norm(wrist - np.array([0.0, 0.0, ur.d[0]])) <= reach)
 
-    def _solve_row(self, entry: _Entry, i: int, dz: float, T_obj_tcp: np.ndarray, cell_release: Scene | None) -> list[_Pose]:
+    def _solve_row(self, entry: _Entry, i: int, dz: float, T_obj_tcp: np.ndarray,
+                   cell_release: Callable[[], Scene] | None) -> list[_Pose]:
         """Raise `i` of an entry: every turn's closed-form IK branches at once (planning.ur_ik.ik_flange_batch),
-        those the cell alone leaves free (one batched check)."""
+        those the cell alone (`cell_release()`, asked only where there are branches to check) leaves free (one
+        batched check)."""
         robot = self.robot
         rows = [trans(0.0, 0.0, float(dz)) @ To0 for To0 in entry.live]
         poses = [_Pose(To, To @ T_obj_tcp) for To in rows]
@@ -112,7 +132,7 @@ class PlaceReach:
             else:
                 Qc[k] = w
         if cell_release is not None and keep.any():
-            keep[keep] = cell_release.valid_batch(Qc[keep])
+            keep[keep] = cell_release().valid_batch(Qc[keep])
         for (pi, _), q, k in zip(idx, Qc, keep):
             if k:
                 poses[pi].branches.append(_Candidate(q))
@@ -129,20 +149,34 @@ class PlaceReach:
     # ---- queries -----------------------------------------------------------------------------------------------
     def options(self, key: tuple, turns: Callable[[], list[np.ndarray]], T_target: np.ndarray, T_obj_tcp: np.ndarray,
                 raises: np.ndarray, up: float, max_approach_up: float, q_ref: np.ndarray,
-                release_scene: Scene | None, pre_scene: Scene | None,
+                release_scene: Scene | OnDemand | None, pre_scene: Scene | None,
                 first_only: bool) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """[(T_base_obj, T_base_tcp, q)] release poses valid in `release_scene` (and with a pre-place pose `up`
         above valid in `pre_scene`), over the lowest raise that has any, nearest `q_ref` first; with
-        `first_only` the first one found. `key` names the geometry (item model, grasp, target, scenes' kind)."""
+        `first_only` the first one found. `key` names the geometry (item model, grasp, target, scenes' kind).
+        `release_scene` an OnDemand: both scenes from it, built when a candidate first needs them."""
         self.stats["queries"] += 1
         robot = self.robot
+        on_demand = release_scene if isinstance(release_scene, OnDemand) else None
+        has_release = release_scene is not None
+        has_pre = pre_scene is not None or on_demand is not None
         cell_release = cell_pre = None
-        if release_scene is not None:
-            cell_release, cell_pre = self._cell_only(release_scene)
+        if has_release:
+            # the cell-only scenes when first needed: a query whose rows are all solved, or have no IK branch to
+            # check, needs none of them
+            src, cell = release_scene, []
+
+            def cell_release() -> Scene:
+                if not cell:
+                    cell.extend(self._cell_only(src))
+                return cell[0]
+
+            if has_pre:
+                def cell_pre() -> Scene:
+                    cell_release()
+                    return cell[1]
             key = key + self._cell_key(release_scene)
-        if pre_scene is None:
-            cell_pre = None
-        key = key + (pre_scene is not None,)
+        key = key + (has_pre,)
         entry = self._entries.get(key)
         if entry is None:
             if len(self._entries) >= MAX_ENTRIES:
@@ -159,17 +193,21 @@ class PlaceReach:
                     q = robot.ik_q(pose.T_tcp, q_ref, max_seeds=2, max_iter=40)
                     cands = [] if q is None else [(None, q)]
                 elif pose.branches:
-                    W = _wrap_rows(robot, np.array([c.q for c in pose.branches]), q_ref)
+                    W = robot.wrap_near_rows(np.array([c.q for c in pose.branches]), q_ref)
                     cands = list(zip(pose.branches, W))
                 else:
                     continue
                 for c, q in cands:
-                    if q is None or (release_scene is not None and not release_scene.valid(q)):
+                    if q is None:
                         continue
-                    if pre_scene is not None:
+                    if on_demand is not None:
+                        release_scene, pre_scene = on_demand.scenes()
+                    if has_release and not release_scene.valid(q):
+                        continue
+                    if has_pre:
                         if c is not None and c.pre_free is None:  # checked once against the cell alone
                             c.q_pre = robot.ik_q(trans(0.0, 0.0, up) @ pose.T_tcp, c.q, max_seeds=0)
-                            c.pre_free = c.q_pre is not None and (cell_pre is None or cell_pre.valid(c.q_pre))
+                            c.pre_free = c.q_pre is not None and (cell_pre is None or cell_pre().valid(c.q_pre))
                         if c is not None and not c.pre_free:
                             continue
                         if c is not None and np.array_equal(q, c.q):
@@ -187,23 +225,8 @@ class PlaceReach:
         return out
 
     @staticmethod
-    def _cell_key(scene: Scene) -> tuple:
+    def _cell_key(scene: Scene | OnDemand) -> tuple:
         """What the cell-only relaxation of `scene` depends on: the held item and the pads' opening."""
         h = scene.held
         held = (None,) if h is None else (id(h.model), np.asarray(h.T_tcp_obj, float).tobytes(), float(h.width))
         return held + (round(float(scene.opening), 6),)
-
-
-_TURNS = np.array([0.0, -1.0, 1.0, -2.0, 2.0])
-
-
-def _wrap_rows(robot: RobotModel, Q: np.ndarray, ref: np.ndarray) -> list[np.ndarray | None]:
-    """RobotModel.wrap_near for each row of Q (N, 6) at once (None where a joint has no value inside the limits)."""
-    k0 = np.round((ref - Q) / (2 * np.pi))
-    cand = Q[:, None, :] + 2 * np.pi * (k0[:, None, :] + _TURNS[None, :, None])  # (N, 5, 6)
-    ok = (cand >= robot.lower - 1e-9) & (cand <= robot.upper + 1e-9)
-    dist = np.where(ok, np.abs(cand - ref), np.inf)
-    out = np.take_along_axis(cand, np.argmin(dist, axis=1)[:, None, :], axis=1)[:, 0, :]
-    out = np.clip(out, robot.lower, robot.upper)
-    good = ok.any(axis=1).all(axis=1)
-    return [q if g else None for q, g in zip(out, good)]

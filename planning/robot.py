@@ -24,6 +24,7 @@ from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import URModel, ur_model
 from kitchenbot.planning.ur_ik import ik_flange
 
+_TURNS = np.array([0.0, -1.0, 1.0, -2.0, 2.0])  # the 2*pi turns wrap_near tries, nearest first
 JOINT_NAMES = (
     "shoulder_pan_joint",
     "shoulder_lift_joint",
@@ -88,6 +89,7 @@ class RobotModel:
         self.ur = ur
         self.limits = limits
         self.T_flange_tcp = np.asarray(T_flange_tcp, float)
+        self._T_tcp_flange = np.linalg.inv(self.T_flange_tcp)
         self.model = build_pinocchio_model(ur, self.T_flange_tcp, limits)
         self.data = self.model.createData()
         self.lower = np.asarray(limits.joint_lower, float).copy()
@@ -145,13 +147,24 @@ class RobotModel:
         """Each joint moved by multiples of 2*pi to the value closest to `ref` inside the limits (None if none)."""
         q = np.asarray(q, float)
         k0 = np.round((ref - q) / (2 * np.pi))
-        cand = q[None, :] + 2 * np.pi * (k0[None, :] + np.array([0.0, -1.0, 1.0, -2.0, 2.0])[:, None])  # (5, 6)
+        cand = q[None, :] + 2 * np.pi * (k0[None, :] + _TURNS[:, None])  # (5, 6)
         ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)
         if not np.all(ok.any(axis=0)):
             return None
         dist = np.where(ok, np.abs(cand - ref), np.inf)
         out = cand[np.argmin(dist, axis=0), np.arange(6)]
         return np.clip(out, self.lower, self.upper)
+
+    def wrap_near_rows(self, Q: np.ndarray, ref: np.ndarray) -> list[np.ndarray | None]:
+        """wrap_near for each row of Q (N, 6) at once: the same values (the same elementwise operations)."""
+        k0 = np.round((ref - Q) / (2 * np.pi))
+        cand = Q[:, None, :] + 2 * np.pi * (k0[:, None, :] + _TURNS[None, :, None])  # (N, 5, 6)
+        ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)
+        dist = np.where(ok, np.abs(cand - ref), np.inf)
+        out = np.take_along_axis(cand, np.argmin(dist, axis=1)[:, None, :], axis=1)[:, 0, :]
+        out = np.clip(out, self.lower, self.upper)
+        good = ok.any(axis=1).all(axis=1)
+        return [q if g else None for q, g in zip(out, good)]
 
     def _dls(self, T_target: pin.SE3, q0: np.ndarray, max_iter: int, tol: float, damping: float) -> tuple[np.ndarray, float, int]:
         model, data, fid = self.model, self.data, self.tcp_id
@@ -229,12 +242,11 @@ class RobotModel:
         """Every closed-form IK branch (planning.ur_ik) reaching `T_base_tcp` inside the joint limits, each joint
         wrapped to the value nearest `q_ref`; sorted by max-abs joint distance to `q_ref` (nearest first)."""
         q_ref = np.asarray(q_ref, float)
-        T_base_flange = np.asarray(T_base_tcp, float) @ np.linalg.inv(self.T_flange_tcp)
-        out = []
-        for q in ik_flange(self.ur, T_base_flange):
-            qw = self.wrap_near(q, q_ref)
-            if qw is not None:
-                out.append(qw)
+        T_base_flange = np.asarray(T_base_tcp, float) @ self._T_tcp_flange
+        sols = ik_flange(self.ur, T_base_flange)
+        if not sols:
+            return []
+        out = [qw for qw in self.wrap_near_rows(np.array(sols), q_ref) if qw is not None]
         out.sort(key=lambda q: float(np.max(np.abs(q - q_ref))))
         return out
 

@@ -155,3 +155,31 @@ def test_pads_touching_the_target_far_from_the_grasp_point_collide(planner, cfg,
     assert not grasp.valid(q)
     assert not grasp.valid_batch(q[None])[0]
     assert any("obj:1" in p and ("pad_a" in p or "pad_b" in p) for p in grasp.colliding_pairs(q))
+
+
+def test_scenes_sharing_a_layout_get_their_own_pairs_and_margins(planner, home):
+    """Collision pairs are computed once per layout (planning.collision._collision_pairs): scenes with the same
+    layout but other objects name their own objects; the grasp variant's margins and allowed contacts are per
+    scene; and a scene checks what a fresh world's scene of the same content checks."""
+    from kitchenbot.planning.collision import CollisionWorld, Held
+
+    inv_models = list(planner.inventory.models.values())
+    a = [SceneObject("a", inv_models[0], np.eye(4)), SceneObject("b", inv_models[1], np.eye(4))]
+    b = [SceneObject("c", inv_models[2], np.eye(4)), SceneObject("d", inv_models[3], np.eye(4))]
+    held = Held(inv_models[4], np.eye(4), 0.05)
+    sa, sb = planner.world.scene(a, None, held), planner.world.scene(b, None, held)
+    assert len(sa.pair_names) == len(sb.pair_names)
+    assert {"obj:a", "obj:b"} <= {n for p in sa.pair_names for n in p}
+    assert not {"obj:a", "obj:b"} & {n for p in sb.pair_names for n in p}
+    ga = sa.for_grasp("a")
+    allowed = [k for k, p in enumerate(ga.pair_names) if not ga.gd.activeCollisionPairs[k]]
+    assert allowed and all("obj:a" in ga.pair_names[k] for k in allowed)
+    assert all(sb.gd.activeCollisionPairs[k] for k in range(len(sb.pair_names)))
+    fresh = CollisionWorld(planner.robot, planner.cell, planner.world.T_flange_cam, margin=planner.world.margin,
+                           grasp_margin=planner.world.grasp_margin, gripper=planner.world.gripper)
+    sf = fresh.scene(b, None, held)
+    assert sf.pair_names == sb.pair_names
+    rng = np.random.default_rng(0)
+    Q = home + rng.normal(0.0, 0.6, size=(300, 6))
+    assert np.array_equal(sf.valid_batch(Q), sb.valid_batch(Q))
+    assert [sf.valid(q) for q in Q] == [sb.valid(q) for q in Q]

@@ -95,3 +95,39 @@ def test_cache_agrees_with_the_full_enumeration(planner, home):
     assert checked == 3 * len(specs) * 2
     assert 0 < nonempty < checked  # some grasps reach the target, some do not
     assert differs  # the neighbour changes the answer for some grasp: the scene's own check matters
+
+
+def test_scenes_on_demand_give_the_same_answers_and_are_built_only_when_needed(planner, home):
+    """The grasp filter's query scenes built on demand (place_reach.OnDemand): the same answers as scenes built
+    beforehand, for grasps that reach the target and grasps that do not; those the cell alone answers (no
+    candidate survives it) never build them."""
+    from kitchenbot.planning.place_reach import OnDemand
+
+    cup = planner.inventory.by_name("cup")
+    upper = planner.cell.spec.dishwasher.upper
+    xy = (0.51, -0.40)
+    near = ObjectPose(cup.obj_id, cup.cls, upright(cup, (xy[0] + 0.085, xy[1]), upper.floor_z), 1.0, instance_id=7)
+    reachable = PlaceTarget(inverted(cup, xy, upper.floor_z), "slot", "t", free_yaw=True)
+    # beyond the arm's reach: no release pose has an IK branch, so nothing survives the cell-only check
+    beyond = PlaceTarget(inverted(cup, (2.5, 0.0), upper.floor_z), "slot", "t2", free_yaw=True)
+    built = {True: 0, False: 0}
+    for target in (reachable, beyond):
+        for spec in [g for g in expand_grasps(cup)][::6]:
+            release, pre = _scenes(planner, cup, spec, [near])
+            held = Held(cup, inv(spec.T_obj_tcp), spec.width)
+            calls = []
+
+            def build(release=release, pre=pre):
+                calls.append(1)
+                return release, pre
+
+            for first_only in (True, False):
+                want = planner._place_tcp_options(target, spec.T_obj_tcp, home, release, first_only=first_only,
+                                                  obj_id=cup.obj_id, pre_scene=pre)
+                got = planner._place_tcp_options(target, spec.T_obj_tcp, home, OnDemand(held, spec.width, build),
+                                                 first_only=first_only, obj_id=cup.obj_id)
+                _same(got, want)
+            built[target is reachable] += len(calls)
+            if target is beyond:
+                assert not calls
+    assert built[True] > 0  # where candidates survive the cell, the scenes are built and decide

@@ -67,3 +67,20 @@ def test_wrap_near_uses_the_closest_equivalent(planner):
 def test_unreachable_pose_has_no_ik(planner, home):
     T = trans(2.0, 0.0, 0.0) @ planner.robot.fk_tcp(home)
     assert planner.robot.ik(T, home).q is None
+
+
+def test_wrap_near_rows_is_wrap_near_row_by_row(planner):
+    """The batched wrap (ik_all, the release-pose cache) gives wrap_near's values exactly, None where it does."""
+    robot = planner.robot
+    rng = np.random.default_rng(3)
+    Q = rng.uniform(-9.0, 9.0, size=(400, 6))  # outside the limits too: turned in by 2*pi
+    for ref in (np.zeros(6), rng.uniform(-3.0, 3.0, 6)):
+        rows = robot.wrap_near_rows(Q, ref)
+        turned = 0
+        for q, got in zip(Q, rows):
+            want = robot.wrap_near(q, ref)
+            assert (got is None) == (want is None)
+            if want is not None:
+                assert np.array_equal(got, want)
+                turned += not np.array_equal(got, q)
+        assert turned > 100
