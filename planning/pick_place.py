@@ -785,7 +785,8 @@ class Planner:
     def _retreat(self, objects, map_points, grasp: Grasp, placed: ObjectPose, q_rel: np.ndarray, T_tcp: np.ndarray,
                  up: float) -> tuple[Trajectory, float] | PlanningFailure:
         """(retreat, gripper opening at release) after letting go of `placed` at q_rel: the open pads back out along
-        the approach (else straight up), ending with the full margins. The widest opening (release_openings: the
+        the approach (else straight up, else a few centimetres back and then up: _two_leg_retreat), ending with the
+        full margins. The widest opening (release_openings: the
         grasp's own, then down to a few mm per pad past the item's width) whose pads, opened at the release pose,
         touch nothing but the released item (a neighbour in a rack stands a few mm from a pad) and whose retreat
         is free; where none is, the grasp's own opening with only the retreat checked (as the release pose itself
