@@ -786,7 +786,8 @@ class Planner:
     def _retreat(self, objects, map_points, grasp: Grasp, placed: ObjectPose, q_rel: np.ndarray, T_tcp: np.ndarray,
                  up: float) -> tuple[Trajectory, float] | PlanningFailure:
         """(retreat, gripper opening at release) after letting go of `placed` at q_rel: the open pads back out along
-        the approach (else straight up), ending with the full margins. The widest opening (release_openings: the
+        the approach (else straight up, else a few centimetres back and then up: _two_leg_retreat), ending with the
+        full margins. The widest opening (release_openings: the
         grasp's own, then down to a few mm per pad past the item's width) whose pads, opened at the release pose,
         touch nothing but the released item (a neighbour in a rack stands a few mm from a pad) and whose retreat
         is free; where none is, the grasp's own opening with only the retreat checked (as the release pose itself
@@ -807,8 +808,38 @@ class Planner:
                     r = CartesianPathFailed("retreat: ends within the collision margin",
                                             {"pairs": after.colliding_pairs(r[1]), "segment": "retreat"})
                 first = first or r
+            r = self._two_leg_retreat(after_scene, after, q_rel, T_tcp, up)
+            if r is not None:
+                return r, opening
         assert first is not None
         return first
+
+    # The first leg of a back-out-then-up retreat: metres back along the approach axis. A side grasp's pads and
+    # palm hug the released item (straight up, the palm drags along it), while backing out the full approach
+    # distance can put the wrist into what stands behind the gripper (a counter wall behind a staging spot): a
+    # few centimetres back clear the item, then straight up clears the rest.
+    RETREAT_BACK_LEGS = (0.03, 0.05)
+
+    def _two_leg_retreat(self, after_scene: Scene, after: Scene, q_rel: np.ndarray, T_tcp: np.ndarray,
+                         up: float) -> Trajectory | None:
+        """A retreat in two straight legs: back along the approach axis by one of RETREAT_BACK_LEGS, then straight
+        up by `up`; checked like the one-leg retreats (`after_scene`, the release pose itself excused; ends with the
+        full margins in `after`), timed as one path. None when no such retreat is free."""
+        for back in self.RETREAT_BACK_LEGS:
+            info1: dict = {}
+            r = self._line(after_scene, q_rel, T_tcp @ trans(0.0, 0.0, -back), "retreat", check_start=False,
+                           info=info1)
+            if isinstance(r, PlanningFailure):
+                continue
+            q1 = r[1]
+            info2: dict = {}
+            r = self._line(after_scene, q1, trans(0.0, 0.0, up) @ self.robot.fk_tcp(q1), "retreat", info=info2)
+            if isinstance(r, PlanningFailure) or not after.valid(r[1]):
+                continue
+            traj = self._time(np.vstack([info1["path"], info2["path"][1:]]), "retreat", "along_path")
+            if not isinstance(traj, PlanningFailure):
+                return traj
+        return None
 
     # ---- free motion -----------------------------------------------------------------------------------------------
     def plan_slide(self, q_start: np.ndarray, objects: Sequence[ObjectPose], target: ObjectPose, *,
