@@ -34,7 +34,7 @@ from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, overhang, patch_normals,
-                                          surface_noise, verify)
+                                          surface_noise, verify, FINE_FULL)
 from kitchenbot.transforms import inv
 
 log = logging.getLogger(__name__)
@@ -230,6 +230,7 @@ class Perceiver:
             found: list[tuple[Hypothesis, int, np.ndarray]] = []
             parts: set[int] = set()  # ids made by cutting a blob (never cut again)
             groups: dict[int, list[np.ndarray]] = {}  # id of a remainder in pieces -> the pieces (map indices)
+            fine_tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
             while queue:
                 iid = queue.pop(0)
                 sel = np.nonzero(ids_out == iid)[0]
@@ -253,7 +254,8 @@ class Perceiver:
                             queue.insert(0, next_id)
                             next_id += 1
                         continue
-                if hyp is None:
+                if hyp is None or (len(sel) >= 3000 and iid not in parts
+                                   and self._misfit(m, sel, hyp, fine_tol)):
                     if len(sel) >= 3000 and iid not in parts:
                         # Several items segmented together and no single model explains enough of them: cut
                         # the blob into item-sized regions and try each (what a region's pose leaves over is
@@ -395,6 +397,17 @@ class Perceiver:
             failed |= newly
             todo = {k for k, (h, _, _) in enumerate(found) if k not in failed and h.verification is not None and
                     any(self._near_each_other(h, found[j][0]) for j in newly)}
+
+    def _misfit(self, m: InstanceMap, sel: np.ndarray, hyp: Hypothesis, tol: float) -> bool:
+        own = sel[self._explained(hyp, m.points[sel])]
+        if len(own) == 0:
+            return True
+        own = own[:: max(1, len(own) // 3000)]
+        normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
+        f = fine_share(m.points[own], normals, self.database[hyp.obj_id], hyp.T_base_obj, tol, (),
+                       self.inventory[hyp.obj_id].is_rotationally_symmetric)
+        log.debug("misfit check %s fine %.2f", self.inventory[hyp.obj_id].name, f)
+        return f < FINE_FULL * self.settings.verify_threshold
 
     def _near_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Whether one pose can explain points the checks of the other look at (within their two diameters)."""
