@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import open3d as o3d
@@ -412,7 +412,9 @@ class Perceiver:
         normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
         f = fine_share(m.points[own], normals, self.database[hyp.obj_id], hyp.T_base_obj, tol, (),
                        self.inventory[hyp.obj_id].is_rotationally_symmetric)
-        return f < FINE_FULL * self.settings.verify_threshold
+        if hyp.verification is None:
+            return f < FINE_FULL * self.settings.verify_threshold
+        return replace(hyp.verification, fine=f).score < self.settings.verify_threshold
 
     def _near_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Whether one pose can explain points the checks of the other look at (within their two diameters)."""
