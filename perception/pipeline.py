@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
@@ -34,7 +34,7 @@ from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, overhang, patch_normals,
-                                          surface_noise, verify, FINE_FULL)
+                                          surface_noise, verify)
 from kitchenbot.transforms import inv
 
 log = logging.getLogger(__name__)
@@ -230,7 +230,6 @@ class Perceiver:
             found: list[tuple[Hypothesis, int, np.ndarray]] = []
             parts: set[int] = set()  # ids made by cutting a blob (never cut again)
             groups: dict[int, list[np.ndarray]] = {}  # id of a remainder in pieces -> the pieces (map indices)
-            fine_tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
             while queue:
                 iid = queue.pop(0)
                 sel = np.nonzero(ids_out == iid)[0]
@@ -254,16 +253,11 @@ class Perceiver:
                             queue.insert(0, next_id)
                             next_id += 1
                         continue
-                # A large segment's pose that does not put its own points on the model at the sensor's
-                # precision is a compromise between the items segmented together (a glass touching two cans:
-                # fitted 2-3 cm off, fine 0.3, rejected by the verification, the glass lost): such a segment is
-                # cut like one no model explains.
-                if hyp is None or (len(sel) >= 3000 and iid not in parts
-                                   and self._misfit(m, sel, hyp, fine_tol)):
+                if hyp is None:
                     if len(sel) >= 3000 and iid not in parts:
-                        # Several items segmented together and no single model explains enough of them (or only
-                        # as a compromise): cut the blob into item-sized regions and try each (what a region's
-                        # pose leaves over is refitted as usual; duplicates are resolved below).
+                        # Several items segmented together and no single model explains enough of them: cut
+                        # the blob into item-sized regions and try each (what a region's pose leaves over is
+                        # refitted as usual; duplicates are resolved below).
                         for part in _partition(m.points[sel], 0.07):
                             ids_out[sel[part]] = next_id
                             parts.add(next_id)
@@ -401,24 +395,6 @@ class Perceiver:
             failed |= newly
             todo = {k for k, (h, _, _) in enumerate(found) if k not in failed and h.verification is not None and
                     any(self._near_each_other(h, found[j][0]) for j in newly)}
-
-    def _misfit(self, m: InstanceMap, sel: np.ndarray, hyp: Hypothesis, tol: float) -> bool:
-        """Whether a pose fails the verification's `fine` part on the points of its segment it explains (at most
-        3000 of them; no neighbour poses yet): it fits none of the segment's items at the sensor's precision."""
-        # Judged only where the model's visible surface is mostly confirmed: a plate under a bottle and cutlery
-        # (a fifth of it seen) has their points within a voxel of it and no fine share to speak of.
-        if hyp.verification is not None and hyp.verification.seen < 0.5:
-            return False
-        own = sel[self._explained(hyp, m.points[sel])]
-        if len(own) == 0:
-            return True
-        own = own[:: max(1, len(own) // 3000)]
-        normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
-        f = fine_share(m.points[own], normals, self.database[hyp.obj_id], hyp.T_base_obj, tol, (),
-                       self.inventory[hyp.obj_id].is_rotationally_symmetric)
-        if hyp.verification is None:
-            return f < FINE_FULL * self.settings.verify_threshold
-        return replace(hyp.verification, fine=f).score < self.settings.verify_threshold
 
     def _near_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Whether one pose can explain points the checks of the other look at (within their two diameters)."""
