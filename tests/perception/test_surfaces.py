@@ -238,3 +238,34 @@ def test_under_a_support_is_solid_where_it_was_never_seen_through(inventory, cel
     sm = find_surfaces(views)
     inside = np.array([[cx, cy, lo[2] + 0.05], [cx + 0.1, cy + 0.05, lo[2] + 0.10]])
     assert not sm.inside_solid(inside).any()
+
+
+def _axis_pose(z, centre) -> np.ndarray:
+    z = np.asarray(z, float) / np.linalg.norm(z)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = centre
+    return T
+
+
+@pytest.mark.xfail(strict=True, reason="known miss: a segment's compromise pose is rejected and the segment is not "
+                   "fitted again (cutting it into 7 cm regions, tried in the twelfth session, broke stacks of bowls)")
+def test_a_glass_between_two_cans_is_found(perceiver, inventory, cell):
+    """A glass lying between two tilted cans that touch it is one segment with them; the first pose of that
+    segment is a compromise between the glass and the cans (its points 2-3 cm off the model: verification's
+    `fine` 0.3) and is rejected, so the glass is lost (a development sink scene)."""
+    axis_pose = _axis_pose
+    glass = axis_pose([-0.97, -0.1, -0.24], [0.355, -0.015, -0.004])
+    extra = []
+    for z, centre in (([-0.48, -0.72, 0.5], [0.405, -0.116, -0.007]), ([-0.07, 0.59, -0.8], [0.449, 0.031, -0.011])):
+        can = o3d.geometry.TriangleMesh.create_cylinder(0.038, 0.0905, resolution=40)
+        can.transform(axis_pose(z, centre))
+        can.compute_vertex_normals()
+        extra.append((can, (0.6, 0.6, 0.62)))
+    views, _ = render(inventory, [(6, glass)], scan_poses(cell), cell, noise=0.002, extra=extra)
+    r = perceiver.perceive(views)
+    errs = [adi(p.T_base_obj, glass, inventory[6].points) for p in r.poses if p.obj_id == 6]
+    assert errs and min(errs) < 0.1 * inventory[6].diameter, [(p.cls, np.round(p.T_base_obj[:3, 3], 3)) for p in r.poses]
+
