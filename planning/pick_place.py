@@ -786,20 +786,22 @@ class Planner:
     def _retreat(self, objects, map_points, grasp: Grasp, placed: ObjectPose, q_rel: np.ndarray, T_tcp: np.ndarray,
                  up: float) -> tuple[Trajectory, float] | PlanningFailure:
         """(retreat, gripper opening at release) after letting go of `placed` at q_rel: the open pads back out along
-        the approach (else straight up, else a few centimetres back and then up: _two_leg_retreat), ending with the
-        full margins. The widest opening (release_openings: the
+        the approach (else straight up), ending with the full margins; only where no opening allows either, a few
+        centimetres back and then up (_two_leg_retreat). The widest opening (release_openings: the
         grasp's own, then down to a few mm per pad past the item's width) whose pads, opened at the release pose,
         touch nothing but the released item (a neighbour in a rack stands a few mm from a pad) and whose retreat
         is free; where none is, the grasp's own opening with only the retreat checked (as the release pose itself
         may then touch: the pads leave the item along the approach)."""
         first: PlanningFailure | None = None
         widest = grasp.spec.opening
+        tried: list[tuple[float, Scene, Scene]] = []
         for opening, start_clear in [*((o, True) for o in release_openings(widest, grasp.spec.width)),
                                      (widest, False)]:
             after = self.scene([*objects, placed], map_points, exclude=grasp.obj, opening=opening)
             after_scene = after.for_grasp(object_name(placed, 0))
             if start_clear and not after_scene.valid(q_rel):
                 continue
+            tried.append((opening, after_scene, after))
             for T_back in (T_tcp @ trans(0.0, 0.0, -up), trans(0.0, 0.0, up) @ T_tcp):
                 r = self._line(after_scene, q_rel, T_back, "retreat", check_start=False)
                 if not isinstance(r, PlanningFailure):
@@ -808,6 +810,8 @@ class Planner:
                     r = CartesianPathFailed("retreat: ends within the collision margin",
                                             {"pairs": after.colliding_pairs(r[1]), "segment": "retreat"})
                 first = first or r
+        # Only where no opening has a one-leg retreat: a retreat that works in one leg is shorter and is kept.
+        for opening, after_scene, after in tried:
             r = self._two_leg_retreat(after_scene, after, q_rel, T_tcp, up)
             if r is not None:
                 return r, opening
