@@ -22,6 +22,7 @@ import numpy as np
 
 from kitchenbot.executive.config import DriversConfig, load_config
 from kitchenbot.executive.runner import run_task
+from kitchenbot.transforms import rotation_angle
 
 
 def main(task: str, seed: int, slip: float = 0.05) -> dict:
@@ -76,8 +77,7 @@ def describe(runner, motion: str | None, detail: str) -> dict:
             rec["in_hand"] = {"grasp": pick.grasp.spec.name, "width": round(float(pick.grasp.spec.width), 4),
                               "opening": round(float(w.gripper_opening), 4),
                               "err_cm": round(100 * float(np.linalg.norm(E[:3, 3])), 2),
-                              "rot_deg": round(float(np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2,
-                                                                                    -1, 1)))), 1)}
+                              "rot_deg": round(float(np.degrees(rotation_angle(E[:3, :3]))), 1)}
     for uid, so in w.objects.items():
         p = so.T_base_obj[:3, 3]
         near = [o for o in runner.belief.scene_objects() if o.obj_id == so.model.obj_id]
