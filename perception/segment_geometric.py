@@ -14,11 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from kitchenbot.perception.detect import Detection, box_of
+from kitchenbot.perception.ransac import segment_plane
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.surfaces import SurfaceMap
 from kitchenbot.perception.types import View
@@ -63,7 +63,7 @@ def foreground_mask(view: View, cell: Cell, cfg: GeometricSegmenterConfig, pts: 
 
 def measured_surfaces(pts: np.ndarray, cell: Cell, cfg: GeometricSegmenterConfig, band: float = 0.02) -> np.ndarray:
     """Pixels on (or behind) the basin's floor and walls as MEASURED: near each nominal surface a plane is fitted
-    (RANSAC) to the points, and what lies within the margin of it, or beyond it, is the sink. This keeps the
+    (RANSAC, perception/ransac.py) to the points, and what lies within the margin of it, or beyond it, is the sink. This keeps the
     removal right when the scan poses are a few millimetres / tenths of a degree off the nominal cell."""
     lo, hi = cell.sink_interior
     out = np.zeros(pts.shape[:2], bool)
@@ -80,10 +80,10 @@ def measured_surfaces(pts: np.ndarray, cell: Cell, cfg: GeometricSegmenterConfig
         Q = P[near]
         if len(Q) < 200:
             continue
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Q[:: max(1, len(Q) // 5000)].astype(np.float64)))
-        plane, inl = pc.segment_plane(distance_threshold=0.004, ransac_n=3, num_iterations=100)
-        n, d = np.asarray(plane[:3], float), float(plane[3])
-        if abs(n[axis]) < np.cos(np.radians(6)) or len(inl) < 0.3 * len(pc.points):
+        sub = Q[:: max(1, len(Q) // 5000)].astype(np.float64)
+        plane, inl = segment_plane(sub, 0.004, 100)
+        n, d = plane[:3], float(plane[3])
+        if abs(n[axis]) < np.cos(np.radians(6)) or len(inl) < 0.3 * len(sub):
             continue  # no clear plane here (the surface is hidden under items): keep the nominal removal only
         if np.sign(n[axis]) != sign:
             n, d = -n, -d
@@ -138,15 +138,14 @@ def components(pts: np.ndarray, fg: np.ndarray, link: float, max_gap: int = 10, 
 
 
 def plane_foreground(view: View, cfg: GeometricSegmenterConfig, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, float]:
-    """Without a known cell: pixels above the dominant plane (RANSAC, Open3D), and that plane's normal
+    """Without a known cell: pixels above the dominant plane (RANSAC, perception/ransac.py), and that plane's normal
     (base frame, towards the camera)."""
     ok = np.all(np.isfinite(pts), axis=2)
     P = pts[ok]
     if len(P) < 100:
         return np.zeros_like(ok), None, 0.0
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P[:: max(1, len(P) // 20000)]))
-    plane, _ = pc.segment_plane(distance_threshold=0.006, ransac_n=3, num_iterations=300)
-    n, d = np.asarray(plane[:3], float), float(plane[3])
+    plane, _ = segment_plane(P[:: max(1, len(P) // 20000)], 0.006, 300)
+    n, d = plane[:3], float(plane[3])
     if n @ view.T_base_cam[:3, 3] + d < 0:
         n, d = -n, -d
     with np.errstate(invalid="ignore"):
@@ -157,10 +156,10 @@ def plane_foreground(view: View, cfg: GeometricSegmenterConfig, pts: np.ndarray)
         Q = pts[fg]
         if len(Q) < 500:
             break
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Q[:: max(1, len(Q) // 20000)]))
-        pl, inl = pc.segment_plane(distance_threshold=0.006, ransac_n=3, num_iterations=200)
-        I = np.asarray(pc.points)[inl]
-        if len(inl) < 0.1 * len(pc.points) or np.linalg.norm(np.percentile(I, 95, 0) - np.percentile(I, 5, 0)) < 0.35:
+        sub = Q[:: max(1, len(Q) // 20000)].astype(np.float64)
+        pl, inl = segment_plane(sub, 0.006, 200)
+        I = sub[inl]
+        if len(inl) < 0.1 * len(sub) or np.linalg.norm(np.percentile(I, 95, 0) - np.percentile(I, 5, 0)) < 0.35:
             break
         with np.errstate(invalid="ignore"):
             fg &= ~(np.abs(pts @ np.asarray(pl[:3]) + pl[3]) < cfg.surface_margin + 0.002)

@@ -1,7 +1,7 @@
 """Support surfaces and walls found in the scan itself, so that perception needs no cell description.
 
-The views are fused (base frame, gravity = base z) and planes are taken out one by one with Open3D's RANSAC
-(`segment_plane`): horizontal ones (counter, basin floor, table top, shelf) are supports, vertical ones
+The views are fused (base frame, gravity = base z) and planes are taken out one by one with RANSAC
+(perception/ransac.py): horizontal ones (counter, basin floor, table top, shelf) are supports, vertical ones
 (splashback, basin sides, walls) are walls; tilted planes and small ones are left alone (a plate's flat
 centre is not structure). Each surface keeps its footprint, the 2 cm grid cells of its plane its inliers
 cover (closed, small holes such as a drain or the floor under a cup filled), so a plane removes only the
@@ -17,10 +17,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import open3d as o3d
 from scipy import ndimage
 
 from kitchenbot.perception.features import voxel_keys
+from kitchenbot.perception.ransac import segment_plane
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import View
 
@@ -281,9 +281,8 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
     cams = np.array([v.T_base_cam[:3, 3] for v in views]).mean(axis=0) if views else np.zeros(3)
     # 1 cm voxels, one point (and its camera) per voxel.
     _, first = np.unique(voxel_keys(P, cfg.voxel), return_index=True)
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P[first]))
     S = S[first]
-    V = np.asarray(pc.points)  # the whole fused cloud, 1 cm voxels
+    V = P[first]  # the whole fused cloud, 1 cm voxels
     rest = V.copy()
     surfaces: list[Surface] = []
     for _ in range(cfg.max_planes):
@@ -291,8 +290,7 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
             break
         # RANSAC on at most 4000 of the points (the plane is then refitted on all of them, below).
         sub = rest[:: max(1, len(rest) // 4000)]
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sub))
-        plane, _ = cloud.segment_plane(cfg.ransac_distance, 3, cfg.ransac_iterations)
+        plane, _ = segment_plane(sub, cfg.ransac_distance, cfg.ransac_iterations)
         n = np.asarray(plane[:3], float)
         n /= np.linalg.norm(n)
         inl = np.nonzero(np.abs(rest @ n + plane[3] / np.linalg.norm(plane[:3])) < cfg.ransac_distance)[0]
