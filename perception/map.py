@@ -15,6 +15,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from kitchenbot.perception.detect import Detection
+from kitchenbot.perception.ransac import one_thread
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import View
 from kitchenbot.transforms import pose_error
@@ -147,10 +148,11 @@ def _coarse_then_icp(src: o3d.geometry.PointCloud, dst: o3d.geometry.PointCloud,
     param = o3d.geometry.KDTreeSearchParamHybrid(radius=voxel * 5, max_nn=100)
     fs = reg.compute_fpfh_feature(src, param)
     fd = reg.compute_fpfh_feature(dst, param)
-    coarse = reg.registration_ransac_based_on_feature_matching(
-        src, dst, fs, fd, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
-        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
-        reg.RANSACConvergenceCriteria(20000, 0.999))
+    with one_thread():  # same answer every run (perception/ransac.py)
+        coarse = reg.registration_ransac_based_on_feature_matching(
+            src, dst, fs, fd, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
+            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+            reg.RANSACConvergenceCriteria(20000, 0.999))
     return reg.registration_icp(src, dst, 2 * voxel, coarse.transformation, reg.TransformationEstimationPointToPlane(),
                                 reg.ICPConvergenceCriteria(max_iteration=30))
 

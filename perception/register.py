@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 
 from kitchenbot.perception.database import NORMAL_WEIGHT, CadDatabase, ModelEntry
 from kitchenbot.perception.features import FusedCloud
+from kitchenbot.perception.ransac import one_thread
 from kitchenbot.perception.rgbd import project_pixels
 from kitchenbot.perception.types import View
 from kitchenbot.transforms import inv, make_T
@@ -451,13 +452,15 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
         dst = _pcd(entry.ref.points, entry.ref.normals)
         fq, fr = _feature(query.fused), _feature(entry.ref.fused)
         for run in range(cfg.ransac_runs):
-            # Seeded per call: Open3D's RANSAC draws from one global generator from several threads, so a
-            # seed set once per scan gave each call a timing-dependent stream (different poses, run to run).
+            # Seeded per call, and on one thread: Open3D's threads draw from one global generator in a
+            # timing-dependent order (perception/ransac.py), which gave different poses run to run.
             o3d.utility.random.seed(cfg.seed + run)
-            res = reg.registration_ransac_based_on_feature_matching(
-                src, dst, fq, fr, False, 1.5 * v, reg.TransformationEstimationPointToPoint(False), 3,
-                [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * v)],
-                reg.RANSACConvergenceCriteria(cfg.ransac_iterations, 0.999))
+            with one_thread():
+                res = reg.registration_ransac_based_on_feature_matching(
+                    src, dst, fq, fr, False, 1.5 * v, reg.TransformationEstimationPointToPoint(False), 3,
+                    [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                     reg.CorrespondenceCheckerBasedOnDistance(1.5 * v)],
+                    reg.RANSACConvergenceCriteria(cfg.ransac_iterations, 0.999))
             if res.fitness > 0:
                 starts.append(("ransac", inv(res.transformation), False))
     # (2) gravity priors: axis hypotheses (yaw 0) at each seed, then yaws around the best axes when yaw matters.
