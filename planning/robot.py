@@ -145,18 +145,11 @@ class RobotModel:
     # ---- inverse kinematics ----------------------------------------------------------------------------------
     def wrap_near(self, q: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
         """Each joint moved by multiples of 2*pi to the value closest to `ref` inside the limits (None if none)."""
-        q = np.asarray(q, float)
-        k0 = np.round((ref - q) / (2 * np.pi))
-        cand = q[None, :] + 2 * np.pi * (k0[None, :] + _TURNS[:, None])  # (5, 6)
-        ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)
-        if not np.all(ok.any(axis=0)):
-            return None
-        dist = np.where(ok, np.abs(cand - ref), np.inf)
-        out = cand[np.argmin(dist, axis=0), np.arange(6)]
-        return np.clip(out, self.lower, self.upper)
+        return self.wrap_near_rows(np.asarray(q, float)[None, :], ref)[0]
 
     def wrap_near_rows(self, Q: np.ndarray, ref: np.ndarray) -> list[np.ndarray | None]:
-        """wrap_near for each row of Q (N, 6) at once: the same values (the same elementwise operations)."""
+        """wrap_near for each row of Q (N, 6) at once: each joint moved by multiples of 2*pi to the value closest to
+        `ref` inside the limits; None for a row where some joint has no such value."""
         k0 = np.round((ref - Q) / (2 * np.pi))
         cand = Q[:, None, :] + 2 * np.pi * (k0[:, None, :] + _TURNS[None, :, None])  # (N, 5, 6)
         ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)

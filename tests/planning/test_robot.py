@@ -70,7 +70,8 @@ def test_unreachable_pose_has_no_ik(planner, home):
 
 
 def test_wrap_near_rows_is_wrap_near_row_by_row(planner):
-    """The batched wrap (ik_all, the release-pose cache) gives wrap_near's values exactly, None where it does."""
+    """The batched wrap (ik_all, the release-pose cache) gives wrap_near's values row by row (rows do not mix),
+    None where it does, and each value is q turned by whole turns into the limits, nearest `ref`."""
     robot = planner.robot
     rng = np.random.default_rng(3)
     Q = rng.uniform(-9.0, 9.0, size=(400, 6))  # outside the limits too: turned in by 2*pi
@@ -83,4 +84,12 @@ def test_wrap_near_rows_is_wrap_near_row_by_row(planner):
             if want is not None:
                 assert np.array_equal(got, want)
                 turned += not np.array_equal(got, q)
+                # what it means, checked on its own: whole turns away from q, inside the limits, nearest ref
+                k = (got - q) / (2 * np.pi)
+                assert np.allclose(k, np.round(k), atol=1e-9)
+                assert np.all(got >= robot.lower - 1e-9) and np.all(got <= robot.upper + 1e-9)
+                for d in (-2 * np.pi, 2 * np.pi):
+                    other = got + d
+                    inside = (other >= robot.lower - 1e-9) & (other <= robot.upper + 1e-9)
+                    assert np.all(np.abs(other - ref)[inside] >= np.abs(got - ref)[inside] - 1e-9)
         assert turned > 100
