@@ -15,6 +15,8 @@ never checked; toppra is also not installed and would be one more compiled depen
   Craig, *Introduction to Robotics*, ch. 7). A blend cuts its corner (by at most |dv| * b / 8 per joint), so
   the blended path is not the checked polyline: the caller must prove it free (``free``) and otherwise falls
   back to ``stop_at_vertices``. Start and end are at rest on the first / last segment's line (no corner cut).
+  For the TCP speed limit each segment is first slowed on its own (``segment_tcp_times``: a long reach swinging
+  the TCP fast does not slow the wrist's turn beside it); slowing the whole profile is the fallback.
 
 Every profile also keeps the TCP within ``SafetyLimits.max_tcp_speed`` (checked on the samples as the safety
 layer checks it): a stop-at-vertices segment whose TCP would run faster is slowed on its own (the same segment
@@ -54,6 +56,44 @@ def tcp_speed_ratio(limits: SafetyLimits, ur: URModel, times: np.ndarray, q: np.
 def _slowed_for_tcp(times: np.ndarray, q: np.ndarray, ratio: float) -> np.ndarray:
     """The same samples f = ratio times slower (velocities / f, accelerations / f^2) when the TCP is too fast."""
     return times * (ratio * TCP_HEADROOM) if ratio > 1.0 else times
+
+
+def tcp_warped(times: np.ndarray, q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, limits: SafetyLimits,
+               ur: URModel) -> np.ndarray:
+    """New times for the same samples `q`, slowed only where the TCP runs faster than its limit: each sample
+    interval k lasts h_k / r_k with a rate r_k <= 1 (a time warp; the path, and the polyline through the samples,
+    stay as they are). r_k <= the TCP's own cap on that interval; between neighbouring intervals r changes no
+    faster than the acceleration the profile leaves free there: at a sample with acceleration A the velocity
+    v r changes by A H r + v dr (H the mean interval), within amax H where |dr| <= H (amax - |A|) / |v| (each
+    joint; the intervals only lengthen, so H grows and this is sufficient). The rate is limited forward (speeding up)
+    and backward (slowing down in time for a cap), the classic two passes of a time-optimal parameterisation
+    (planning/path_speed.py), here as running minima. A stretch where the profile already uses all the
+    acceleration (a blend) keeps its rate. Against slowing the whole motion by its peak TCP speed
+    (``_slowed_for_tcp``), only the fast stretches (a long reach, a base turn) pay."""
+    times = np.asarray(times, float)
+    q = np.asarray(q, float)
+    h = np.diff(times)  # (m,)
+    if len(q) < 3:
+        return times
+    p = (fk_flange_batch(ur, q) @ np.asarray(limits.T_flange_tcp, float)[:, 3])[:, :3]
+    v = np.diff(q, axis=0) / h[:, None]  # (m, 6)
+    vp = np.linalg.norm(np.diff(p, axis=0), axis=1) / h
+    cap = np.minimum(1.0, limits.max_tcp_speed / TCP_HEADROOM / np.maximum(vp, 1e-12))
+    H = (h[1:] + h[:-1]) / 2.0  # (m-1,) at the inner samples
+    A = np.abs(np.diff(v, axis=0)) / H[:, None]
+    room = np.maximum(amax - A, 0.0) * H[:, None]  # (m-1, 6)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        up = np.min(np.where(np.abs(v[1:]) > 1e-9, room / np.abs(v[1:]), np.inf), axis=1)  # r_i - r_{i-1} <= up
+        down = np.min(np.where(np.abs(v[:-1]) > 1e-9, room / np.abs(v[:-1]), np.inf), axis=1)  # r_{i-1} - r_i <= down
+    up, down = np.minimum(up, 1.0), np.minimum(down, 1.0)
+    # forward: r_i = min(cap_i, r_{i-1} + up_i) = S_i + min_{j<=i}(cap_j - S_j), S the running sum of up
+    S = np.r_[0.0, np.cumsum(up)]
+    r = S + np.minimum.accumulate(cap - S)
+    # backward: r_{i-1} = min(r_{i-1}, r_i + down_i) = min_{j>=i}(r_j + R_j) - R_i, R the running sum of down
+    R = np.r_[0.0, np.cumsum(down)]
+    r = np.minimum.accumulate((r + R)[::-1])[::-1] - R
+    r = np.clip(r, 1e-6, 1.0)
+    return np.r_[0.0, np.cumsum(h / r)]
 
 
 def _trapezoid_s(T: float, v: float, a: float, t: np.ndarray) -> np.ndarray:
@@ -124,11 +164,15 @@ def stop_at_vertices(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: floa
     return np.asarray(times), np.asarray(qs)
 
 
-def _blend_schedule(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, max_rounds: int = 60):
+def _blend_schedule(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, max_rounds: int = 60,
+                    min_T: np.ndarray | None = None):
     """Segment durations T (knot to knot), segment velocities V and blend durations B (one per vertex, the ends
-    included) such that every joint stays within vmax / amax and neighbouring blends do not overlap."""
+    included) such that every joint stays within vmax / amax and neighbouring blends do not overlap.
+    `min_T` (n,): a least duration per segment (the TCP speed limit on that segment)."""
     D = np.diff(Q, axis=0)  # (n, 6)
     T = np.max(np.abs(D) / vmax, axis=1)  # fastest: the slowest joint at full speed
+    if min_T is not None:
+        T = np.maximum(T, min_T)
     T = np.maximum(T, 1e-3)
     for _ in range(max_rounds):
         V = D / T[:, None]
@@ -141,15 +185,33 @@ def _blend_schedule(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, max_round
     raise LimitViolation("blended profile: the blends could not be separated")
 
 
-def blended(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
+def segment_tcp_times(Q: np.ndarray, limits: SafetyLimits, ur: URModel, step: float = 0.02) -> np.ndarray:
+    """Per segment of the joint polyline Q, the least duration at constant joint velocity that keeps the TCP
+    within ``limits.max_tcp_speed`` (its largest speed along the segment, sampled every `step` rad of the
+    largest joint change)."""
+    Q = np.asarray(Q, float)
+    T_ft = np.asarray(limits.T_flange_tcp, float)[:, 3]
+    out = np.zeros(len(Q) - 1)
+    for k, (a, b) in enumerate(zip(Q[:-1], Q[1:])):
+        m = max(4, int(np.ceil(np.max(np.abs(b - a)) / step)))
+        s = np.linspace(0.0, 1.0, m + 1)[:, None]
+        P = (fk_flange_batch(ur, a + s * (b - a)) @ T_ft)[:, :3]
+        out[k] = float(np.max(np.linalg.norm(np.diff(P, axis=0), axis=1))) * m / limits.max_tcp_speed
+    return out
+
+
+def blended(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: float = DT,
+            segment_times=None) -> tuple[np.ndarray, np.ndarray]:
     """Through the vertices of Q without stopping: constant-velocity segments joined by parabolic blends of
-    bounded acceleration, at rest at both ends. Returns (times, q), uniform in time (``dt``)."""
+    bounded acceleration, at rest at both ends. Returns (times, q), uniform in time (``dt``).
+    `segment_times(Q) -> (n,)`: least durations of the segments of the (deduplicated) polyline, e.g. for the TCP
+    speed limit (``segment_tcp_times``): each segment slowed only as much as it needs itself."""
     Q = np.asarray(Q, float)
     keep = np.r_[True, np.any(np.abs(np.diff(Q, axis=0)) > 1e-12, axis=1)]
     Q = Q[keep]
     if len(Q) < 3:
         return stop_at_vertices(Q if len(Q) > 1 else np.vstack([Q, Q]), vmax, amax, dt)
-    T, V, B = _blend_schedule(Q, vmax, amax)
+    T, V, B = _blend_schedule(Q, vmax, amax, min_T=None if segment_times is None else segment_times(Q))
     knots = np.r_[0.0, np.cumsum(T)]  # when the straight lines pass the vertices
     t_end = knots[-1] + B[-1] / 2
     t0 = -B[0] / 2
@@ -237,20 +299,36 @@ def time_parameterise(
         return tcp_speed_ratio(limits, ur, times, q)
 
     def tcp_slowed(times: np.ndarray, q: np.ndarray) -> np.ndarray:
-        # a smooth profile (one trapezoid, or blends) is slowed as a whole where the TCP runs too fast
-        return _slowed_for_tcp(times, q, ratio(times, q))
+        # a smooth profile (one trapezoid, or blends) slowed where the TCP runs too fast: only there (the time
+        # warp) where that stays within the limits, else as a whole
+        f = ratio(times, q)
+        if f <= 1.0:
+            return times
+        whole = _slowed_for_tcp(times, q, f)
+        warped = tcp_warped(times, q, vmax, amax, limits, ur)
+        if warped[-1] < whole[-1] and within(warped, q, vmax, amax) and ratio(warped, q) <= 1.0:
+            return warped
+        return whole
 
     if mode == "blended":
         if free is None:
             raise ValueError("time_parameterise(mode='blended'): needs free=, the collision check of the blended path")
-        try:
-            times, q = blended(Q, vmax, amax, dt)
-            times = tcp_slowed(times, q)
-            limits.check_trajectory(ur, times, q)
+        # Two candidates, the faster first: each segment slowed for the TCP only as much as it needs itself (a
+        # long reach slows only its own segments; the blends between them are then checked on the samples and,
+        # where they still run too fast, the whole slowed by what is left), and the whole profile slowed as one.
+        # The collision proof is asked for the candidate returned (its blends cut the corners differently).
+        found = []
+        for seg in (lambda P: segment_tcp_times(P, limits, ur), None):
+            try:
+                times, q = blended(Q, vmax, amax, dt, segment_times=seg)
+                times = tcp_slowed(times, q)
+                limits.check_trajectory(ur, times, q)
+                found.append((times, q))
+            except LimitViolation:
+                pass
+        for times, q in sorted(found, key=lambda c: c[0][-1]):
             if free(q):
                 return Trajectory(times, q, name)
-        except LimitViolation:
-            pass
         mode = "stop_at_vertices"
     if mode == "along_path":
         # Two candidates, the faster kept: the path speed free to vary along the path (planning/path_speed.py:
@@ -285,6 +363,16 @@ def time_parameterise(
             mode, slow = "stop_at_vertices", 1.0
         if mode == "stop_at_vertices":
             times, q = stop_at_vertices(Q, vmax / slow, amax / slow**2, dt, tcp_ratio=ratio)
+            if attempt == 0:
+                # beside each segment slowed as a whole for the TCP: the time warp that slows only where it runs fast
+                t_raw, q_raw = stop_at_vertices(Q, vmax, amax, dt)
+                t_w = tcp_slowed(t_raw, q_raw)
+                if t_w[-1] < times[-1]:
+                    try:
+                        limits.check_trajectory(ur, t_w, q_raw)
+                        return Trajectory(t_w, q_raw, name)
+                    except LimitViolation:
+                        pass
         else:
             times, q = along_path(Q, vmax / slow, amax / slow**2, dt)
             times = tcp_slowed(times, q)

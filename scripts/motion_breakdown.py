@@ -32,6 +32,7 @@ def main() -> None:
     ap.add_argument("seed", type=int)
     ap.add_argument("--objects", type=int, default=None)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--oracle", action="store_true", help="oracle perception (motion without perception's variance)")
     a = ap.parse_args()
     from kitchenbot.executive.config import DriversConfig, load_config
     from kitchenbot.executive.runner import run_task
@@ -43,8 +44,16 @@ def main() -> None:
     sim, n = Counter(), Counter()
     moves, n_moves = Counter(), Counter()  # planned joint moves ("trajectory move") by what they were for
 
+    trajs: list = []  # every trajectory run: (name, times, q), for offline analysis (--json F: F + ".trajs.pkl")
+
     def hook(runner) -> None:
         clock = runner._sim_now
+        run = runner._run_trajectory
+
+        def recorded(traj, *args, **kwargs):
+            trajs.append((traj.name, traj.times, traj.q, bool(kwargs.get("carrying", args[0] if args else False))))
+            return run(traj, *args, **kwargs)
+        runner._run_trajectory = recorded
         runner._run_trajectory = _timed(sim, n, lambda traj, *a, **k: f"trajectory {traj.name}",
                                         runner._run_trajectory, clock)
         runner._move_joints = _timed(moves, n_moves, lambda q, what, *a, **k: what.split(" (")[0].rstrip("0123456789 "),
@@ -55,7 +64,8 @@ def main() -> None:
         cam = runner.robot.camera
         cam.capture = _timed(sim, n, lambda *a, **k: "camera frames", cam.capture, clock)
 
-    rep = run_task(cfg, a.task, a.seed, progress=False, journal_path=False, runner_hook=hook)
+    rep = run_task(cfg, a.task, a.seed, progress=False, journal_path=False, runner_hook=hook,
+                   oracle_perception=a.oracle)
     placed = rep.truth["end"]["delivered"]
     total = rep.sim_time_s or 0.0
     print(f"{a.task} {a.seed}: {rep.status}, placed {placed}/{rep.truth['start']['in_sink']}, collisions "
@@ -72,10 +82,15 @@ def main() -> None:
     print("compute CPU s by stage: " + ", ".join(f"{k} {v:.1f}" for k, v in
                                                  sorted(rep.compute_cpu_by_stage_s.items(), key=lambda x: -x[1])))
     if a.json:
+        import pickle
+
+        with open(a.json + ".trajs.pkl", "wb") as f:
+            pickle.dump(trajs, f)
         with open(a.json, "w") as f:
             json.dump({"placed": placed, "sim_s": total, "by_kind_s": dict(sim), "counts": dict(n), "joint_moves_s": dict(moves),
                        "state_sim_s": rep.state_sim_time_s, "compute_cpu_by_stage_s": rep.compute_cpu_by_stage_s,
-                       "cycles": rep.cycles, "collisions": rep.collisions}, f, indent=1, default=str)
+                       "cycles": rep.cycles, "collisions": rep.collisions,
+                       "compute_cpu_s": rep.compute_cpu_time_s}, f, indent=1, default=str)
 
 
 if __name__ == "__main__":

@@ -276,3 +276,64 @@ def test_a_two_leg_line_is_timed_through_its_corner_without_stopping_at_every_sa
         assert np.min(np.linalg.norm(Q[:-1] + f[:, None] * D - x, axis=1)) < 1e-9
     np.testing.assert_allclose(q[0], Q[0])
     np.testing.assert_allclose(q[-1], Q[-1])
+
+
+def test_blended_timing_slows_for_the_tcp_only_the_segments_that_swing_it_fast(planner, home):
+    """A base turn (the TCP far from the axis: held by the TCP speed limit) then a wrist turn (the TCP hardly
+    moves): the blended profile slows the base turn's segment for the TCP, not the wrist's, so the whole is
+    faster than one profile slowed as a whole, within every limit, the TCP's included."""
+    from kitchenbot.planning.timing import blended, segment_tcp_times, tcp_speed_ratio
+
+    lim, ur = planner.limits, planner.robot.ur
+    vmax, amax = lim.max_joint_speed, lim.max_joint_accel
+    reach = home + np.array([0.0, 0.5, -0.8, 0.0, 0.0, 0.0])  # the arm stretched out
+    turn = reach + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0])
+    mid = turn + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.5])
+    Q = np.vstack([reach, turn, mid, mid + np.array([0.0, 0.0, 0.0, 0.0, 0.3, 1.5])])
+    t_raw, q_raw = blended(Q, vmax, amax)
+    whole = tcp_speed_ratio(lim, ur, t_raw, q_raw)
+    assert whole > 1.5  # the base turn at full joint speed swings the TCP too fast
+    seg = segment_tcp_times(Q, lim, ur)
+    assert seg[0] > 1.5 * np.max(np.abs(Q[1] - Q[0]) / vmax)  # held by the TCP
+    assert seg[1] < np.max(np.abs(Q[2] - Q[1]) / vmax)  # the wrist's turn: by its joint
+    traj = time_parameterise(Q, lim, ur, mode="blended", free=lambda q: True)
+    lim.check_trajectory(ur, traj.times, traj.q)
+    assert tcp_speed_ratio(lim, ur, traj.times, traj.q) <= 1.02
+    np.testing.assert_allclose(traj.q[-1], Q[-1])
+    assert traj.duration < 0.75 * t_raw[-1] * whole  # faster than the whole slowed by the base turn's ratio
+    # the wrist's segments keep their joint-limited pace: some joint runs at (nearly) its full speed there
+    vel = np.abs(np.diff(traj.q, axis=0)) / np.diff(traj.times)[:, None]
+    assert np.max(vel[:, 5]) > 0.95 * vmax[5]
+
+
+def test_the_tcp_limit_slows_a_motion_only_where_the_tcp_runs_fast(planner, home):
+    """One joint segment from the arm folded (the TCP near the base axis: slow) to stretched out while the base
+    turns (the TCP far out: too fast at the joints' full speed). The time warp slows the stretched end only:
+    the same samples (so the same checked path), later times, within every limit, the TCP's included, and
+    faster than the segment slowed as a whole by its peak TCP speed."""
+    from kitchenbot.planning.timing import stop_at_vertices, tcp_speed_ratio, tcp_warped, within
+
+    lim, ur = planner.limits, planner.robot.ur
+    vmax, amax = lim.max_joint_speed, lim.max_joint_accel
+    folded = home + np.array([0.0, -0.3, 1.0, 0.0, 0.0, 0.0])
+    stretched = home + np.array([1.5, 0.5, -0.8, 0.0, 0.0, 0.0])
+    Q = np.vstack([folded, stretched])
+
+    def ratio(t, q):
+        return tcp_speed_ratio(lim, ur, t, q)
+
+    t_raw, q_raw = stop_at_vertices(Q, vmax, amax)
+    assert ratio(t_raw, q_raw) > 1.3  # too fast at the joints' full speed
+    t_whole, q_whole = stop_at_vertices(Q, vmax, amax, tcp_ratio=ratio)  # the segment slowed as a whole
+    t_w = tcp_warped(t_raw, q_raw, vmax, amax, lim, ur)
+    assert ratio(t_w, q_raw) <= 1.0
+    assert within(t_w, q_raw, vmax, amax)
+    lim.check_trajectory(ur, t_w, q_raw)
+    assert t_w[-1] < 0.92 * t_whole[-1]
+    # slowed more where it runs fast: the stretched end more than the folded start (not uniformly), never sped up
+    slowed = np.diff(t_w) / np.diff(t_raw)
+    assert slowed[0] < 0.85 * slowed[-1]
+    assert np.all(slowed >= 1.0 - 1e-12)
+    traj = time_parameterise(Q, lim, ur, mode="stop_at_vertices")
+    np.testing.assert_array_equal(traj.q, q_raw)
+    assert traj.duration == pytest.approx(t_w[-1])
