@@ -1,4 +1,6 @@
-"""Where one simulated run's time goes: `python scripts/motion_breakdown.py TASK SEED [--objects N] [--json F]`.
+"""Where one simulated run's time goes: `python scripts/motion_breakdown.py TASK SEED [--objects N] [--oracle]
+[--json F]` (`--oracle`: oracle perception, motion without perception's variance; with `--json F` every trajectory
+run is also pickled to F + ".trajs.pkl" as (name, times, q, carrying) for offline analysis).
 
 Runs ``run_task`` (the path `kitchenbot run --sim` takes, fake drivers) and sums the simulated seconds spent in each
 kind of motion (the runner's trajectories by their planner name: approach, grasp_in, lift, transfer, lower,
