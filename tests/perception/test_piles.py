@@ -103,3 +103,50 @@ def test_mug_lying_on_two_mugs_keeps_its_handle_side():
     top = max((o for o in world.objects.values() if o.model.cls == "mug"), key=lambda o: o.T_base_obj[2, 3])
     d, a = _errors(_nearest(poses, MUG, top.T_base_obj).T_base_obj, top.T_base_obj)
     assert d < 5 and a < 5, f"top mug: {d:.1f} mm, axis {a:.1f} deg"
+
+
+def _axes_pose(z, x, centre) -> np.ndarray:
+    """Pose with object z along `z`, object x along `x` made orthogonal to it, origin at `centre`."""
+    z = np.asarray(z, float) / np.linalg.norm(z)
+    x = np.asarray(x, float) - (np.asarray(x, float) @ z) * z
+    x /= np.linalg.norm(x)
+    return make_T(np.column_stack([x, np.cross(z, x), z]), centre)
+
+
+def test_a_pile_on_a_table_is_explained_item_by_item(perceiver, inventory, cell):
+    """A development table scene rebuilt by hand: three bowls (one upright, one lying against it, one upside
+    down), a side plate on a dinner plate, a cup, three glasses and two boxes on a board over the sink, all
+    touching: one segment of ~120 k points. A right pose of one bowl explains under 20 % of that segment, so it
+    was refused (`or_query < 0.2`) and the segment cut into 7 cm regions, which cut the items too: the side
+    plate, a bowl and two glasses were lost. The share is now taken over the points within the model's reach,
+    and what each pose leaves is fitted again."""
+    import open3d as o3d
+
+    items = [(1, _axes_pose([0.002, 0.008, 1], [-0.777, 0.629, -0.003], [0.563, 0.009, 0.016])),
+             (2, _axes_pose([0.256, 0.018, 0.967], [-0.171, 0.985, 0.027], [0.484, 0.009, 0.031])),
+             (3, _axes_pose([0.398, 0.265, -0.878], [-0.149, -0.926, -0.347], [0.35, -0.049, 0.07])),
+             (3, _axes_pose([-0.21, 0.914, 0.348], [0.851, -0.004, 0.525], [0.339, 0.068, 0.066])),
+             (3, _axes_pose([0.205, 0.043, 0.978], [0.832, 0.519, -0.197], [0.384, 0.008, 0.151])),
+             (4, _axes_pose([-0.097, -0.242, -0.965], [-0.808, 0.586, -0.065], [0.525, -0.034, 0.074])),
+             (6, _axes_pose([-0.196, 0.114, -0.974], [0.097, -0.986, -0.135], [0.556, 0.111, 0.091])),
+             (6, _axes_pose([0.726, -0.473, -0.5], [0.687, 0.529, 0.498], [0.502, 0.147, 0.165])),
+             (6, _axes_pose([0.093, -0.081, 0.992], [-0.524, 0.844, 0.118], [0.701, -0.019, 0.093]))]
+    extra = []
+    for size, T, colour in (((0.156, 0.04, 0.195), _axes_pose([0.751, -0.659, 0.04], [0.638, 0.74, 0.211],
+                                                              [0.594, -0.029, 0.163]), (0.9, 0.8, 0.1)),
+                            ((0.106, 0.055, 0.182), _axes_pose([0.635, 0.746, 0.203], [-0.757, 0.653, -0.031],
+                                                               [0.594, -0.004, 0.216]), (0.8, 0.1, 0.1)),
+                            ((0.7, 0.6, 0.02), make_T(np.eye(3), [0.5, 0.0, -0.01]), (0.6, 0.4, 0.25))):
+        box = o3d.geometry.TriangleMesh.create_box(*size)
+        box.translate(-np.asarray(size) / 2)
+        box.transform(T)
+        box.compute_vertex_normals()
+        extra.append((box, colour))
+    views, _ = render(inventory, items, scan_poses(cell, height=0.70), cell, noise=0.002, extra=extra)
+    poses = perceiver.perceive(views).poses
+    from kitchenbot.perception.metrics import adi
+    for k in (1, 2, 3, 4, 6, 7):  # the side plate, the three bowls, the two glasses that are well seen
+        oid, T = items[k]
+        errs = [adi(p.T_base_obj, T, inventory[oid].points) for p in poses if p.obj_id == oid]
+        assert errs and min(errs) < 0.1 * inventory[oid].diameter, (k, inventory[oid].name, [
+            (p.cls, np.round(p.T_base_obj[:3, 3], 3)) for p in poses])
