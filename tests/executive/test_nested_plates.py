@@ -4,7 +4,10 @@ grip-width check lets it go (executive/execution.py). The recovery then avoids e
 round item, not only the one tried (executive/recovery.py, ``_missed_alike``); before, the next plans were the
 same pinch turned 30-90 degrees and the item's attempts ran out on it. And once the upper plate is taken, the
 one seen there now starts with no attempts (``Belief.record_taken``): before, it inherited the pair's and was
-left. Oracle perception with the lower plate left out: the executive's mechanism is under test."""
+left. Oracle perception with the lower plate left out while the upper lies on it: the executive's mechanism is
+under test. (In the simulator, a later pinch of another kind on the pair closes within the planned width and
+holds the lower plate, as fakes/gripper.py models a pinch across two items; what a real pair does then is not
+tested here.)"""
 
 from __future__ import annotations
 
@@ -50,7 +53,8 @@ def nested(small_config, tmp_path):
 
     def one_plate(views):  # the lower plate is under the upper one: seen as one plate while both are there
         r = perceive(views)
-        if upper in world.objects and world.held_uid != upper:
+        T_u, T_l = world.objects[upper].T_base_obj, world.objects[lower].T_base_obj
+        if world.held_uid != upper and np.linalg.norm(T_u[:2, 3] - T_l[:2, 3]) < 0.03:
             r.poses = [p for p in r.poses if p.instance_id != lower]
         return r
 
@@ -115,9 +119,20 @@ def test_the_item_under_one_taken_does_not_inherit_its_attempts():
     assert b.exhausted(beside)  # another item's attempts stay
 
 
-def test_both_nested_plates_are_delivered(nested):
-    """The whole run: the pair's rim pinches are let go, another kind takes a plate, and the one left is picked
-    with attempts of its own (before: 0 of 2 delivered, three rim pinches let go)."""
+def test_a_verified_placement_leaves_the_plate_under_it_with_attempts_of_its_own(nested):
+    """The upper plate's attempts used up on the pair (three rim pinches let go), then it is taken and its placement
+    verified: the lower plate, seen there now, is a candidate with attempts of its own (before: exhausted, left)."""
     runner, world, lower, upper = nested
-    rep = runner.run()
-    assert rep.truth["end"]["delivered"] == 2 and rep.collisions == 0
+    assert [runner._do_scan(), runner._do_perceive(), runner._do_select_grasp()] == ["scanned", "perceived",
+                                                                                    "selected"]
+    obj, tgt = runner.item.obj, runner.item.targets[0]
+    assert obj.instance_id == upper
+    for _ in range(3):
+        runner.belief.record_attempt(obj)
+    assert runner.belief.exhausted(obj)
+    world.set_pose(upper, np.array(tgt.T_base_obj, float))  # taken to its drop-zone spot
+    runner._expect_placed(tgt, np.array(tgt.T_base_obj, float), staging=False)
+    runner._perceive()  # verifies the placement; the lower plate is seen where the pair was
+    seen = [p for p in runner.belief.poses if p.instance_id == lower]
+    assert len(seen) == 1 and not runner.belief.exhausted(seen[0])
+    assert runner.report.objects_done == 1
