@@ -253,8 +253,7 @@ class Belief:
         on what is seen there now (the plate it was nested on, which it hid: seen as one plate, the grasps that
         failed on the pair and the attempts they used are not that plate's)."""
         t = self.attempts_for(obj)
-        if t is not None:
-            self.attempts.remove(t)
+        self.attempts = [a for a in self.attempts if a is not t]  # by identity: == compares their position arrays
 
     def give_up_on(self, obj: ObjectPose, reason: str | None = None) -> None:
         """No attempts left for `obj` (e.g. its task has no target for it)."""

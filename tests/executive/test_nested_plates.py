@@ -109,9 +109,9 @@ def _plate_at(xyz) -> ObjectPose:
 def test_the_item_under_one_taken_does_not_inherit_its_attempts():
     b = Belief()
     top, beside = _plate_at((0.45, 0.0, -0.16)), _plate_at((0.45, 0.2, -0.16))
-    for _ in range(3):
-        b.record_attempt(top)
+    for _ in range(3):  # another item's record first: the one taken is found among others
         b.record_attempt(beside)
+        b.record_attempt(top)
     under = _plate_at((0.451, 0.001, -0.168))  # what is seen there once the top one is gone
     assert b.exhausted(under)
     b.record_taken(top)
