@@ -248,6 +248,13 @@ class Belief:
         if grasp not in t.missed:
             t.missed.append(grasp)
 
+    def record_taken(self, obj: ObjectPose) -> None:
+        """`obj` was taken from where it lay (its placement verified): the attempts recorded there were on it, not
+        on what is seen there now (the plate it was nested on, which it hid: seen as one plate, the grasps that
+        failed on the pair and the attempts they used are not that plate's)."""
+        t = self.attempts_for(obj)
+        self.attempts = [a for a in self.attempts if a is not t]  # by identity: == compares their position arrays
+
     def give_up_on(self, obj: ObjectPose, reason: str | None = None) -> None:
         """No attempts left for `obj` (e.g. its task has no target for it)."""
         t = self.attempts_for(obj, create=True)

@@ -77,7 +77,25 @@ class RecoveryActions:
         elif f.state in ("execute", "verify"):  # counted when executed
             self.belief.record_failure(obj, f.kind)
             if f.kind == "grasp_missed" and self.item.pick is not None:
-                self.belief.record_missed_grasp(obj, self.item.pick.grasp.spec.name)
+                for name in self._missed_alike(f, obj, self.item.pick.grasp.spec.name):
+                    self.belief.record_missed_grasp(obj, name)
+
+    def _missed_alike(self, f: Failure, obj: ObjectPose, name: str) -> list[str]:
+        """The grasp `name` that missed, and, where its grip closed off its planned width (``expected`` in the
+        failure: it took in something besides the item's wall) on a round item, every grasp of its kind: the same
+        pinch turned about the item's axis (``kind_NN``) meets the same thing there. A plate nested on another is
+        seen as one plate; each rim pinch then closes across both rims, wherever around the plate it is tried,
+        and the item's attempts ran out on the one kind while other kinds (a shallower bite) take the top plate
+        alone."""
+        if "expected" not in f.details:
+            return [name]
+        inv = self.planner.inventory if self.planner is not None else self.robot.inventory
+        model = inv.models.get(obj.obj_id)
+        base = name.split("_tilt")[0]
+        if model is None or not model.is_rotationally_symmetric or "_" not in base:
+            return [name]
+        kind = base.rsplit("_", 1)[0]
+        return [name] + [g.name for g in model.grasps if g.name != name and g.name.rsplit("_", 1)[0] == kind]
 
     def _act_back_off(self, f: Failure, ctx: dict) -> None:
         tr = self.tracks

@@ -345,6 +345,7 @@ class Verification:
         if p.staged is not None:  # it left its staging spot
             b.unplace(p.staged)
         placed = b.record_placed(self.task, p.obj, p.target, T_settled)
+        b.record_taken(p.obj)
         b.scene_changed()
         if p.staging:
             b.record_staged(placed)  # a new item on that spot: the attempts of one staged there before are not its
