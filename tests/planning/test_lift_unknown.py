@@ -56,3 +56,19 @@ def test_a_cup_under_an_unrecognised_plate_is_lifted_out_of_its_way(run_pick_on_
     P_lift = np.array([planner.robot.fk_tcp(q)[:3, 3] for q in pick.lift.q])
     assert P_lift[-1, 0] < P_lift[0, 0] - 0.02  # away from the plate (it lies towards +x)
     run_pick_on_fake_arm(cfg, world, pick)
+
+
+def test_a_failed_pick_says_what_failed_for_each_grasp_it_tried(planner, home, resting):
+    """details["candidates"]: one line per grasp tried, naming the grasp, the failure and its segment (what the
+    journal keeps of a pick that failed: which straight segment failed, and on what)."""
+    from kitchenbot.perception.types import ObjectPose
+
+    plate = resting("side_plate", (0.45, 0.0), 7)
+    cup_m = planner.inventory.by_name("cup")
+    z = plate.T_base_obj[2, 3] + planner.inventory[plate.obj_id].extents[2] / 2 + cup_m.extents[2] / 2 - 0.015
+    cup = ObjectPose(cup_m.obj_id, cup_m.cls, make_T(t=(0.45, 0.0, z)), 1.0, instance_id=9)  # in the plate's well
+    res = planner.plan_pick(home, [plate, cup], target=plate)
+    assert res.kind == "cartesian_path_failed", res
+    lines = res.details["candidates"]
+    assert len(lines) == res.details["candidates_tried"] >= 1
+    assert all(": cartesian_path_failed: lift: " in s for s in lines) and "held/obj:9" in lines[0], lines
