@@ -372,6 +372,7 @@ class Planner:
         last: PlanningFailure | None = None
         tried = 0
         hit: dict[str, int] = {}  # object name -> lift failures it took part in
+        why: list[str] = []  # per candidate tried: "grasp: kind: segment: what failed" (the failure's details["candidates"])
         for g in grasps[: self.settings.max_grasp_candidates]:
             tried += 1
             res = self._plan_pick_with(q0, g, objects, map_points, base_scene, timings)
@@ -381,11 +382,13 @@ class Planner:
                 return res
             for n in res.details.pop("lift_objects", ()):
                 hit[n] = hit.get(n, 0) + 1
+            why.append(f"{g.spec.name}: {res.kind}: {res.message}")
             last = res
             if res.details.pop("held_blocked", False):
                 break  # the held item itself cannot be lifted out in any direction: no other grasp changes that
         assert last is not None
         last.details["candidates_tried"] = tried
+        last.details["candidates"] = why
         if hit and target is not None:
             names = {object_name(o, k): o for k, o in enumerate(objects)}
             hit_objs = [names[n] for n in sorted(hit, key=lambda n: -hit[n]) if n in names]
