@@ -46,24 +46,29 @@ def base_directions(sink_lo_hi, p: np.ndarray, T_base_obj: np.ndarray | None = N
     return out
 
 
-def _away_angle(centre: np.ndarray, objects, names: set[str]) -> float | None:
-    """Heading (rad, base frame) away from the named perceived objects' centres, or None."""
+def _away_angle(centre: np.ndarray, objects, names: set[str], unknown=()) -> float | None:
+    """Heading (rad, base frame) away from the named perceived objects' centres and from the centroid of
+    `unknown` (base-frame points: map voxels no perceived object explains that the lifts ran into; they count as
+    one more object), or None."""
     away = np.zeros(2)
-    for k, o in enumerate(objects):
-        if object_name(o, k) in names:
-            v = centre[:2] - np.asarray(o.T_base_obj, float)[:2, 3]
-            if np.linalg.norm(v) > 1e-3:
-                away += v / np.linalg.norm(v)
+    centres = [np.asarray(o.T_base_obj, float)[:2, 3] for k, o in enumerate(objects) if object_name(o, k) in names]
+    unknown = np.asarray(unknown, float).reshape(-1, 3)
+    if len(unknown):
+        centres.append(unknown[:, :2].mean(axis=0))
+    for c in centres:
+        v = centre[:2] - c
+        if np.linalg.norm(v) > 1e-3:
+            away += v / np.linalg.norm(v)
     if np.linalg.norm(away) < 1e-6:
         return None
     return float(np.arctan2(away[1], away[0]))
 
 
 def directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.ndarray],
-                    tilts=(30.0, 45.0), turns=(0.0, 40.0, -40.0)) -> list[np.ndarray]:
-    """Unit lift directions tilted away (horizontally) from the named perceived objects' centres, not within
-    10 degrees of one in `have`."""
-    a0 = _away_angle(centre, objects, names)
+                    tilts=(30.0, 45.0), turns=(0.0, 40.0, -40.0), unknown=()) -> list[np.ndarray]:
+    """Unit lift directions tilted away (horizontally) from the named perceived objects' centres (and the
+    `unknown` points', see _away_angle), not within 10 degrees of one in `have`."""
+    a0 = _away_angle(centre, objects, names, unknown)
     if a0 is None:
         return []
     out: list[np.ndarray] = []
@@ -77,17 +82,21 @@ def directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.
 
 
 def lift_fallbacks(sink_lo_hi, T_base_obj: np.ndarray, objects, ran_into: set[str], *,
-                   near_wall: bool) -> Iterator[tuple[np.ndarray, bool]]:
+                   near_wall: bool, ran_into_unknown: set | None = None) -> Iterator[tuple[np.ndarray, bool]]:
     """(direction, along) for the lift of the item at T_base_obj, in the order to try them. `ran_into` is the
     caller's set of perceived objects the lifts tried so far ran into: read when the base directions are used up
-    (a cup under the rim of a glass leaning over it slips out from under it, tilted away from the glass)."""
+    (a cup under the rim of a glass leaning over it slips out from under it, tilted away from the glass).
+    `ran_into_unknown`: the caller's set of map voxels (base-frame points) no perceived object explains that those
+    lifts ran into (an item perception did not recognise, leaning on this one): read likewise, they count as one
+    more item to tilt away from."""
     centre = np.asarray(T_base_obj, float)[:3, 3]
     base = base_directions(sink_lo_hi, centre, T_base_obj, away_from_walls=near_wall)
     tilted = tilted_axis(T_base_obj) is not None
     for k, d in enumerate(base):
         yield d, k == 0 or (k == 1 and tilted)
-    if ran_into:
-        for d in directions_away(centre, objects, ran_into, base):
+    unknown = sorted(ran_into_unknown or ())
+    if ran_into or unknown:
+        for d in directions_away(centre, objects, ran_into, base, unknown=unknown):
             yield d, False
 
 
@@ -97,10 +106,11 @@ def lift_fallbacks(sink_lo_hi, T_base_obj: np.ndarray, objects, ran_into: set[st
 SIDESTEPS = ((0.04, 0.01), (0.07, 0.015))
 
 
-def sidesteps(centre: np.ndarray, objects, ran_into: set[str], turns=(0.0, 45.0, -45.0)) -> list[np.ndarray]:
+def sidesteps(centre: np.ndarray, objects, ran_into: set[str], turns=(0.0, 45.0, -45.0), unknown=()) -> list[np.ndarray]:
     """First legs (base-frame offsets, m) of sideways-then-up lifts away from the perceived objects the other
-    lifts ran into (straight away from them, and turned by `turns` degrees), shortest first; [] when none."""
-    a0 = _away_angle(centre, objects, ran_into)
+    lifts ran into (and the `unknown` map voxels they ran into, see _away_angle; straight away from them, and
+    turned by `turns` degrees), shortest first; [] when none."""
+    a0 = _away_angle(centre, objects, ran_into, unknown)
     if a0 is None:
         return []
     out = []

@@ -372,6 +372,7 @@ class Planner:
         last: PlanningFailure | None = None
         tried = 0
         hit: dict[str, int] = {}  # object name -> lift failures it took part in
+        why: list[str] = []  # per candidate tried: "grasp: kind: segment: what failed" (the failure's details["candidates"])
         for g in grasps[: self.settings.max_grasp_candidates]:
             tried += 1
             res = self._plan_pick_with(q0, g, objects, map_points, base_scene, timings)
@@ -381,11 +382,13 @@ class Planner:
                 return res
             for n in res.details.pop("lift_objects", ()):
                 hit[n] = hit.get(n, 0) + 1
+            why.append(f"{g.spec.name}: {res.kind}: {res.message}")
             last = res
             if res.details.pop("held_blocked", False):
                 break  # the held item itself cannot be lifted out in any direction: no other grasp changes that
         assert last is not None
         last.details["candidates_tried"] = tried
+        last.details["candidates"] = why
         if hit and target is not None:
             names = {object_name(o, k): o for k, o in enumerate(objects)}
             hit_objs = [names[n] for n in sorted(hit, key=lambda n: -hit[n]) if n in names]
@@ -510,13 +513,14 @@ class Planner:
         # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
         first: PlanningFailure | None = None
         lift_objects: set[str] = set()  # perceived objects the failed lifts ran into (reported as blockers)
+        lift_unknown: set = set()  # map voxels (no perceived object) the failed lifts ran into: tilted away from too
         # whether every direction failed because the held item itself runs into something (then every grasp of
         # it fails the same way: the directions depend on the item only, not on the grasp)
         held_only = True
         near_wall = self._near_sink_wall(g.obj)
         centre = np.asarray(g.obj.T_base_obj, float)[:3, 3]
         for d, along in lift_fallbacks(self.cell.sink_interior, g.obj.T_base_obj, objects, lift_objects,
-                                       near_wall=near_wall):
+                                       near_wall=near_wall, ran_into_unknown=lift_unknown):
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
             info: dict = {}
             r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False,
@@ -529,6 +533,7 @@ class Planner:
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 first = first or r
                 lift_objects.update(n[4:] for p in pairs for n in p if n.startswith("obj:"))
+                lift_unknown.update(self._voxels_hit(lift_scene, r, g))
             else:
                 lift, q_lifted = r
                 if not held_scene.valid(q_lifted):
@@ -548,8 +553,10 @@ class Planner:
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 first = first or CartesianPathFailed("lift: the lifted pose is within the collision margin",
                                                      {"pairs": pairs, "segment": "lift"})
-        # Every line ran into perceived items (one overhanging it): out from under them nearly level, then up.
-        for leg in (sidesteps(centre, objects, lift_objects) if lift_objects else []):
+        # Every line ran into perceived items or unexplained voxels (one overhanging it): out from under them nearly
+        # level, then up.
+        for leg in (sidesteps(centre, objects, lift_objects, unknown=sorted(lift_unknown))
+                    if lift_objects or lift_unknown else []):
             r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg)
             if isinstance(r, PlanningFailure):
                 pairs = r.details.get("pairs", ())
@@ -569,6 +576,25 @@ class Planner:
                 first.details["lift_objects"] = sorted(lift_objects)
             first.details["held_blocked"] = held_only
         return first
+
+    # m around the TCP and the flange within which a voxel the gripper (palm 75 x 140 mm, pads, camera) ran into lies
+    TOOL_REACH = 0.08
+
+    def _voxels_hit(self, scene: Scene, failure: PlanningFailure, g: Grasp) -> list:
+        """The map voxels (centres, as tuples: each counts once however many lifts ran into it) a failed lift of `g`
+        ran into, where the line collided with ``voxels``: those within the held item's reach of its centre, or
+        within TOOL_REACH of the TCP or the flange (none when the line collided with no voxel)."""
+        q = failure.details.get("q")
+        if q is None or not any("voxels" in p for p in failure.details.get("pairs", ())) or not len(scene.voxels):
+            return []
+        T_tcp = self.robot.fk_tcp(np.asarray(q, float))
+        T_obj = T_tcp @ inv(g.spec.T_obj_tcp)
+        flange = (T_tcp @ inv(self.robot.T_flange_tcp))[:3, 3]
+        v, pad = scene.voxels, self.world.voxel_size
+        near = np.linalg.norm(v - T_obj[:3, 3], axis=1) <= self.inventory[g.obj.obj_id].diameter / 2 + pad
+        for c in (T_tcp[:3, 3], flange):
+            near |= np.linalg.norm(v - c, axis=1) <= self.TOOL_REACH + pad
+        return [tuple(x) for x in v[near]]
 
     def _two_leg_lift(self, lift_scene: Scene, start_scene: Scene, q_grasp: np.ndarray, T_grasp: np.ndarray,
                       leg: np.ndarray) -> tuple[Trajectory, np.ndarray] | PlanningFailure:
