@@ -24,6 +24,7 @@ from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
 from kitchenbot.world.gripper import DROP_HEIGHT
+from kitchenbot.world.inventory import grasp_kind
 from kitchenbot.world.same_item import SAME_ITEM_RADIUS
 
 
@@ -91,11 +92,10 @@ class RecoveryActions:
             return [name]
         inv = self.planner.inventory if self.planner is not None else self.robot.inventory
         model = inv.models.get(obj.obj_id)
-        base = name.split("_tilt")[0]
-        if model is None or not model.is_rotationally_symmetric or "_" not in base:
+        kind = grasp_kind(name)
+        if model is None or not model.is_rotationally_symmetric or kind is None:
             return [name]
-        kind = base.rsplit("_", 1)[0]
-        return [name] + [g.name for g in model.grasps if g.name != name and g.name.rsplit("_", 1)[0] == kind]
+        return [name] + [g.name for g in model.grasps if g.name != name and grasp_kind(g.name) == kind]
 
     def _act_back_off(self, f: Failure, ctx: dict) -> None:
         tr = self.tracks

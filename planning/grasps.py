@@ -33,7 +33,7 @@ from kitchenbot.planning.types import (
 )
 from kitchenbot.transforms import make_T, trans
 from kitchenbot.world.gripper import PAD_DEPTH
-from kitchenbot.world.inventory import Inventory
+from kitchenbot.world.inventory import Inventory, grasp_base_name, tilted_name
 
 
 def too_hidden(o: ObjectPose, settings) -> bool:
@@ -172,7 +172,7 @@ def expand_grasps(model) -> list:
             continue  # not a side grasp
         # a non-symmetric item (a mug: its handle) only gets the nearly level variants
         for t in TILTS if sym else TILTS[:2]:
-            out.append(GraspSpec(f"{g.name}_tilt{np.degrees(t):+.0f}", g.T_obj_tcp @ rot_y(t), g.opening, g.width))
+            out.append(GraspSpec(tilted_name(g.name, t), g.T_obj_tcp @ rot_y(t), g.opening, g.width))
     if len(_expanded) > 256:
         _expanded.clear()
     _expanded[key] = (model, out)
@@ -242,7 +242,7 @@ def select_grasps(
     if target is not None and not cands:
         cands = [(len(objects), target)]
         names.append(object_name(target, len(objects)))
-    avoid_base = {a.split("_tilt")[0] for a in avoid}
+    avoid_base = {grasp_base_name(a) for a in avoid}
     out: list[Grasp] = []
     any_model = False
     req = coal.CollisionRequest()
@@ -263,7 +263,7 @@ def select_grasps(
             continue
         any_model = True
         for spec in specs:
-            if avoid and spec.name.split("_tilt")[0] in avoid_base:
+            if avoid and grasp_base_name(spec.name) in avoid_base:
                 continue
             st.considered += 1
             T = np.asarray(o.T_base_obj, float) @ spec.T_obj_tcp

@@ -46,6 +46,28 @@ class GraspSpec:
     width: float
 
 
+# A grasp's name says where it came from: ``kind_NN`` is copy NN of one grasp turned about a round item's axis (the
+# same pinch, elsewhere round the rim), and ``<grasp>_tilt+15`` is a grasp tilted about its closing axis by planning.
+TILT_TAG = "_tilt"
+
+
+def tilted_name(name: str, tilt: float) -> str:
+    """The name of grasp `name` tilted by `tilt` (radians) about its closing axis."""
+    return f"{name}{TILT_TAG}{np.degrees(tilt):+.0f}"
+
+
+def grasp_base_name(name: str) -> str:
+    """The grasp a tilted variant was made from (`name` itself when it is not tilted)."""
+    return name.split(TILT_TAG)[0]
+
+
+def grasp_kind(name: str) -> str | None:
+    """The kind of a turned copy ``kind_NN`` (tilt ignored); None for a grasp that is not one of several copies."""
+    base = grasp_base_name(name)
+    kind, _, copy = base.rpartition("_")
+    return kind if kind and copy.isdigit() else None
+
+
 @dataclass
 class ObjectModel:
     obj_id: int

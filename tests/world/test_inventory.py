@@ -80,3 +80,14 @@ def test_broken_inputs_name_the_file(tmp_path, inventory):
         {"name": "a", "opening": 0.05, "width": 0.01, "T_obj_tcp": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}]}}}))
     with pytest.raises(InventoryError, match="rigid transform"):
         Inventory.load(tmp_path / "m", g)
+
+
+def test_grasp_names_parse_to_their_base_and_kind():
+    from kitchenbot.world.inventory import grasp_base_name, grasp_kind, tilted_name
+
+    tilted = tilted_name("rim_03", np.radians(15))
+    assert tilted == "rim_03_tilt+15"
+    assert grasp_base_name(tilted) == "rim_03" and grasp_base_name("rim_03") == "rim_03"
+    assert grasp_kind(tilted) == grasp_kind("rim_11") == "rim"
+    assert grasp_kind("ap01_05_tilt-15") == "ap01"
+    assert grasp_kind("ap003") is None and grasp_kind("side_left") is None
