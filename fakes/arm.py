@@ -14,8 +14,9 @@
   it: the arm runs there and stops; ``wait`` raises ProtectiveStopError until ``unlock_protective_stop()``.
 - Faults from ``world.faults``: ``arm_disconnect`` (link down until ``connect()``), ``arm_disconnect_after``
   (the link drops that many seconds into the next motion; the arm stops there), ``protective_stop`` (next N
-  motions stop halfway), ``slip_probability`` (per grasp: in one of the next motions while holding, the object drops on the way and the
-  gripper closes on nothing).
+  motions stop halfway), ``slip_probability`` (per grasp: in one of the next motions while holding, the object drops at a random point of its
+  path, placed by path and not by time so a retimed motion drops it at the same spot, and the gripper closes on
+  nothing).
 - ``log`` records what happened (motions, protective stops, predicted collisions, refused commands, slips,
   simulated motion time) so tests and the executive can audit a run.
 
@@ -142,6 +143,20 @@ def ik_dls(model: URModel, T_target: np.ndarray, q_seed: np.ndarray, T_flange_tc
         e = np.concatenate([ep, er])
         q = q + J.T @ np.linalg.solve(J @ J.T + lam2 * np.eye(6), e)
     return None
+
+
+def _at_path_fraction(us: np.ndarray, qs: np.ndarray, q_of_u, end_u: float, fraction: float) -> float:
+    """The time at which a motion sampled at (`us`, `qs`) has covered `fraction` of its joint-space path up to
+    `end_u`. A random event placed by path, not by time, happens at the same place however the motion is timed:
+    a retimed motion (same path, other times) drops a slipping item at the same spot, so a change of timing
+    changes only when things happen, not what happens."""
+    keep = us < end_u
+    u = np.append(us[keep], end_u)
+    q = np.vstack([qs[keep].reshape(-1, 6), np.asarray(q_of_u(end_u), float)[None]])
+    s = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(q, axis=0)).sum(axis=1))])
+    if len(u) < 2 or s[-1] < 1e-9:  # a motion that does not move: by time
+        return fraction * end_u
+    return float(np.interp(fraction * s[-1], s, u))
 
 
 # ---- records -------------------------------------------------------------------------------------------
@@ -490,7 +505,7 @@ class FakeArm(Arm):
         m.dragged, m.drag_end_u = dragged, drag_end_u
         if self.world.held_uid is not None and self.world.slip_in_motions is not None:
             if self.world.slip_in_motions == 0:  # this hold's slip (drawn once per grasp, see SimWorld.attach)
-                m.slip_u = float(self.world.rng.uniform(0.2, 0.8)) * end_u
+                m.slip_u = _at_path_fraction(us, qs, q_of_u, end_u, float(self.world.rng.uniform(0.2, 0.8)))
                 self.world.slip_in_motions = None
             else:
                 self.world.slip_in_motions -= 1

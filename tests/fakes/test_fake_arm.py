@@ -354,3 +354,28 @@ def test_guarded_motion_ends_on_a_pad_contact_and_is_not_sticky():
     assert arm.stopped_on_contact and arm.log.collisions == 0 and -0.001 < z_tip < 0.008
     arm.move_linear(tcp_down(0.35, 0.45, 0.10), speed=0.25, accel=1.0)
     assert not arm.stopped_on_contact  # reset by the next command
+
+
+def _slip_on_a_timed_swing(times: np.ndarray) -> tuple[int, np.ndarray]:
+    """Grasp the cup, lift it, then swing it along a fixed joint path timed by `times`, slipping on the swing.
+    Returns (slips, where the cup came to rest)."""
+    world, arm, uid = make_rig(with_cup=True)
+    world.faults.slip_probability = 1.0
+    gripper, T_grasp = _grasp_cup(world, arm, uid)
+    world.slip_in_motions = 1  # this hold slips in the swing, not the lift (the draw of which motion is per hold)
+    arm.move_linear(trans(0, 0, 0.15) @ T_grasp, speed=0.1)
+    q0 = arm.joint_positions()
+    path = q0 + np.linspace(0.0, 1.0, len(times))[:, None] * np.array([-0.6, 0.0, 0.0, 0.0, 0.0, 0.0])
+    arm.execute_trajectory(times, path)
+    return arm.log.slips, world.objects[uid].T_base_obj[:3, 3].copy()
+
+
+def test_retiming_a_motion_does_not_move_where_the_item_slips():
+    # The same path, once at an even pace and once slow at the start and fast at the end (a time warp): the slip
+    # happens at the same place along the path, so the cup lands at the same spot; only when it slips changes.
+    # (Placed by time, the warped swing dropped it at another point of the arc, and every later event differed.)
+    s = np.linspace(0.0, 1.0, 31)
+    slips_a, p_a = _slip_on_a_timed_swing(3.0 * s)
+    slips_b, p_b = _slip_on_a_timed_swing(3.0 * (0.3 * s + 0.7 * s * s))
+    assert slips_a == slips_b == 1
+    assert np.linalg.norm(p_a[:2] - p_b[:2]) < 0.005
