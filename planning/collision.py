@@ -551,6 +551,42 @@ class Scene:
             other.gd.activateCollisionPair(k) if self.gd.activeCollisionPairs[k] else other.gd.deactivateCollisionPair(k)
         return other
 
+    def with_pair_margins(self, margins: dict[tuple[str, str], float]) -> "Scene":
+        """A copy of this scene in which the given (name, name) pairs are checked with their own margin (m; a
+        negative one lets them overlap by that much: a start contact that may last but not get deeper)."""
+        want = {tuple(p): float(m) for p, m in margins.items()}
+        want |= {(b, a): m for (a, b), m in list(want.items())}
+        other = self._variant()
+        for k, (a, b) in enumerate(self.pair_names):
+            other.gd.collisionRequests[k].security_margin = want.get((a, b), self.gd.collisionRequests[k].security_margin)
+            other.gd.activateCollisionPair(k) if self.gd.activeCollisionPairs[k] else other.gd.deactivateCollisionPair(k)
+        return other
+
+    def penetration(self, q: np.ndarray, pair: tuple[str, str], limit: float = 0.03, tol: float = 1e-4) -> float:
+        """How deep (m, within `tol`) the pair's geometries overlap at q: 0 where they do not touch, `limit` where
+        they overlap by that much or more (bisection on a negative security margin)."""
+        names = {tuple(p): k for k, p in enumerate(self.pair_names)}
+        k = names.get(tuple(pair), names.get((pair[1], pair[0])))
+        if k is None:
+            return 0.0
+        other = self._variant()
+        pin.updateGeometryPlacements(self.model, other.data, self.gm, other.gd, np.asarray(q, float))
+        req = other.gd.collisionRequests[k]
+
+        def overlaps(d: float) -> bool:
+            req.security_margin = -d
+            return bool(pin.computeCollision(self.gm, other.gd, k))
+
+        if not overlaps(0.0):
+            return 0.0
+        if overlaps(limit):
+            return float(limit)
+        lo, hi = 0.0, float(limit)
+        while hi - lo > tol:
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if overlaps(mid) else (lo, mid)
+        return hi
+
     def _variant(self) -> "Scene":
         other = object.__new__(Scene)
         other.__dict__.update(self.__dict__)

@@ -57,6 +57,9 @@ LIFT_CONTACT_TRAVEL = 0.03  # m of lift during which the held object may still t
 # leaning into a cup) often overlap by more than 3 cm in the model while, in the world, they only touch. The
 # simulator (fakes/collision.py) tolerates such a start contact for 10 cm.
 LIFT_CLEAR_TRAVEL = 0.06
+# m: how much deeper than at the grasp the held item may overlap a neighbour it does not rest on during the first
+# LIFT_CONTACT_TRAVEL of its lift (the mesh overlap's measurement noise; any real deepening is a new contact)
+LIFT_DEEPEN_TOL = 0.00025
 PLACED_ID = 1_000_000  # instance id of the just-released object in the retreat scene
 # Gaps (m, per pad) the pads open to past the held item's width at release when the grasp's full opening would put
 # a pad into a neighbour at the target (a bowl set on its rim beside a plate in a rack: its rim pinch opens 3.5 cm,
@@ -494,12 +497,22 @@ class Planner:
         by_name = {f"obj:{object_name(o, j)}": o for j, o in enumerate(objects)}
         on_it = {x for p in at_grasp if "held" in p for x in p if x in by_name and self._lies_on(by_name[x], g.obj)}
         start_contacts = [p for p in at_grasp if "held" in p and not on_it.intersection(p)]
-        start_scene = lift_scene.allowing(start_contacts)
+        # ... and a neighbour it does not rest on (one beside it, or interlocked with it: a plate's rim in a lying
+        # glass's mouth) may keep its overlap but not get deeper: where the estimated poses overlap, the real
+        # items may be a fraction of a millimetre apart, and a lift that drives one into the other makes a
+        # contact (a protective stop) that the overlap at the start hid. Supports (what it lies on) are left
+        # for good by any lift and stay unchecked for the first centimetres.
+        side = {p: lift_scene.penetration(q_grasp, p) for p in start_contacts
+                if any(x in by_name for x in p) and not any(x in by_name and self._lies_on(g.obj, by_name[x]) for x in p)}
+        deeper = {p: -(d + LIFT_DEEPEN_TOL) for p, d in side.items()}
+        free_start = [p for p in start_contacts if p not in side]
+        start_scene = lift_scene.allowing(free_start).with_pair_margins(deeper)
         # The fingers too start within the transport margin of what lies next to or under the item (the plate
         # below in a stack): grasp_in checked them with the grasp margin. Lifting straight up (or along the
         # item's own axis) moves them away, so those pairs are not checked for the first few centimetres.
         tool_contacts = [p for p in at_grasp if p not in start_contacts and any(x in TOOL_PARTS for x in p)]
-        vertical_start_scene = lift_scene.allowing(start_contacts + tool_contacts) if tool_contacts else start_scene
+        vertical_start_scene = (lift_scene.allowing(free_start + tool_contacts).with_pair_margins(deeper)
+                                if tool_contacts else start_scene)
         # Beyond LIFT_CONTACT_TRAVEL only the held object's contacts with other items may last (until they clear,
         # see LIFT_CLEAR_TRAVEL), and only on a lift straight up or along the item's axis: an item sliding up
         # along a basin wall or dragging a finger is not lifted out, nor one pulled sideways through a neighbour
