@@ -103,6 +103,15 @@ def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) ->
     return first
 
 
+# The last round on the items every plan failed for (Execution._try_harder): more grasps tried per pick (the
+# first few of a crowded item often all have their lifts blocked), items seen less are still candidates (one
+# hidden beside others, with nothing on it, is not seen better by waiting), and RRT-Connect gets more work.
+HARDER_GRASPS = 3  # x max_grasp_candidates
+HARDER_MAX_OCCLUSION = 0.85  # hidden fraction still planned (settings.max_occlusion is the first rounds')
+HARDER_RRT = 4  # x planner_max_iterations (or x planner_timeout on wall-clock budgets)
+
+
+
 class Strategy:
     name = "strategy"
     when = ""  # when it applies, in words (docs)
@@ -245,6 +254,38 @@ class SlideOffStack(Strategy):
         return ItemPlan(self.name, slide=slide)
 
 
+class PickHiddenBlocker(Strategy):
+    """An item judged too hidden to plan (`no_graspable_object`: more than `settings.max_occlusion` of it unseen)
+    that the planner named as lying on another item or in its lift's way. What lies on another is not buried
+    under it, and waiting does not show it better (it is hidden by the sink's wall or beside others); the item
+    under it waits for it meanwhile, and a pile where the blocker is the hidden one waited until the run's last
+    round (`harder_settings`), or to the end. Its pick is planned as that round plans it, for this item only."""
+
+    name = "pick_hidden_blocker"
+    when = "the item is too hidden to plan (`no_graspable_object`) and an earlier failure of an item still in " \
+           "the sink named it as lying on that item or in its lift's way (`blocker_first`)"
+    does = "the direct pick again with items hidden up to " \
+           f"{HARDER_MAX_OCCLUSION:.0%} planned (as the last round plans them: `harder_settings`)"
+
+    def applies(self, failure, obj, belief, req):
+        if failure is None or failure.stage != "pick" or failure.kind != "no_graspable_object":
+            return False
+        if obj.instance_id < 0 or req.planner.settings.max_occlusion >= HARDER_MAX_OCCLUSION:
+            return False
+        under = {k for k, v in belief.blocked_by.items() if v == obj.instance_id}
+        return any(p.instance_id in under for p in belief.poses)
+
+    def plan(self, req):
+        s = req.planner.settings
+        req.planner.settings = s.model_copy(update={"max_occlusion": HARDER_MAX_OCCLUSION})
+        req.note("note", "planned as a blocker though hidden", cls=req.obj.cls,
+                 visible=round(float(req.obj.visible_fraction), 2))
+        try:
+            return _direct(req, self.name)
+        finally:
+            req.planner.settings = s
+
+
 class BlockerFirst(Strategy):
     """The planner named the item lying on this one or in the way of its lift: that one is selected next (an
     item the task does not want is moved out of the way by the task's targets for it); this one waits."""
@@ -263,7 +304,8 @@ class BlockerFirst(Strategy):
 
 
 STRATEGIES: dict[str, type[Strategy]] = {s.name: s for s in (
-    DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, BlockerFirst)}
+    DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, PickHiddenBlocker,
+    BlockerFirst)}
 
 
 def strategies_for(task) -> list[Strategy]:
@@ -303,14 +345,6 @@ def plan_item(req: PlanRequest, strategies: list[Strategy], counts: dict) -> Ite
             c["planned"] += 1
             blocking = f.blocking
     raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking)
-
-
-# The last round on the items every plan failed for (Execution._try_harder): more grasps tried per pick (the
-# first few of a crowded item often all have their lifts blocked), items seen less are still candidates (one
-# hidden beside others, with nothing on it, is not seen better by waiting), and RRT-Connect gets more work.
-HARDER_GRASPS = 3  # x max_grasp_candidates
-HARDER_MAX_OCCLUSION = 0.85  # hidden fraction still planned (settings.max_occlusion is the first rounds')
-HARDER_RRT = 4  # x planner_max_iterations (or x planner_timeout on wall-clock budgets)
 
 
 def harder_settings(s):

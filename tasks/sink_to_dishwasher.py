@@ -39,7 +39,7 @@ class SinkToDishwasher(Task):
     success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in a rack slot"
     # rack poses admit few grasps: a blocked or unplaceable one is staged too (see Task.strategies)
     strategies = ("direct_pick", "escape_then_pick", "stage_for_regrasp", "stage_when_blocked", "slide_off_stack",
-                  "blocker_first")
+                  "pick_hidden_blocker", "blocker_first")
 
     def wants(self, obj: ObjectPose) -> bool:
         return obj.cls == "plate" or obj.cls in VESSELS

@@ -333,3 +333,67 @@ def test_a_cup_whose_retreat_from_the_rack_is_blocked_for_every_grasp_is_staged(
                         place=lambda targets: _Ok() if targets[0].kind == "stage" else PlannerTimeout("t"))
     with pytest.raises(StepFailed):
         plan_item(request(task, b, item(inv, "cup"), planner), strategies_for(task), {})
+
+
+class _HiddenGate(Situation):
+    """A planner with the real occlusion gate (planning.grasps.too_hidden) and the real default settings: an item
+    hidden more than `settings.max_occlusion` is not planned (`no_graspable_object`), others are."""
+
+    def __init__(self):
+        from kitchenbot.planning.settings import PlanningSettings
+
+        super().__init__(lambda staging, n: _Ok())
+        self.settings = PlanningSettings()
+        self.occlusion_seen: list[float] = []
+
+    def plan_pick(self, q, objects, *, target=None, map_points=None, place_target=None, avoid_grasps=()):
+        from kitchenbot.planning.grasps import too_hidden
+        from kitchenbot.planning.types import NoGraspableObject
+
+        self.occlusion_seen.append(self.settings.max_occlusion)
+        if too_hidden(target, self.settings):
+            self.calls.append("pick")
+            return NoGraspableObject("test: too hidden")
+        return super().plan_pick(q, objects, target=target, map_points=map_points, place_target=place_target,
+                                 avoid_grasps=avoid_grasps)
+
+
+def _glass_on_bowl(inv, planner):
+    """A glass lying on a bowl, seen poorly (against the sink's wall): hidden 0.7 by the planner's measure, more
+    than the first rounds plan (0.6), less than the last round's (0.85)."""
+    s = planner.settings
+    glass = ObjectPose(inv.by_name("glass").obj_id, "glass", make_T(np.eye(3), (0.5, 0.0, -0.08)), 1.0,
+                       instance_id=15, visible_fraction=0.3 * s.visible_fraction_unoccluded)
+    bowl = ObjectPose(inv.by_name("bowl").obj_id, "bowl", make_T(np.eye(3), (0.5, 0.0, -0.15)), 1.0,
+                      instance_id=3, visible_fraction=0.2 * s.visible_fraction_unoccluded)
+    return glass, bowl
+
+
+@pytest.mark.parametrize("task_name", ["sink-pick", "sink-to-dishwasher"])
+def test_a_hidden_item_named_as_lying_on_another_is_planned_as_the_last_round_plans_it(inv, task_name):
+    """The bowl's plan named the glass on it as its blocker; the glass itself was too hidden to plan, so both
+    waited (before: until the run's last round, or to the end). Now the glass, a named blocker of an item still
+    in the sink, is planned with the last round's occlusion limit, for its pick only."""
+    task, b = make_task(task_name, inv, Cell()), Belief()
+    planner = _HiddenGate()
+    glass, bowl = _glass_on_bowl(inv, planner)
+    b.poses = [glass, bowl]
+    before = planner.settings.max_occlusion
+    # not (yet) named as anyone's blocker: it waits as before
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(task, b, glass, planner), strategies_for(task), {})
+    assert e.value.details["planning_kind"] == "no_graspable_object"
+    b.record_blocked(bowl, glass.instance_id)
+    plan = plan_item(request(task, b, glass, planner), strategies_for(task), counts := {})
+    assert plan.strategy == "pick_hidden_blocker" and counts["pick_hidden_blocker"] == {"tried": 1, "planned": 1}
+    assert planner.occlusion_seen[-1] > before and planner.settings.max_occlusion == before  # restored
+    # the item under it gone from the sink: no reason any more
+    b.poses = [glass]
+    with pytest.raises(StepFailed):
+        plan_item(request(task, b, glass, planner), strategies_for(task), {})
+    # hidden more than even the last round plans: still not planned
+    buried = ObjectPose(glass.obj_id, "glass", glass.T_base_obj, 1.0, instance_id=15,
+                        visible_fraction=0.1 * planner.settings.visible_fraction_unoccluded)
+    b.poses = [buried, bowl]
+    with pytest.raises(StepFailed):
+        plan_item(request(task, b, buried, planner), strategies_for(task), {})
