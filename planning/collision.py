@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+import hashlib
 
 import coal
 import numpy as np
@@ -208,6 +209,117 @@ def _surface_distance(model: ObjectModel, P_obj: np.ndarray) -> np.ndarray:
     return hit[1].compute_distance(q).numpy().astype(float)
 
 
+def _digest(a: np.ndarray) -> bytes:
+    a = np.ascontiguousarray(a)
+    return hashlib.blake2b(a.view(np.uint8).reshape(-1), digest_size=16).digest() + repr((a.dtype.str, a.shape)).encode()
+
+
+class _ObjectPoints:
+    """One object (model, pose) against one point set: the points in the object frame, which lie in its mesh box
+    grown by a radius, and their distances to its surface, each computed once, when first asked for."""
+
+    def __init__(self, P: np.ndarray, o: SceneObject, radius: float):
+        bb = o.model.mesh.get_axis_aligned_bounding_box()
+        self.model = o.model  # kept alive: the memo's key holds id(mesh)
+        self.lo, self.hi = np.asarray(bb.get_min_bound()), np.asarray(bb.get_max_bound())
+        self.Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
+        self.in_box = np.all((self.Pl >= self.lo - radius) & (self.Pl <= self.hi + radius), axis=1)
+        self._d = np.full(len(P), np.nan)
+
+    def distance(self, idx: np.ndarray) -> np.ndarray:
+        """Distances of points `idx` (indices) to the model's surface (each point's own query: computing a point
+        alone or with others gives the same number)."""
+        d = self._d[idx]
+        todo = idx[np.isnan(d)]
+        if len(todo):
+            self._d[todo] = _surface_distance(self.model, self.Pl[todo])
+            d = self._d[idx]
+        return d
+
+
+class _PointsMemo:
+    """What `CollisionWorld.explained` computes for one point set (by content) that does not depend on which
+    objects explain their own points: the owners per instance-point list, per object its `_ObjectPoints`."""
+
+    def __init__(self, P: np.ndarray):
+        self.P = P
+        self._owners: dict[tuple, np.ndarray] = {}
+        self._objects: dict[tuple, _ObjectPoints] = {}
+
+    def owners(self, instance_points: Sequence[np.ndarray | None], n: int) -> np.ndarray:
+        key = (n, tuple(None if ip is None else _digest(np.asarray(ip, float)) for ip in instance_points[:n]))
+        hit = self._owners.get(key)
+        if hit is None:
+            hit = self._owners[key] = _owners(self.P, instance_points, n)
+        return hit
+
+    def object(self, o: SceneObject, radius: float) -> _ObjectPoints:
+        T = np.asarray(o.T_base_obj, float)
+        key = (id(o.model.mesh), T.tobytes(), float(radius))
+        hit = self._objects.get(key)
+        if hit is None or hit.model.mesh is not o.model.mesh:
+            hit = self._objects[key] = _ObjectPoints(self.P, o, radius)
+        return hit
+
+
+class _ExplainMemo:
+    """Memo of `CollisionWorld.explained`'s per-object work, by the points' content (a few point sets kept: the
+    map of this pick and place and its variants without one object's points); plus the instance points that lie
+    near their own model per (object, points)."""
+
+    KEEP = 6
+
+    def __init__(self):
+        self._sets: dict[bytes, _PointsMemo] = {}
+        self._near: dict[tuple, tuple] = {}
+        self._cell: dict[tuple, tuple] = {}
+
+    def points(self, P: np.ndarray) -> _PointsMemo:
+        key = _digest(P)
+        hit = self._sets.pop(key, None)
+        if hit is None:
+            hit = _PointsMemo(P.copy())
+            while len(self._sets) >= self.KEEP:
+                self._sets.pop(next(iter(self._sets)))
+        self._sets[key] = hit  # most recent last
+        return hit
+
+    def outside_cell(self, cell: Cell, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """The finite rows of `points` and the mask of those outside every cell box grown by `radius` (the last
+        few point sets kept by content: the map of one pick and place is asked about several times)."""
+        P = np.asarray(points, float).reshape(-1, 3)
+        key = (_digest(P), id(cell), tuple(b.lower.tobytes() + b.upper.tobytes() for b in cell.boxes), float(radius))
+        hit = self._cell.get(key)
+        if hit is None or hit[0] is not cell:
+            P = P[np.all(np.isfinite(P), axis=1)]
+            keep = np.ones(len(P), bool)
+            for b in cell.boxes:
+                keep &= ~np.all((P >= b.lower - radius) & (P <= b.upper + radius), axis=1)
+            while len(self._cell) >= self.KEEP:
+                self._cell.pop(next(iter(self._cell)))
+            hit = self._cell[key] = (cell, P, keep)
+        return hit[1], hit[2]
+
+    def own_points_near(self, o: SceneObject, ip, lo: np.ndarray, hi: np.ndarray, reach: float) -> np.ndarray:
+        """The instance's points `ip` (base frame) within `reach` of the object's model surface."""
+        ip = np.asarray(ip, float).reshape(-1, 3)
+        T = np.asarray(o.T_base_obj, float)
+        key = (_digest(ip), id(o.model.mesh), T.tobytes(), float(reach))
+        hit = self._near.get(key)
+        if hit is None or hit[0] is not o.model.mesh:
+            il = (ip - T[:3, 3]) @ T[:3, :3]
+            inb = np.all((il >= lo - reach) & (il <= hi + reach), axis=1)
+            ip, il = ip[inb], il[inb]
+            near = ip[_surface_distance(o.model, il) <= reach] if len(ip) else ip
+            if len(self._near) > 64:
+                self._near.clear()
+            hit = self._near[key] = (o.model.mesh, near)
+        return hit[1]
+
+
+_EXPLAIN_MEMO = _ExplainMemo()
+
+
 # ---- the world ---------------------------------------------------------------------------------------------
 
 ROBOT_GROUP = "robot"
@@ -322,11 +434,8 @@ class CollisionWorld:
         perceived object (see :meth:`explained`)."""
         if points is None or len(points) == 0:
             return np.zeros((0, 3))
-        P = np.asarray(points, float).reshape(-1, 3)
-        P = P[np.all(np.isfinite(P), axis=1)]
-        keep = np.ones(len(P), bool)
-        for b in self.cell.boxes:
-            keep &= ~np.all((P >= b.lower - explain_radius) & (P <= b.upper + explain_radius), axis=1)
+        P, keep = _EXPLAIN_MEMO.outside_cell(self.cell, points, explain_radius)
+        keep = keep.copy()
         keep[keep] = ~self.explained(P[keep], objects, explain_radius, instance_points, instance_reach,
                                      self_explaining)
         return self.occupied_voxels(P[keep], min_points)
@@ -361,41 +470,38 @@ class CollisionWorld:
         instance within `explain_radius` of such points. Own points farther from the model stay obstacles: the
         instance took in something beside it (a mug next to a bowl segmented into the bowl's instance) that no
         model stands for, and the grasp, the lift and the transport must keep clear of it. No box explains an
-        instance's points (a neighbour's, or the target's own, inside a box of air)."""
-        P = np.asarray(points, float).reshape(-1, 3)
+        instance's points (a neighbour's, or the target's own, inside a box of air).
+
+        The per-object work (the points in the object frame, its box, distances to its surface) and the owners
+        are memoised by content (:class:`_ExplainMemo`): one pick or place asks this of the same map and the
+        same poses several times (the target, the held item or the staged one explaining its own points
+        differ between the asks, the rest does not). The answers are those computed afresh."""
+        P = np.ascontiguousarray(np.asarray(points, float).reshape(-1, 3))
         hit = np.zeros(len(P), bool)
         n = len(objects)
         own_ok = [True] * n if self_explaining is None else [bool(x) for x in self_explaining] + [True] * n
-        boxes = []
-        for o in objects:
-            bb = o.model.mesh.get_axis_aligned_bounding_box()
-            boxes.append((np.asarray(bb.get_min_bound()), np.asarray(bb.get_max_bound())))
-        owner = _owners(P, instance_points, n)
+        memo = _EXPLAIN_MEMO.points(P)
+        owner = memo.owners(instance_points, n)
         inst = []
         for k, o in enumerate(objects):
-            lo, hi = boxes[k]
-            Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
-            in_box = np.all((Pl >= lo - explain_radius) & (Pl <= hi + explain_radius), axis=1)
+            ob = memo.object(o, explain_radius)
+            in_box = ob.in_box
             # the box explains points of no instance
             hit |= in_box & (owner < 0)
             # any point on (near) this model's surface
-            cand = in_box & ~hit
-            if cand.any():
-                hit[np.flatnonzero(cand)[_surface_distance(o.model, Pl[cand]) <= explain_radius]] = True
+            cand = np.flatnonzero(in_box & ~hit)
+            if len(cand):
+                hit[cand[ob.distance(cand) <= explain_radius]] = True
             if own_ok[k]:
                 # its own points near its own fitted model (within instance_reach of the surface)
                 mine = np.flatnonzero((owner == k) & ~hit)
                 if len(mine):
-                    near = _surface_distance(o.model, Pl[mine]) <= instance_reach
-                    hit[mine[near]] = True
+                    hit[mine[ob.distance(mine) <= instance_reach]] = True
                 ip = instance_points[k] if k < len(instance_points) else None
                 if ip is not None and len(ip):
-                    ip = np.asarray(ip, float).reshape(-1, 3)
-                    il = (ip - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
-                    inb = np.all((il >= lo - instance_reach) & (il <= hi + instance_reach), axis=1)
-                    ip, il = ip[inb], il[inb]
-                    if len(ip):
-                        inst.append(ip[_surface_distance(o.model, il) <= instance_reach])
+                    near = _EXPLAIN_MEMO.own_points_near(o, ip, ob.lo, ob.hi, instance_reach)
+                    if len(near):
+                        inst.append(near)
         if inst and not hit.all():
             from scipy.spatial import cKDTree
 

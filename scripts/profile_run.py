@@ -1,4 +1,4 @@
-"""Profile one simulated task run (CPU time): `python scripts/profile_run.py TASK SEED OUT [--objects N]`.
+"""Profile one simulated task run (CPU time): `python scripts/profile_run.py TASK SEED OUT [--objects N] [--oracle]`.
 
 cProfile with a process-CPU timer over ``run_task`` (the path `kitchenbot run --sim` takes), the shipped simulation
 config with fake drivers. Writes OUT.pstats, OUT.txt (the top functions by cumulative CPU time) and prints the run's
@@ -24,6 +24,7 @@ def main() -> None:
     ap.add_argument("out")
     ap.add_argument("--objects", type=int, default=None)
     ap.add_argument("--top", type=int, default=80)
+    ap.add_argument("--oracle", action="store_true", help="oracle perception (simulator truth), not the pipeline")
     a = ap.parse_args()
     from kitchenbot.executive.config import DriversConfig, load_config
     from kitchenbot.executive.runner import run_task
@@ -34,7 +35,7 @@ def main() -> None:
         cfg.sim.min_objects = cfg.sim.max_objects = a.objects
     pr = cProfile.Profile(time.process_time)
     pr.enable()
-    rep = run_task(cfg, a.task, a.seed, progress=False, journal_path=False)
+    rep = run_task(cfg, a.task, a.seed, progress=False, journal_path=False, oracle_perception=a.oracle)
     pr.disable()
     pr.dump_stats(a.out + ".pstats")
     s = io.StringIO()
