@@ -66,7 +66,8 @@ class Surface:
     footprint: np.ndarray  # (nu, nv) bool, small holes filled
     inliers: int = 0
     # (nu, nv) bool: cells over which the scan measured something more than 2 cm behind the plane (a sink's
-    # opening, a drain, the floor past a table's edge); None: not known (every cell open)
+    # opening, a drain, the floor past a table's edge), and the cells off the footprint joined to those (the
+    # rest of an opening, hidden under a pile); None: not known (every cell open)
     opened: np.ndarray | None = None
     # (K, 3) points on the plane where walls rising from this support meet it (`_wall_feet`): where the
     # support reaches although the items on it hide it; None: none
