@@ -25,6 +25,14 @@ from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import View
 
 
+# Metres: a wall whose lowest footprint cell is within this of a support's plane rises from it (the basin's sides
+# from its floor; the fused cloud's cells are 2 cm, the wall's foot may be hidden by an item a few cm high) ...
+WALL_FOOT = 0.06
+# ... and bounds it when its foot is within this of the support's footprint (the floor hidden under items along
+# the side: a dinner plate leaning there is 27 cm across).
+WALL_REACH = 0.30
+
+
 @dataclass
 class SurfaceConfig:
     voxel: float = 0.01  # m: the fused cloud's resolution for the plane search
@@ -58,8 +66,12 @@ class Surface:
     footprint: np.ndarray  # (nu, nv) bool, small holes filled
     inliers: int = 0
     # (nu, nv) bool: cells over which the scan measured something more than 2 cm behind the plane (a sink's
-    # opening, a drain, the floor past a table's edge); None: not known (every cell open)
+    # opening, a drain, the floor past a table's edge), and the cells off the footprint joined to those (the
+    # rest of an opening, hidden under a pile); None: not known (every cell open)
     opened: np.ndarray | None = None
+    # (K, 3) points on the plane where walls rising from this support meet it (`_wall_feet`): where the
+    # support reaches although the items on it hide it; None: none
+    feet: np.ndarray | None = None
 
     def height(self, P: np.ndarray) -> np.ndarray:
         """Signed distance of points (..., 3) from the plane, positive on the free side."""
@@ -96,9 +108,13 @@ class Surface:
         return out
 
     def hull(self) -> np.ndarray | None:
-        """The convex hull of the footprint (grown by one cell), as half-planes in plane coordinates."""
+        """The convex hull of the footprint (grown by one cell) and of the feet of the walls rising from it, as
+        half-planes in plane coordinates."""
         if not hasattr(self, "_hull"):
-            self._hull = _hull_of(_cell_centres(self, ndimage.binary_dilation(self.footprint)), self)
+            corners = _cell_centres(self, ndimage.binary_dilation(self.footprint))
+            if self.feet is not None and len(self.feet):
+                corners = np.concatenate([corners, self.feet])
+            self._hull = _hull_of(corners, self)
         return self._hull
 
     def under_hull(self, P: np.ndarray) -> np.ndarray:
@@ -120,6 +136,18 @@ class Surface:
         shut = np.ones(len(rest), bool)
         shut[ok] = ~self.opened[i[ok], j[ok]]
         out[rest[shut]] = True
+        return out
+
+    def seen_below(self, P: np.ndarray) -> np.ndarray:
+        """Which points (N, 3) project into a cell of the grid over which the scan saw something more than 2 cm
+        behind the plane (`opened`; False where not known)."""
+        out = np.zeros(len(P), bool)
+        if self.opened is None or len(P) == 0:
+            return out
+        i = np.floor((P @ self.u - self.origin[0]) / self.cell).astype(np.int64)
+        j = np.floor((P @ self.v - self.origin[1]) / self.cell).astype(np.int64)
+        ok = (i >= 0) & (i < self.opened.shape[0]) & (j >= 0) & (j < self.opened.shape[1])
+        out[ok] = self.opened[i[ok], j[ok]]
         return out
 
     @property
@@ -230,7 +258,15 @@ class SurfaceMap:
             cand = ~out & (s.height(P) < -depth)
             if cand.any():
                 idx = np.nonzero(cand)[0]
-                out[idx[s.closed(P[idx]) if s.kind == "support" else s.covers(P[idx])]] = True
+                if s.kind == "support":
+                    # Not where the scan saw below the plane: the footprint's 2 cm cells along a counter's edge
+                    # reach over the basin (its side is seen below them), and an item's top at the counter's
+                    # height (an upside-down bowl's base, a glass's rim) joins the footprint; the items under
+                    # and beside them were taken for solid and their right poses scored down.
+                    Q = P[idx]
+                    out[idx[s.closed(Q) & ~s.seen_below(Q)]] = True
+                else:
+                    out[idx[s.covers(P[idx])]] = True
         return out
 
 
@@ -368,19 +404,47 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
     for s in out:
         if s.kind == "support":
             s.opened = _opened(s, V)
+            s.feet = _wall_feet(s, [w for w in out if w.kind == "wall"], cfg)
     return SurfaceMap(out, up, cfg)
+
+
+def _wall_feet(s: Surface, walls: list[Surface], cfg: SurfaceConfig) -> np.ndarray | None:
+    """Where the walls that rise from support `s` meet its plane: their footprint cells projected onto it, for
+    walls whose lowest cell lies within `WALL_FOOT` of the plane and whose foot lies within `WALL_REACH` of the
+    support's footprint. A basin floor is seen only between the items on it: items leaning against the sides
+    hide it along them, and its footprint's hull stopped short of the sides, so that what stood there (a plate
+    leaning against a side) was not "standing on a support" and was lost as background. The sides show where
+    the floor goes."""
+    out = []
+    eq = _hull_of(_cell_centres(s, ndimage.binary_dilation(s.footprint)), s)
+    for w in walls:
+        C = _cell_centres(w)
+        h = s.height(C)
+        if len(C) == 0 or not -WALL_FOOT < h.min() < WALL_FOOT or h.max() < WALL_FOOT:
+            continue  # not standing on this support (a basin side under the counter, a splashback over the floor)
+        F = C[h > -WALL_FOOT] - h[h > -WALL_FOOT, None] * s.normal
+        F = F[hull_depth(eq, F, s) > -WALL_REACH]
+        if len(F):
+            out.append(F)
+    return np.concatenate(out) if out else None
 
 
 def _opened(s: Surface, V: np.ndarray) -> np.ndarray:
     """The cells of a support's footprint grid over which points V (the fused scan) lie more than 2 cm behind
-    its plane: where the scan saw through it."""
+    its plane (where the scan saw through it), and the cells off the footprint joined to those."""
     B = V[s.height(V) < -0.02]
     i = np.floor((B @ s.u - s.origin[0]) / s.cell).astype(np.int64)
     j = np.floor((B @ s.v - s.origin[1]) / s.cell).astype(np.int64)
     ok = (i >= 0) & (i < s.footprint.shape[0]) & (j >= 0) & (j < s.footprint.shape[1])
     opened = np.zeros(s.footprint.shape, bool)
     opened[i[ok], j[ok]] = True
-    return opened
+    # The rest of an opening counts as seen through: cells off the footprint joined to such cells by cells off
+    # the footprint. A pile in a sink reaching over the counter's height hides the basin under it from every
+    # camera; those cells, never seen through, made the items under the pile "solid" (their right poses
+    # scored down). A hole the footprint closes all round (a board's, under a box on it) stays shut.
+    lab, _ = ndimage.label(~s.footprint)
+    joined = np.unique(lab[opened & ~s.footprint])
+    return opened | np.isin(lab, joined[joined > 0])
 
 
 def _long_parts(grid: np.ndarray, cfg: SurfaceConfig) -> np.ndarray:
