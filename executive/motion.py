@@ -189,13 +189,22 @@ class Motions:
         k = int(np.argmin(d))
         return k if d[k] < 0.01 else None
 
-    def _retrace(self, traj: Trajectory | None, name: str) -> bool:
+    def _retrace(self, traj: Trajectory | None, name: str, short_of: float = 0.0) -> bool:
         """If the arm stands on `traj` (it was stopped along it), go back along it to its start: the way it came
-        is free in the world as it is, whatever the perceived poses say. False if the arm is not on it."""
+        is free in the world as it is, whatever the perceived poses say. `short_of` (m): stop where the tool is
+        still that far from the start (a lift's start holds its item against what it stood on). False if the
+        arm is not on it."""
         k = self._index_on(traj)
         if k is None or k == 0:
             return False
-        self._run_trajectory(Trajectory(traj.times[k] - traj.times[k::-1], traj.q[k::-1].copy(), name))
+        j = 0
+        if short_of > 0.0 and self.planner is not None:
+            fk = self.planner.robot.fk_tcp
+            p0 = fk(traj.q[0])[:3, 3]
+            while j < k and np.linalg.norm(fk(traj.q[j])[:3, 3] - p0) < short_of:
+                j += 1
+        back = slice(k, j - 1 if j > 0 else None, -1)
+        self._run_trajectory(Trajectory(traj.times[k] - traj.times[back], traj.q[back].copy(), name))
         return True
 
     def _slipped(self, what: str) -> StepFailed:

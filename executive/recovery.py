@@ -101,11 +101,29 @@ class RecoveryActions:
         tr = self.tracks
         stopped = tr.stopped.name if f.kind in ("protective_stop", "contact") and tr.stopped else None
         ctx["stopped"] = stopped
-        if stopped == "lift":  # put down from where it stopped, not back in the pile; marked after the put-down
+        if stopped == "lift":
+            # Back down the lift (the way it came: free in the world as it is) and let go where the item was taken
+            # from. A put-down planned from the stop point starts right against what the lift met, which no model
+            # holds (a missed or mis-posed neighbour): its first move met the same thing again. Marked after
+            # (mark_lift_contact), so the next try lifts clear of it.
             ctx["lift_marks"] = self._contact_sliver(tr.stopped) if self.planner is not None else None
+            try:
+                if self._retrace(tr.stopped, "back_off", short_of=self.RELEASE_ABOVE) and self._holding():
+                    self._release_in_place()
+            except ProtectiveStopError as e:  # should not happen (the way back was free): put down from here
+                self._log("note", "back off stopped", reason=str(e))
+                self.arm.unlock_protective_stop()
             tr.stopped = None
         elif stopped:
             self._back_off()
+
+    def _release_in_place(self) -> None:
+        """Open where the held item was taken from (the arm back at the grasp): it stands where it stood."""
+        pick = self.item.pick
+        opening = pick.grasp.spec.opening if pick is not None else None
+        self._cmd("gripper.open", opening=opening, release=True)
+        self.gripper.open(opening)
+        self._log("note", "backed down the stopped lift and let go where the item was taken from")
 
     def _act_put_down_held(self, f: Failure, ctx: dict) -> None:
         if self._holding():  # not again where the held item was just stopped on its way down to its target
@@ -162,6 +180,7 @@ class RecoveryActions:
             self.arm.unlock_protective_stop()
 
     CONTACT_LOOKAHEAD = 0.015  # m of tool travel past a stop within which what it touched must lie
+    RELEASE_ABOVE = 0.005  # m short of a stopped lift's start where the item is let go (it drops that far)
 
     def _contact_sliver(self, traj: Trajectory) -> np.ndarray | None:
         """A protective stop cut `traj` short (the arm stands on it): what the tool (or what it holds) touched
