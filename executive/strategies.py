@@ -111,7 +111,6 @@ HARDER_MAX_OCCLUSION = 0.85  # hidden fraction still planned (settings.max_occlu
 HARDER_RRT = 4  # x planner_max_iterations (or x planner_timeout on wall-clock budgets)
 
 
-
 class Strategy:
     name = "strategy"
     when = ""  # when it applies, in words (docs)

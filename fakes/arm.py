@@ -14,9 +14,9 @@
   it: the arm runs there and stops; ``wait`` raises ProtectiveStopError until ``unlock_protective_stop()``.
 - Faults from ``world.faults``: ``arm_disconnect`` (link down until ``connect()``), ``arm_disconnect_after``
   (the link drops that many seconds into the next motion; the arm stops there), ``protective_stop`` (next N
-  motions stop halfway), ``slip_probability`` (per grasp: in one of the next motions while holding, the object drops at a random point of its
-  path, placed by path and not by time so a retimed motion drops it at the same spot, and the gripper closes on
-  nothing).
+  motions stop halfway), ``slip_probability`` (per grasp: in one of the next motions while holding, the object
+  drops at a random point of its path, placed by path and not by time so a retimed motion drops it at the same
+  spot, and the gripper closes on nothing).
 - ``log`` records what happened (motions, protective stops, predicted collisions, refused commands, slips,
   simulated motion time) so tests and the executive can audit a run.
 
