@@ -404,11 +404,11 @@ def find_surfaces(views: list[View], up: np.ndarray | None = None, cfg: SurfaceC
     for s in out:
         if s.kind == "support":
             s.opened = _opened(s, V)
-            s.feet = _wall_feet(s, [w for w in out if w.kind == "wall"], cfg)
+            s.feet = _wall_feet(s, [w for w in out if w.kind == "wall"])
     return SurfaceMap(out, up, cfg)
 
 
-def _wall_feet(s: Surface, walls: list[Surface], cfg: SurfaceConfig) -> np.ndarray | None:
+def _wall_feet(s: Surface, walls: list[Surface]) -> np.ndarray | None:
     """Where the walls that rise from support `s` meet its plane: their footprint cells projected onto it, for
     walls whose lowest cell lies within `WALL_FOOT` of the plane and whose foot lies within `WALL_REACH` of the
     support's footprint. A basin floor is seen only between the items on it: items leaning against the sides
