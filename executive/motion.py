@@ -203,6 +203,8 @@ class Motions:
             p0 = fk(traj.q[0])[:3, 3]
             while j < k and np.linalg.norm(fk(traj.q[j])[:3, 3] - p0) < short_of:
                 j += 1
+            if j >= k:  # stopped within `short_of` of the start: already there (a one-sample path is no motion)
+                return True
         back = slice(k, j - 1 if j > 0 else None, -1)
         self._run_trajectory(Trajectory(traj.times[k] - traj.times[back], traj.q[back].copy(), name))
         return True

@@ -83,3 +83,22 @@ def test_the_put_down_after_a_stopped_lift_does_not_meet_the_same_thing(hidden_o
     assert world.held_uid is None
     assert np.linalg.norm(world.objects[item].T_base_obj[:2, 3] - taken_from[:2]) < 0.01  # let go where it was
     assert len(runner.belief.contact_points) > 0  # and what the lift met is marked for the next try
+
+
+def test_a_lift_stopped_within_the_release_height_needs_no_retrace(hidden_over):
+    """Stopped a millimetre into its lift (less than RELEASE_ABOVE from its start), the way back "short of the start"
+    is no motion at all. Before, a one-sample trajectory went to the arm, which the safety layer refused as a limit
+    violation, and the run gave up."""
+    from kitchenbot.planning.types import Trajectory
+
+    runner = hidden_over[0]
+    q0 = runner.arm.joint_positions().copy()
+    q1, q2 = q0.copy(), q0.copy()
+    q1[1] += 0.002  # the tool ~1 mm along
+    q2[1] += 0.05
+    fk = runner.planner.robot.fk_tcp
+    assert np.linalg.norm(fk(q1)[:3, 3] - fk(q0)[:3, 3]) < runner.RELEASE_ABOVE
+    runner.arm.move_joints(q1)
+    lift = Trajectory(np.array([0.0, 0.1, 1.0]), np.array([q0, q1, q2]), "lift")
+    assert runner._retrace(lift, "back_off", short_of=runner.RELEASE_ABOVE)
+    assert np.allclose(runner.arm.joint_positions(), q1, atol=1e-6)  # nothing moved
