@@ -304,10 +304,15 @@ class Belief:
         rel, self.released = self.released, None
         return rel
 
-    def record_dropped(self, where: np.ndarray) -> None:
-        """An item left the gripper on the way (slipped, let go over the cell) about above `where`."""
+    def record_dropped(self, where: np.ndarray, staged: Placed | None = None) -> None:
+        """An item left the gripper on the way (slipped, let go over the cell) about above `where`. `staged`: the
+        record it was picked up from when it was staged; it is not there any more (it fell near `where`, and the
+        look there records it anew where it is found). Kept, it was picked up "again" from an empty spot until its
+        attempts ran out, and the run ended with it "left on the counter"."""
         self.dropped += 1
         self.drop_site = np.array(where, float)
+        if staged is not None:
+            self.unplace(staged)
 
     def record_drop_found(self) -> None:
         """The item that dropped last is not lost: it fell back into the sink or was found where it fell."""

@@ -460,7 +460,7 @@ class RecoveryActions:
         (x0, y0), (x1, y1) = self.robot.cell.spec.counter_extent_xy
         if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
             self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
-            self.belief.record_dropped(tcp)
+            self.belief.record_dropped(tcp, it.staged)
             self._cmd("gripper.open", release=True)
             self.gripper.open()
             return False
