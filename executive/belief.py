@@ -371,6 +371,12 @@ class Belief:
         """Whether the staged record `p` is only where it was put down: no view has shown where it settled."""
         return any(q.instance_id == p.instance_id for q in self.staged) and p.instance_id not in self.seen_staged
 
+    def look_again(self, p: Placed) -> None:
+        """A grasp of the staged item `p` closed on nothing or on something else: it does not lie as its record
+        has it (the view's pose was off, or the pads pushed it); the next selection looks at it again. Without
+        that, the same record planned the next grasp, which missed too, until its attempts ran out."""
+        self.seen_staged.discard(p.instance_id)
+
     def looked_at(self, task, p: Placed, T_seen: np.ndarray | None) -> Placed:
         """A view was taken of the staged item `p`: it lies at `T_seen` (its record moves there, the same instance,
         footprint anew from `task`), or None when the view did not show it (the record stays). Not looked at

@@ -80,6 +80,8 @@ class RecoveryActions:
             if f.kind == "grasp_missed" and self.item.pick is not None:
                 for name in self._missed_alike(f, obj, self.item.pick.grasp.spec.name):
                     self.belief.record_missed_grasp(obj, name)
+            if f.kind == "grasp_missed" and self.item.staged is not None:
+                self.belief.look_again(self.item.staged)
 
     def _missed_alike(self, f: Failure, obj: ObjectPose, name: str) -> list[str]:
         """The grasp `name` that missed, and, where its grip closed off its planned width (``expected`` in the
