@@ -304,10 +304,15 @@ class Belief:
         rel, self.released = self.released, None
         return rel
 
-    def record_dropped(self, where: np.ndarray) -> None:
-        """An item left the gripper on the way (slipped, let go over the cell) about above `where`."""
+    def record_dropped(self, where: np.ndarray, staged: Placed | None = None) -> None:
+        """An item left the gripper on the way (slipped, let go over the cell) about above `where`. `staged`: the
+        record it was picked up from when it was staged; it is not there any more (it fell near `where`, and the
+        look there records it anew where it is found). Kept, it was picked up "again" from an empty spot until its
+        attempts ran out, and the run ended with it "left on the counter"."""
         self.dropped += 1
         self.drop_site = np.array(where, float)
+        if staged is not None:
+            self.unplace(staged)
 
     def record_drop_found(self) -> None:
         """The item that dropped last is not lost: it fell back into the sink or was found where it fell."""
@@ -365,6 +370,12 @@ class Belief:
     def needs_look(self, p: Placed) -> bool:
         """Whether the staged record `p` is only where it was put down: no view has shown where it settled."""
         return any(q.instance_id == p.instance_id for q in self.staged) and p.instance_id not in self.seen_staged
+
+    def look_again(self, p: Placed) -> None:
+        """A grasp of the staged item `p` closed on nothing or on something else: it does not lie as its record
+        has it (the view's pose was off, or the pads pushed it); the next selection looks at it again. Without
+        that, the same record planned the next grasp, which missed too, until its attempts ran out."""
+        self.seen_staged.discard(p.instance_id)
 
     def looked_at(self, task, p: Placed, T_seen: np.ndarray | None) -> Placed:
         """A view was taken of the staged item `p`: it lies at `T_seen` (its record moves there, the same instance,

@@ -80,6 +80,8 @@ class RecoveryActions:
             if f.kind == "grasp_missed" and self.item.pick is not None:
                 for name in self._missed_alike(f, obj, self.item.pick.grasp.spec.name):
                     self.belief.record_missed_grasp(obj, name)
+            if f.kind == "grasp_missed" and self.item.staged is not None:
+                self.belief.look_again(self.item.staged)
 
     def _missed_alike(self, f: Failure, obj: ObjectPose, name: str) -> list[str]:
         """The grasp `name` that missed, and, where its grip closed off its planned width (``expected`` in the
@@ -460,7 +462,7 @@ class RecoveryActions:
         (x0, y0), (x1, y1) = self.robot.cell.spec.counter_extent_xy
         if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
             self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
-            self.belief.record_dropped(tcp)
+            self.belief.record_dropped(tcp, it.staged)
             self._cmd("gripper.open", release=True)
             self.gripper.open()
             return False
