@@ -365,7 +365,8 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         b.perceived(poses, getattr(res, "map_points", None), self.task.pending_models(poses),
                     self.robot.cell.sink_interior)
         self._log("result", "perceive", objects=[{"obj_id": p.obj_id, "cls": p.cls, "xyz": p.T_base_obj[:3, 3],
-                                                  "score": p.score} for p in poses])
+                                                  "score": p.score} for p in poses],
+                  tracked=getattr(res, "tracked", 0))
         if self.recorder is not None:
             self.recorder.perception(res, poses, self._sim_now())
         self._verify_pending()
