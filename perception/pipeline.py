@@ -78,7 +78,7 @@ class PerceptionResult:
     surfaces_from: str = "cell"  # "cell": the configured cell's; "data": found in the scan; "plane": per view
     cell_check: CellCheck | None = None  # with use_cell="auto": how the configured cell fitted the scan
     surfaces: SurfaceMap | None = None  # the surfaces found in the scan ("data")
-    tracked: int = 0  # instances whose pose was kept from a prior (perceive(priors=), perception/track.py)
+    tracked: int = 0  # instances posed from a prior (perceive(priors=), perception/track.py; before the fine check)
 
     @property
     def map_points(self) -> np.ndarray:
