@@ -34,6 +34,7 @@ from kitchenbot.executive.report import RunReport
 from kitchenbot.executive.stage_times import StageTimes
 from kitchenbot.executive.strategies import strategies_for
 from kitchenbot.executive.verification import Verification
+from kitchenbot.perception.pipeline import Perceiver
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import NoFreeSlot, Trajectory  # noqa: F401
 
@@ -350,7 +351,12 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
     def _perceive(self) -> None:
         self._cmd("perceive", views=len(self.views))
         with self.stages.within("perceive"):
-            res = self.perceiver.perceive(self.views)
+            if isinstance(self.perceiver, Perceiver) and self.belief.poses:
+                # a re-scan: items the belief's poses still explain keep them after a local refinement (pose
+                # tracking, perception/track.py); the rest gets the full estimate
+                res = self.perceiver.perceive(self.views, priors=list(self.belief.poses))
+            else:
+                res = self.perceiver.perceive(self.views)
         self._check_deadline()  # perception cannot be interrupted: its timeout is checked when it returns
         poses = list(res.poses)
         if self.fault_hook is not None:
@@ -359,7 +365,8 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         b.perceived(poses, getattr(res, "map_points", None), self.task.pending_models(poses),
                     self.robot.cell.sink_interior)
         self._log("result", "perceive", objects=[{"obj_id": p.obj_id, "cls": p.cls, "xyz": p.T_base_obj[:3, 3],
-                                                  "score": p.score} for p in poses])
+                                                  "score": p.score} for p in poses],
+                  tracked=getattr(res, "tracked", 0))
         if self.recorder is not None:
             self.recorder.perception(res, poses, self._sim_now())
         self._verify_pending()

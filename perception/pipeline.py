@@ -32,6 +32,7 @@ from kitchenbot.perception.rgbd import check_view
 from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
+from kitchenbot.perception.track import best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, overhang, patch_normals,
                                           surface_noise, verify)
@@ -77,6 +78,7 @@ class PerceptionResult:
     surfaces_from: str = "cell"  # "cell": the configured cell's; "data": found in the scan; "plane": per view
     cell_check: CellCheck | None = None  # with use_cell="auto": how the configured cell fitted the scan
     surfaces: SurfaceMap | None = None  # the surfaces found in the scan ("data")
+    tracked: int = 0  # instances posed from a prior (perceive(priors=), perception/track.py; before the fine check)
 
     @property
     def map_points(self) -> np.ndarray:
@@ -151,11 +153,13 @@ class Perceiver:
         return out
 
     def perceive(self, views: list[View], up: np.ndarray | None = np.array([0.0, 0.0, 1.0]),
-                 region=None) -> PerceptionResult:
+                 region=None, priors: list[ObjectPose] | None = None) -> PerceptionResult:
         """Object poses from one scan. `up`: the base frame's up (against gravity); None when the views' frame
         has no known gravity (a BOP image without world poses): the dominant plane of each view is then the
         support. `region`: a mask over base-frame points (N, 3) -> (N,) bool; only instances with at least
-        REGION_SHARE of their points in it are fitted (incremental perception, perception/region.py)."""
+        REGION_SHARE of their points in it are fitted (incremental perception, perception/region.py).
+        `priors`: the poses believed before this scan (a re-scan); an instance one of them still explains keeps
+        it after a local refinement instead of the global search (pose tracking, perception/track.py)."""
         timings: dict[str, float] = {}
 
         cpu: dict[str, float] = {}
@@ -226,6 +230,7 @@ class Perceiver:
             if region is not None:
                 queue = [i for i in queue if np.mean(region(m.points[m.ids == i])) >= REGION_SHARE]
             ids_out = m.ids.copy()
+            used: set[int] = set()  # priors kept (tracked): one instance each
             splits = 0
             found: list[tuple[Hypothesis, int, np.ndarray]] = []
             parts: set[int] = set()  # ids made by cutting a blob (never cut again)
@@ -237,7 +242,11 @@ class Perceiver:
                     ids_out[sel] = -1
                     continue
                 t0, c0 = time.perf_counter(), time.process_time()
-                hyp, _query = self.estimate(m.select(sel), views, [f[0] for f in found])
+                hyp, k = self._track(m.select(sel), views, priors, used) if priors else (None, None)
+                if hyp is not None:
+                    used.add(k)
+                else:
+                    hyp, _query = self.estimate(m.select(sel), views, [f[0] for f in found])
                 pose_ms.append(1000 * (time.perf_counter() - t0))
                 pose_cpu_ms.append(1000 * (time.process_time() - c0))
                 if iid in groups:
@@ -369,7 +378,7 @@ class Perceiver:
         m = InstanceMap(m.points, ids_out, m.view, m.pixel, m.cam_centres)
         source = "cell" if self._active_cell is not None else ("data" if self._surfaces is not None else "plane")
         return PerceptionResult(poses, m, dets, timings, pose_ms, rejected, list(views), cpu, pose_cpu_ms,
-                                source, check, self._surfaces)
+                                source, check, self._surfaces, len(used))
 
     def _fine_check(self, m: InstanceMap, found: list[tuple[Hypothesis, int, np.ndarray]]) -> None:
         """Each found pose's `fine` verification part (perception/verify.py): the share of its own map points,
@@ -715,17 +724,7 @@ class Perceiver:
         """Class and pose of one instance (its map points), or None when no model explains it. `found`: poses
         already estimated nearby, whose stacking positions (same model shifted along its axis) are tried too."""
         st = self.settings
-        masks: list[np.ndarray | None] = []
-        for k, v in enumerate(views):
-            sel = inst.view == k
-            if not sel.any():
-                masks.append(None)
-                continue
-            mk = np.zeros(v.depth.shape, bool)
-            mk[inst.pixel[sel, 0], inst.pixel[sel, 1]] = True
-            masks.append(mk)
-        query = fuse_instance(inst.points, inst.view, inst.pixel, [v.rgb for v in views], masks, inst.cam_centres,
-                              st.voxel_size, self.img_enc, self.pt_enc)
+        query = self._query(inst, views)
         if len(query.points) < 8:
             return None, query
         cands = propose(query, self.database, st.top_k, st.candidate_threshold)
@@ -790,17 +789,62 @@ class Perceiver:
             best = self._yaw_sweep(query, best, scorers[best.obj_id])
         if best is not None and self.inventory[best.obj_id].cls in FLIP_CLASSES:
             best = self._flip_check(query, best, scorers[best.obj_id])
+        if best is None:
+            return None, query
+        return self._accepted(query, best, scorers[best.obj_id]), query
+
+    def _query(self, inst: InstanceMap, views: list[View]) -> FusedCloud:
+        """One instance's map points as voxel centres with normals and fused features."""
+        masks: list[np.ndarray | None] = []
+        for k, v in enumerate(views):
+            sel = inst.view == k
+            if not sel.any():
+                masks.append(None)
+                continue
+            mk = np.zeros(v.depth.shape, bool)
+            mk[inst.pixel[sel, 0], inst.pixel[sel, 1]] = True
+            masks.append(mk)
+        return fuse_instance(inst.points, inst.view, inst.pixel, [v.rgb for v in views], masks, inst.cam_centres,
+                             self.settings.voxel_size, self.img_enc, self.pt_enc)
+
+    def _accepted(self, query: FusedCloud, best: Hypothesis, scorer: Scorer) -> Hypothesis | None:
+        """`best` with its verification, if it passes the checks every pose must pass; else None."""
+        st = self.settings
         # Both overlap ratios must be substantial: a tiny fragment "fully explained" by a model whose visible
         # surface the views do not confirm is no detection (paper: insufficient correspondences / low overlap).
-        if best is None or best.score < st.min_overlap or best.or_model < 0.15 or \
-                self._reach_share(query.points, best) < 0.2:
-            return None, query
+        if best.score < st.min_overlap or best.or_model < 0.15 or self._reach_share(query.points, best) < 0.2:
+            return None
         # Verification (perception/verify.py), judged on the final poses in perceive(): poses that fail it may
         # still lead the splitting of a blob to the right fits of its pieces.
-        _, _, seen, free, _ = scorers[best.obj_id](best.T_base_obj)
+        _, _, seen, free, _ = scorer(best.T_base_obj)
         best.verification = verify(query.points, query.normals, self.database[best.obj_id], best.T_base_obj, seen,
                                    free, st.voxel_size)
-        return best, query
+        return best
+
+    def _track(self, inst: InstanceMap, views: list[View], priors: list[ObjectPose],
+               used: set[int]) -> tuple[Hypothesis | None, int | None]:
+        """Pose tracking (perception/track.py): the prior (not in `used`) that puts most of the instance's points
+        on its surface, refined by a few ICP iterations from its pose, if it did not move and passes the checks
+        every pose must pass (`_accepted`); with the prior's index. (None, None): the instance gets the full
+        estimate."""
+        vox = self.settings.voxel_size
+        k = best_prior(inst.points, priors, self.database, used, 1.5 * vox)
+        if k is None:
+            return None, None
+        prior = priors[k]
+        query = self._query(inst, views)
+        if len(query.points) < 8:
+            return None, None
+        entry = self.database[prior.obj_id]
+        sym = self.inventory[prior.obj_id].is_rotationally_symmetric
+        scorer = Scorer(entry, query.points, views, vox, inside_solid=self._inside_solid(self._up()),
+                        depths=self._depths)
+        h = refine(query, entry, scorer, prior.T_base_obj, self.reg_cfg, "track", symmetric=sym, local=True)
+        h.score *= self._colour_weight(query, h, 1.0)
+        if moved(prior.T_base_obj, h.T_base_obj, sym):
+            return None, None
+        h = self._accepted(query, h, scorer)
+        return (h, k) if h is not None else (None, None)
 
 
 def _partition(points: np.ndarray, spacing: float) -> list[np.ndarray]:

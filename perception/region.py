@@ -151,7 +151,7 @@ def update_region(perceiver, map_points: np.ndarray | None, known: list[ObjectPo
     """Re-perceive `region` from `view` with `perceiver` and merge it into the known poses and map (module doc).
     `z_floor`: the height of the support the region's items stand on (for the coverage check). A pipeline
     Perceiver estimates poses only for the instances in the region (the rest of the view is segmented, not
-    fitted); any other perceiver (the oracle) is asked for the whole view and filtered."""
+    fitted; a known pose that still explains its instance is tracked, perception/track.py); any other perceiver (the oracle) is asked for the whole view and filtered."""
     from kitchenbot.perception.pipeline import Perceiver
 
     cov = coverage(view, region, z_floor)
@@ -161,7 +161,7 @@ def update_region(perceiver, map_points: np.ndarray | None, known: list[ObjectPo
         return RegionUpdate(list(known), map_points, kept, [], replaced, [], cov,
                             f"the view measures {cov:.0%} of the region (< {min_coverage:.0%})")
     if isinstance(perceiver, Perceiver):
-        res = perceiver.perceive([view], region=region.contains)
+        res = perceiver.perceive([view], region=region.contains, priors=list(known))  # unmoved items: tracked
     else:
         res = perceiver.perceive([view])
     found = [p for p in res.poses if region.contains(p.T_base_obj[None, :3, 3])[0]

@@ -490,13 +490,17 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
 
 
 def refine(query: FusedCloud, entry: ModelEntry, scorer: Scorer, T_base_obj: np.ndarray, cfg: RegistrationConfig,
-           source: str = "", upright: bool = False, symmetric: bool = False) -> Hypothesis:
-    """Fine ICP against the dense model surface (<= ~600 query points) and the full score."""
+           source: str = "", upright: bool = False, symmetric: bool = False, local: bool = False) -> Hypothesis:
+    """Fine ICP against the dense model surface (<= ~600 query points) and the full score. `local`: a few
+    iterations at the finer levels only, from a pose already within about a voxel (a tracked prior)."""
     v = cfg.voxel
     step = max(1, len(query.points) // 600)
     q, qn = query.points[::step], query.normals[::step]
-    dists = (3 * v, 1.5 * v, v, 0.6 * v, 0.3 * v) if upright else (2 * v, v, 0.6 * v, 0.3 * v)
-    Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=10, upright=upright, qn=qn, symmetric=symmetric))
+    if local:
+        dists, iters = (1.5 * v, 0.6 * v, 0.3 * v), 4
+    else:
+        dists, iters = ((3 * v, 1.5 * v, v, 0.6 * v, 0.3 * v) if upright else (2 * v, v, 0.6 * v, 0.3 * v)), 10
+    Tb = inv(icp_to_model(q, entry, inv(T_base_obj), dists, iters=iters, upright=upright, qn=qn, symmetric=symmetric))
     return Hypothesis(entry.obj_id, Tb, *scorer(Tb), source=source + ("-upright" if upright else ""))
 
 

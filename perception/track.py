@@ -1,0 +1,64 @@
+"""Pose tracking across re-scans: an item whose previous pose still explains its segment keeps it.
+
+After a pick the executive scans the sink again and hands perception the poses it believed
+(`Perceiver.perceive(views, priors=...)`; perception does not know the executive). Most items did not move, and a
+full estimate of each (hypothesis screening over the top-K CAD candidates, then ICP: ~0.4 s) found them where
+they were. Per segment instead:
+
+- `best_prior`: the prior, not yet taken, that puts the most of the segment's points on its surface (1.5 voxels),
+  if at least PRIOR_SHARE of the segment's points within its reach (it may be only part of a blob: a stack);
+- the pose is refined by a few ICP iterations from the prior (register.refine(local=True)), scored against this
+  scan's depth and verified like any pose (Perceiver._accepted: overlap both ways, depth render-and-compare,
+  verify.py; the fine check follows for all poses alike);
+- `moved`: a refined pose more than MOVE_TOL / TURN_TOL from its prior is an item that moved (knocked, settled
+  after its neighbour left): the global search decides, not a local fit.
+
+A segment no prior explains (an item uncovered or dropped, one that moved away, one whose tracked pose fails the
+checks) gets the full estimate, and so does what a tracked pose leaves of its segment (pipeline: the remainder is
+fitted again as after any pose). Base frame, metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kitchenbot.perception.database import CadDatabase
+from kitchenbot.perception.register import on_surface
+from kitchenbot.perception.types import ObjectPose
+
+#: of the segment's points within a prior's reach, the share on its surface for it to be tried
+PRIOR_SHARE = 0.5
+#: m / rad: a refined pose farther than this from its prior is an item that moved
+MOVE_TOL = 0.01
+TURN_TOL = np.radians(8.0)
+
+
+def best_prior(points: np.ndarray, priors: list[ObjectPose], database: CadDatabase, used: set[int],
+               tol: float) -> int | None:
+    """Index of the prior (not in `used`) that puts the most of `points` on its surface within `tol`, if that is
+    at least PRIOR_SHARE of the points within its reach; else None."""
+    best, best_n = None, 0
+    for k, p in enumerate(priors):
+        if k in used:
+            continue
+        entry = database[p.obj_id]
+        within = np.sum((points - p.T_base_obj[:3, 3]) ** 2, axis=1) <= (entry.reach + tol) ** 2
+        n_within = int(within.sum())
+        if n_within == 0:
+            continue
+        n = int(on_surface(points[within], None, entry, p.T_base_obj, tol).sum())
+        if n >= PRIOR_SHARE * n_within and n > best_n:
+            best, best_n = k, n
+    return best
+
+
+def moved(T_prior: np.ndarray, T_now: np.ndarray, symmetric: bool) -> bool:
+    """Whether the pose went more than MOVE_TOL or turned more than TURN_TOL from the prior (for a model
+    symmetric about its z axis, only the axis' turn counts)."""
+    if np.linalg.norm(T_now[:3, 3] - T_prior[:3, 3]) > MOVE_TOL:
+        return True
+    if symmetric:
+        c = float(np.clip(T_now[:3, 2] @ T_prior[:3, 2], -1.0, 1.0))
+    else:
+        c = float(np.clip((np.trace(T_prior[:3, :3].T @ T_now[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
+    return bool(np.arccos(c) > TURN_TOL)

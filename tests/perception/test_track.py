@@ -1,0 +1,86 @@
+"""Pose tracking across re-scans (perception/track.py) on synthetic views with known poses: a scene scanned again
+unchanged keeps its poses with no global search; an item that moved is estimated afresh, the others tracked."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kitchenbot.perception import pipeline
+from kitchenbot.perception.metrics import adi
+from kitchenbot.perception.synthetic import render, resting_pose, scan_poses
+from kitchenbot.perception.track import moved
+from kitchenbot.transforms import make_T
+
+
+@pytest.fixture
+def screens(monkeypatch):
+    """Counts the global search's hypothesis screenings (one per CAD candidate of an instance estimated)."""
+    calls = []
+    real = pipeline.screen_candidate
+
+    def counted(*a, **kw):
+        calls.append(a[1].obj_id)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(pipeline, "screen_candidate", counted)
+    return calls
+
+
+def _scene(inventory, cell, mug_xy=(0.38, -0.11)):
+    return [(4, resting_pose(inventory, 4, 0.45, 0.09, 0.3, cell)),  # cup
+            (2, resting_pose(inventory, 2, 0.56, -0.06, 0.0, cell)),  # side plate
+            (5, resting_pose(inventory, 5, *mug_xy, 1.0, cell))]  # mug
+
+
+def _match(poses, placed, inventory):
+    """For each placed item, the ADI error of the pose of its model nearest to it (inf if none)."""
+    out = []
+    for oid, T in placed:
+        errs = [adi(p.T_base_obj, T, inventory[oid].points) for p in poses if p.obj_id == oid]
+        out.append(min(errs, default=np.inf))
+    return out
+
+
+def test_a_scene_scanned_again_unchanged_keeps_its_poses_without_a_global_search(perceiver, inventory, cell,
+                                                                                 screens):
+    placed = _scene(inventory, cell)
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    first = perceiver.perceive(views)
+    assert len(first.poses) == 3 and first.tracked == 0 and len(screens) > 0
+    # the same scene, scanned again (other sensor noise), with the poses believed after the first scan
+    again, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
+    screens.clear()
+    r = perceiver.perceive(again, priors=first.poses)
+    assert screens == [] and r.tracked == 3
+    assert sorted(p.obj_id for p in r.poses) == sorted(p.obj_id for p in first.poses)
+    for p in r.poses:
+        q = next(q for q in first.poses if q.obj_id == p.obj_id)
+        assert np.linalg.norm(p.T_base_obj[:3, 3] - q.T_base_obj[:3, 3]) < 0.005
+        assert p.verification >= perceiver.settings.verify_threshold
+    assert max(_match(r.poses, placed, inventory)) < 0.01
+
+
+def test_an_item_that_moved_is_estimated_afresh_and_the_others_tracked(perceiver, inventory, cell, screens):
+    placed = _scene(inventory, cell)
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    first = perceiver.perceive(views)
+    assert len(first.poses) == 3
+    after = _scene(inventory, cell, mug_xy=(0.40, -0.02))  # the mug was knocked 9 cm
+    views2, _ = render(inventory, after, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
+    screens.clear()
+    r = perceiver.perceive(views2, priors=first.poses)
+    assert r.tracked == 2
+    assert 5 in screens  # the mug went through the global search
+    err = _match(r.poses, after, inventory)
+    assert max(err) < 0.1 * inventory[5].diameter, err
+
+
+def test_a_pose_that_went_beyond_the_tolerances_counts_as_moved():
+    T = make_T(np.eye(3), [0.4, 0.0, 0.1])
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    yaw30 = make_T(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), [0.4, 0.0, 0.1])
+    assert not moved(T, make_T(np.eye(3), [0.405, 0.0, 0.1]), symmetric=False)
+    assert moved(T, make_T(np.eye(3), [0.42, 0.0, 0.1]), symmetric=False)
+    assert moved(T, yaw30, symmetric=False)
+    assert not moved(T, yaw30, symmetric=True)  # a turn about a symmetric model's axis is no move
