@@ -312,7 +312,10 @@ class Planner:
             world_key = tuple(sorted((o.obj_id, np.round(np.asarray(o.T_base_obj, float), 4).tobytes()) for o in known))
 
             def flt(obj, spec, T_base_tcp):
-                key = (obj.obj_id, spec.name, tuple(t.T_base_obj.tobytes() for t in targets), world_key, voxels.tobytes())
+                # a target's turns (free_yaw, flip_ok) and release height are part of the question, not only its pose
+                key = (obj.obj_id, spec.name, tuple((t.T_base_obj.tobytes(), bool(t.free_yaw), t.flip_ok, t.kind,
+                                                     float(t.clearance), t.approach_distance) for t in targets),
+                       world_key, voxels.tobytes())
                 if key not in self._placeable:
                     held = Held(self.inventory[obj.obj_id], inv(spec.T_obj_tcp), spec.width)
 
