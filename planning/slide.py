@@ -90,8 +90,8 @@ def _touching(planner, a: ObjectPose, b: ObjectPose, gap: float = 0.003) -> bool
 
 def slide_directions(planner, target: ObjectPose, others: list, distance: float) -> list[tuple[np.ndarray, float]]:
     """(unit direction, clearance) of each of 8 horizontal directions the item can slide `distance` along:
-    it stays inside the sink (5 mm from the walls) and touches nothing it does not already touch. Most room
-    first."""
+    it stays inside the sink (5 mm from the walls), touches nothing it does not already touch and ends farther from
+    the centre of each item it lies on. Most room first."""
     model = planner.inventory[target.obj_id]
     T0 = np.asarray(target.T_base_obj, float)
     V = np.asarray(model.mesh.vertices) @ T0[:3, :3].T + T0[:3, 3]
@@ -107,9 +107,17 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
             # further down the stack the item rests on (the plate under the one under it): the item climbs over
             # it as it slides (the path follows its resting height), which this level shift does not model
             touching.add(k)
+    # A slide takes the item off what it rests on: it must end farther (horizontally) from the centre of each item
+    # it lies on than it starts. Those items are passed over by the contact test above, so without this a slide
+    # back towards the middle of the plate below passed as "free" (a second slide undid the first and left the
+    # plate squarely nested again).
+    under = [np.asarray(o.T_base_obj, float)[:2, 3] for o in others if planner._lies_on(target, o)]
     out = []
     for a in np.radians(np.arange(0, 360, 45)):
         d = np.array([np.cos(a), np.sin(a), 0.0])
+        c1 = T0[:2, 3] + distance * d[:2]
+        if any(np.linalg.norm(c1 - c) <= np.linalg.norm(T0[:2, 3] - c) for c in under):
+            continue
         W = V + distance * d
         room = min(float(np.min(W[:, :2] - lo[:2])), float(np.min(hi[:2] - W[:, :2])))
         if room < 0.005:

@@ -157,3 +157,26 @@ def test_an_item_resting_on_the_plate_stops_the_slide(nested):
     with pytest.raises(ProtectiveStopError, match="resting on it"):
         for traj in plan.trajectories:
             arm.execute_trajectory(traj.times, traj.q)
+
+
+def test_no_slide_back_towards_the_middle_of_the_plate_below(nested):
+    """A plate already slid part way off the one below may only go on away from it: a slide back towards the lower
+    plate's centre nests it again (before: such directions passed, the item below being ignored as "touched")."""
+    import dataclasses
+
+    from kitchenbot.planning.slide import slide_directions
+
+    cfg, world, arm, planner = nested
+    poses = OraclePerceiver(world).perceive([]).poses
+    below = next(p for p in poses if p.instance_id == 1)
+    top = next(p for p in poses if p.instance_id == 2)
+    off = np.array([0.04, 0.0])
+    T = np.asarray(below.T_base_obj, float).copy()
+    T[:2, 3] += off
+    T[2, 3] = top.T_base_obj[2, 3] + 0.01
+    top = dataclasses.replace(top, T_base_obj=T)
+    assert planner._lies_on(top, below)
+    dirs = slide_directions(planner, top, [below], 0.06)
+    assert dirs, "some way off the plate below"
+    for d, _room in dirs:
+        assert np.linalg.norm(off + 0.06 * d[:2]) > np.linalg.norm(off), d
