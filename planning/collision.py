@@ -460,17 +460,17 @@ class CollisionWorld:
     ) -> np.ndarray:
         """Mask of the (N, 3) `points` that perceived objects explain.
 
-        A point of no recognised instance is explained inside an object's mesh bounding box grown by
-        `explain_radius`. A point of instance ``objects[i]`` (``instance_points[i]`` holds them) is explained
-        where some object's model surface lies within `explain_radius` of it: where the fitted model does not
-        cover its own points, the real item is there and the model is not, so they stay obstacles. Only the
-        objects marked in `self_explaining` (None: all) may explain their own points anyway, where those lie
+        A point is explained where some object's model surface lies within `explain_radius` of it (depth noise
+        and a pose a little off), not merely inside its bounding box: a hollow item's box is mostly air, and the
+        points of an item nobody perceived nested in it (a bowl in a bowl) are an obstacle the lift must clear.
+        A point of instance ``objects[i]`` (``instance_points[i]`` holds them) likewise: where the fitted model
+        does not cover its own points, the real item is there and the model is not, so they stay obstacles. Only
+        the objects marked in `self_explaining` (None: all) may explain their own points anyway, where those lie
         within `instance_reach` of the object's own fitted model surface (the grasp target and the held item, so
         a pose a little off leaves no phantom obstacle beside the item the pads close on); and points of no
         instance within `explain_radius` of such points. Own points farther from the model stay obstacles: the
         instance took in something beside it (a mug next to a bowl segmented into the bowl's instance) that no
-        model stands for, and the grasp, the lift and the transport must keep clear of it. No box explains an
-        instance's points (a neighbour's, or the target's own, inside a box of air).
+        model stands for, and the grasp, the lift and the transport must keep clear of it.
 
         The per-object work (the points in the object frame, its box, distances to its surface) and the owners
         are memoised by content (:class:`_ExplainMemo`): one pick or place asks this of the same map and the
@@ -485,11 +485,9 @@ class CollisionWorld:
         inst = []
         for k, o in enumerate(objects):
             ob = memo.object(o, explain_radius)
-            in_box = ob.in_box
-            # the box explains points of no instance
-            hit |= in_box & (owner < 0)
-            # any point on (near) this model's surface
-            cand = np.flatnonzero(in_box & ~hit)
+            # any point on (near) this model's surface; the box only bounds the search (a hollow's box is mostly
+            # air: an unperceived item nested in it is there, not explained)
+            cand = np.flatnonzero(ob.in_box & ~hit)
             if len(cand):
                 hit[cand[ob.distance(cand) <= explain_radius]] = True
             if own_ok[k]:
