@@ -209,6 +209,36 @@ def _surface_distance(model: ObjectModel, P_obj: np.ndarray) -> np.ndarray:
     return hit[1].compute_distance(q).numpy().astype(float)
 
 
+_NEAR_CELL = 0.005  # m: cells of the grid that settles most "within r of the surface" questions without a query
+_NEAR_GRIDS: dict[tuple, tuple] = {}  # (id(mesh), r) -> (mesh, origin, shape, cells surely within r)
+
+
+def _near_grid(model: ObjectModel, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per model and radius, once: the object-frame grid over its box grown by `radius` and the cells whose every
+    point lies within `radius` of its surface (the centre within `radius` less the half-diagonal)."""
+    key = (id(model.mesh), float(radius))
+    hit = _NEAR_GRIDS.get(key)
+    if hit is None or hit[0] is not model.mesh:
+        bb = model.mesh.get_axis_aligned_bounding_box()
+        lo = np.asarray(bb.get_min_bound()) - radius
+        shape = np.ceil((np.asarray(bb.get_max_bound()) + radius - lo) / _NEAR_CELL).astype(int) + 1
+        centres = lo + (np.indices(shape).reshape(3, -1).T + 0.5) * _NEAR_CELL
+        sure = _surface_distance(model, centres) <= radius - np.sqrt(3) / 2 * _NEAR_CELL
+        hit = _NEAR_GRIDS[key] = (model.mesh, lo, shape, sure.reshape(shape))
+    return hit[1], hit[3]
+
+
+def _surely_near(model: ObjectModel, P_obj: np.ndarray, radius: float) -> np.ndarray:
+    """Points (object frame) that surely lie within `radius` of the model's surface, by the grid alone (False:
+    not known; the exact distance decides)."""
+    lo, sure = _near_grid(model, radius)
+    ijk = np.floor((P_obj - lo) / _NEAR_CELL).astype(np.int64)
+    ok = np.all((ijk >= 0) & (ijk < np.array(sure.shape)), axis=1)
+    out = np.zeros(len(P_obj), bool)
+    out[ok] = sure[ijk[ok, 0], ijk[ok, 1], ijk[ok, 2]]
+    return out
+
+
 def _digest(a: np.ndarray) -> bytes:
     a = np.ascontiguousarray(a)
     return hashlib.blake2b(a.view(np.uint8).reshape(-1), digest_size=16).digest() + repr((a.dtype.str, a.shape)).encode()
@@ -225,6 +255,15 @@ class _ObjectPoints:
         self.Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
         self.in_box = np.all((self.Pl >= self.lo - radius) & (self.Pl <= self.hi + radius), axis=1)
         self._d = np.full(len(P), np.nan)
+
+    def near(self, idx: np.ndarray, radius: float) -> np.ndarray:
+        """Whether points `idx` (indices) lie within `radius` of the model's surface: a grid cell surely that near
+        settles it (most map points lie on some surface; the exact query is the costly part), the exact distance
+        the rest. The same answer as the distance alone."""
+        out = _surely_near(self.model, self.Pl[idx], radius)
+        if not out.all():
+            out[~out] = self.distance(idx[~out]) <= radius
+        return out
 
     def distance(self, idx: np.ndarray) -> np.ndarray:
         """Distances of points `idx` (indices) to the model's surface (each point's own query: computing a point
@@ -460,17 +499,17 @@ class CollisionWorld:
     ) -> np.ndarray:
         """Mask of the (N, 3) `points` that perceived objects explain.
 
-        A point of no recognised instance is explained inside an object's mesh bounding box grown by
-        `explain_radius`. A point of instance ``objects[i]`` (``instance_points[i]`` holds them) is explained
-        where some object's model surface lies within `explain_radius` of it: where the fitted model does not
-        cover its own points, the real item is there and the model is not, so they stay obstacles. Only the
-        objects marked in `self_explaining` (None: all) may explain their own points anyway, where those lie
+        A point is explained where some object's model surface lies within `explain_radius` of it (depth noise
+        and a pose a little off), not merely inside its bounding box: a hollow item's box is mostly air, and the
+        points of an item nobody perceived nested in it (a bowl in a bowl) are an obstacle the lift must clear.
+        A point of instance ``objects[i]`` (``instance_points[i]`` holds them) likewise: where the fitted model
+        does not cover its own points, the real item is there and the model is not, so they stay obstacles. Only
+        the objects marked in `self_explaining` (None: all) may explain their own points anyway, where those lie
         within `instance_reach` of the object's own fitted model surface (the grasp target and the held item, so
         a pose a little off leaves no phantom obstacle beside the item the pads close on); and points of no
         instance within `explain_radius` of such points. Own points farther from the model stay obstacles: the
         instance took in something beside it (a mug next to a bowl segmented into the bowl's instance) that no
-        model stands for, and the grasp, the lift and the transport must keep clear of it. No box explains an
-        instance's points (a neighbour's, or the target's own, inside a box of air).
+        model stands for, and the grasp, the lift and the transport must keep clear of it.
 
         The per-object work (the points in the object frame, its box, distances to its surface) and the owners
         are memoised by content (:class:`_ExplainMemo`): one pick or place asks this of the same map and the
@@ -485,18 +524,16 @@ class CollisionWorld:
         inst = []
         for k, o in enumerate(objects):
             ob = memo.object(o, explain_radius)
-            in_box = ob.in_box
-            # the box explains points of no instance
-            hit |= in_box & (owner < 0)
-            # any point on (near) this model's surface
-            cand = np.flatnonzero(in_box & ~hit)
+            # any point on (near) this model's surface; the box only bounds the search (a hollow's box is mostly
+            # air: an unperceived item nested in it is there, not explained)
+            cand = np.flatnonzero(ob.in_box & ~hit)
             if len(cand):
-                hit[cand[ob.distance(cand) <= explain_radius]] = True
+                hit[cand[ob.near(cand, explain_radius)]] = True
             if own_ok[k]:
                 # its own points near its own fitted model (within instance_reach of the surface)
                 mine = np.flatnonzero((owner == k) & ~hit)
                 if len(mine):
-                    hit[mine[ob.distance(mine) <= instance_reach]] = True
+                    hit[mine[ob.near(mine, instance_reach)]] = True
                 ip = instance_points[k] if k < len(instance_points) else None
                 if ip is not None and len(ip):
                     near = _EXPLAIN_MEMO.own_points_near(o, ip, ob.lo, ob.hi, instance_reach)

@@ -14,7 +14,8 @@ from kitchenbot.transforms import rot_z, trans
 
 def _fresh(points, objects, explain_radius=0.015, instance_points=(), instance_reach=OWN_REACH,
            self_explaining=None):
-    """`explained` as it was before the memo (fourteenth session), every distance computed afresh."""
+    """`explained` without the memo, every distance computed afresh (as in the fourteenth session, but no box
+    explains a point of no instance by itself: only the model's surface near it does, sixteenth session)."""
     from scipy.spatial import cKDTree
 
     P = np.asarray(points, float).reshape(-1, 3)
@@ -28,7 +29,6 @@ def _fresh(points, objects, explain_radius=0.015, instance_points=(), instance_r
         lo, hi = np.asarray(bb.get_min_bound()), np.asarray(bb.get_max_bound())
         Pl = (P - o.T_base_obj[:3, 3]) @ o.T_base_obj[:3, :3]
         in_box = np.all((Pl >= lo - explain_radius) & (Pl <= hi + explain_radius), axis=1)
-        hit |= in_box & (owner < 0)
         cand = in_box & ~hit
         if cand.any():
             hit[np.flatnonzero(cand)[_surface_distance(o.model, Pl[cand]) <= explain_radius]] = True
