@@ -102,3 +102,23 @@ def assert_safe_end(runner, world) -> None:
         assert [e["name"] for e in trans] == [t["trigger"] for t in runner.report.transitions]
 
 
+
+
+@pytest.fixture
+def record_staged():
+    """A function (runner, model, T_put) -> Placed: records `model` as staged on the counter at T_put (released
+    1 cm above it, as a put-down for a regrasp is), the way the executive records a staged item."""
+    from kitchenbot.executive.belief import as_pose
+    from kitchenbot.planning.types import PlaceTarget
+
+    def record(runner, model, T_put):
+        obj = as_pose(type("R", (), {"obj_id": model.obj_id, "cls": model.cls, "T_base_obj": T_put,
+                                     "instance_id": -1})())
+        T_release = T_put.copy()
+        T_release[2, 3] += 0.01
+        target = PlaceTarget(T_release, "stage", support="counter (regrasp)")
+        rec = runner.belief.record_placed(runner.task, obj, target, T_put)
+        runner.belief.record_staged(rec)
+        return rec
+
+    return record

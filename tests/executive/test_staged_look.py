@@ -6,25 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.planning.types import PlaceTarget
 from kitchenbot.transforms import make_T, rot_z
 
 
-def _staged_mug(runner, world, T_put, T_true):
+def _staged_mug(record_staged, runner, world, T_put, T_true):
     """A mug recorded as staged at T_put (where it was put down) that really lies at T_true."""
-    from kitchenbot.executive.belief import as_pose
-
     for dev in (runner.arm, runner.gripper, runner.camera):
         dev.connect()
     mug = runner.robot.inventory.by_name("mug")
     world.add_object(mug, T_true)
-    b = runner.belief
-    obj = as_pose(type("R", (), {"obj_id": mug.obj_id, "cls": "mug", "T_base_obj": T_put, "instance_id": -1})())
-    T_release = T_put.copy()
-    T_release[2, 3] += 0.01
-    rec = b.record_placed(runner.task, obj, PlaceTarget(T_release, "stage", support="counter (regrasp)"), T_put)
-    b.record_staged(rec)
-    return rec
+    return record_staged(runner, mug, T_put)
 
 
 def _put_down_spot(runner):
@@ -36,14 +27,14 @@ def _put_down_spot(runner):
     return make_T(np.eye(3), (xy[0], xy[1], z)), xy, z
 
 
-def test_a_staged_item_is_looked_at_and_its_record_replaced_before_its_regrasp(make_runner):
+def test_a_staged_item_is_looked_at_and_its_record_replaced_before_its_regrasp(make_runner, record_staged):
     """Put down at one spot, the mug settled 3.2 cm away with its handle turned 146 deg: a grasp planned on the
     record hits it. Selected for its regrasp, the record is replaced by the view's pose (before: selected as
     recorded); the record a view gave is not looked at again."""
     runner, world = make_runner(task="sink-to-dishwasher")
     T_put, xy, z = _put_down_spot(runner)
     T_true = make_T(rot_z(np.radians(146.0))[:3, :3], (xy[0] + 0.026, xy[1] - 0.0186, z))
-    rec = _staged_mug(runner, world, T_put, T_true)
+    rec = _staged_mug(record_staged, runner, world, T_put, T_true)
     b = runner.belief
     assert b.provenance(type("P", (), {"instance_id": rec.instance_id})()) == "staged"
     q0 = runner.arm.joint_positions().copy()
@@ -62,31 +53,31 @@ def test_a_staged_item_is_looked_at_and_its_record_replaced_before_its_regrasp(m
     assert np.allclose(runner.arm.joint_positions(), q1)  # no second look
 
 
-def test_a_staged_item_not_seen_keeps_its_record(make_runner):
+def test_a_staged_item_not_seen_keeps_its_record(make_runner, record_staged):
     """Nothing of its class within reach of the record in the view: the record stays (and is not looked at
     again)."""
     runner, world = make_runner(task="sink-to-dishwasher")
     T_put, xy, z = _put_down_spot(runner)
     T_far = make_T(np.eye(3), (xy[0] + 0.2, xy[1], z))  # not this one: too far from where it was put down
-    rec = _staged_mug(runner, world, T_put, T_far)
+    rec = _staged_mug(record_staged, runner, world, T_put, T_far)
     assert runner._do_select_grasp() == "selected"
     assert np.allclose(runner.item.obj.T_base_obj, rec.T_base_obj)
     assert not runner.belief.needs_look(runner.belief.staged[0])
 
 
-def test_a_staged_item_seen_where_it_was_put_down_keeps_its_record(make_runner):
+def test_a_staged_item_seen_where_it_was_put_down_keeps_its_record(make_runner, record_staged):
     """The view shows it within a pose fit's error of where it was put down (5 mm, 8 deg): the record, which
     stands it exactly on the counter, stays."""
     runner, world = make_runner(task="sink-to-dishwasher")
     T_put, xy, z = _put_down_spot(runner)
     T_true = make_T(rot_z(np.radians(8.0))[:3, :3], (xy[0] + 0.005, xy[1], z))
-    rec = _staged_mug(runner, world, T_put, T_true)
+    rec = _staged_mug(record_staged, runner, world, T_put, T_true)
     assert runner._do_select_grasp() == "selected"
     assert np.allclose(runner.item.obj.T_base_obj, rec.T_base_obj)
     assert not runner.belief.needs_look(runner.belief.staged[0])
 
 
-def test_a_view_whose_fit_turns_the_handle_the_other_way_does_not_replace_a_right_record(make_runner):
+def test_a_view_whose_fit_turns_the_handle_the_other_way_does_not_replace_a_right_record(make_runner, record_staged):
     """The mug lies where it was put down, but the view's fit puts its handle on the other side (turned 147 deg
     about its body's axis: its origin, the box centre, 3 cm off): the record explains the view's depth better and
     stays (before, any view's pose beyond 1 cm / 15 deg replaced it, and a side grasp's finger met the handle)."""
@@ -96,7 +87,7 @@ def test_a_view_whose_fit_turns_the_handle_the_other_way_does_not_replace_a_righ
 
     runner, world = make_runner(task="sink-to-dishwasher")
     T_put, _, _ = _put_down_spot(runner)
-    rec = _staged_mug(runner, world, T_put, T_put)
+    rec = _staged_mug(record_staged, runner, world, T_put, T_put)
     mug = runner.robot.inventory.by_name("mug")
     top = mug.points[mug.points[:, 2] > mug.points[:, 2].max() - 0.004]
     c = np.append(top[:, :2].mean(axis=0), 0.0)  # the body's axis (the rim's centre) in the model's frame
@@ -121,7 +112,7 @@ def test_a_view_whose_fit_turns_the_handle_the_other_way_does_not_replace_a_righ
     assert look["seen"] and look["view_fit"] < look["record_fit"]
 
 
-def test_a_staged_item_whose_grasp_missed_is_looked_at_again(make_runner):
+def test_a_staged_item_whose_grasp_missed_is_looked_at_again(make_runner, record_staged):
     """Looked at once already (its record taken as it lies), the mug really lies 3.2 cm off with its handle turned:
     a grasp planned on the record closes on nothing. After that miss the next selection looks at it again and
     takes the view's pose (before: the same record planned the next grasp, which missed too, until its attempts
@@ -133,7 +124,7 @@ def test_a_staged_item_whose_grasp_missed_is_looked_at_again(make_runner):
     runner, world = make_runner(task="sink-to-dishwasher")
     T_put, xy, z = _put_down_spot(runner)
     T_true = make_T(rot_z(np.radians(146.0))[:3, :3], (xy[0] + 0.026, xy[1] - 0.0186, z))
-    rec = _staged_mug(runner, world, T_put, T_true)
+    rec = _staged_mug(record_staged, runner, world, T_put, T_true)
     b = runner.belief
     b.looked_at(runner.task, rec, None)  # looked at: no view had (the record stays)
     assert runner._do_select_grasp() == "selected"

@@ -8,14 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitchenbot.planning.types import PlaceTarget
 from kitchenbot.transforms import make_T, rot_x
 
 
-def _stage_the_cup(runner, world):
+def _stage_the_cup(record_staged, runner, world):
     """Move the scene's one cup from the sink to the drop zone, lying on its side (as sink-to-dishwasher stages
     cups), and record it staged there: the run starts with it waiting for its regrasp."""
-    from kitchenbot.executive.belief import as_pose
+    from kitchenbot.fakes.placement import drop_onto
 
     uid = next(u for u, o in world.objects.items() if o.model.cls == "cup")
     cup = world.objects[uid].model
@@ -24,23 +23,16 @@ def _stage_the_cup(runner, world):
     r = max(cup.extents[:2]) / 2
     T = make_T(rot_x(np.pi / 2)[:3, :3], (xy[0], xy[1], zone.z + r))
     world.set_pose(uid, T)
-    from kitchenbot.fakes.placement import drop_onto
-
     T = drop_onto(world, uid, T)
     world.set_pose(uid, T)
-    b = runner.belief
-    obj = as_pose(type("R", (), {"obj_id": cup.obj_id, "cls": "cup", "T_base_obj": T, "instance_id": -1})())
-    T_release = T.copy()
-    T_release[2, 3] += 0.01
-    rec = b.record_placed(runner.task, obj, PlaceTarget(T_release, "stage", support="counter (regrasp)"), T)
-    b.record_staged(rec)
-    b.seen_staged.add(rec.instance_id)  # looked at already: it lies as recorded
+    rec = record_staged(runner, cup, T)
+    runner.belief.seen_staged.add(rec.instance_id)  # looked at already: it lies as recorded
     return uid, rec
 
 
-def test_a_staged_item_that_slips_out_on_its_way_leaves_no_record_on_the_counter(make_runner):
+def test_a_staged_item_that_slips_out_on_its_way_leaves_no_record_on_the_counter(make_runner, record_staged):
     runner, world = make_runner(task="sink-to-dishwasher")
-    uid, rec = _stage_the_cup(runner, world)
+    uid, rec = _stage_the_cup(record_staged, runner, world)
     attach = world.attach
     slipped = {"n": 0}
 
