@@ -10,7 +10,11 @@ A basin covered over is the other misfit: a table or a board where the cell has 
 sees nothing *behind* the cell, but over most of the basin's floor it sees one level surface well above it
 (items in a sink are level only in patches: a dinner plate covers under a third of a basin, a stack's plates lie
 at several heights). Over half of the floor's pixels seen on one level (2 cm) at least 3 cm above the floor:
-the cell is not there either.
+the cell is not there either. One level is not always enough: boxes of two heights and plates on a table
+split what is seen over the floor between several levels, none of them the most. So the basin is also covered
+where its own surfaces (floor and walls) are hardly seen where the cell puts them, and mostly seen in front of
+them: in a sink they are seen around and between the items (over half of their pixels in cluttered development
+sinks), over a board hardly at all (the walls' top 3 cm only, ~10 %).
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from kitchenbot.transforms import inv
 
 # Over this share of the basin floor's pixels seen on one level above it, the basin is covered (a table over it).
 MAX_COVERED = 0.6
+# Under this share of the basin's floor and wall pixels seen on those surfaces, the basin is covered.
+MIN_BASIN_SEEN = 0.25
 
 
 @dataclass
@@ -39,12 +45,13 @@ class CellCheck:
     message: str = ""
     covered: float = 0.0  # share of the basin floor's pixels seen on one level well above it (a table over it)
     max_covered: float = MAX_COVERED  # the share over which the basin counts as covered
+    basin_seen: float = 1.0  # share of the basin's floor and wall pixels seen on those surfaces (within `tol`)
 
     @property
     def is_covered(self) -> bool:
         """The basin is covered (a table or a board over the sink): the cell does not fit, whatever the views'
         registration onto it."""
-        return self.covered > self.max_covered
+        return self.covered > self.max_covered or self.basin_seen < MIN_BASIN_SEEN
 
 
 _SCENES: dict = {}  # the last cell's RaycastingScene (building it is cheap, but not free per scan)
@@ -83,6 +90,8 @@ def check_cell(views: list[View], cell: Cell, stride: int = 8, tol: float = 0.03
     `max_covered` of the basin floor's pixels are seen on one level more than `tol` above the floor."""
     scene = _scene(cell)
     floor_ids = [k for k, b in enumerate(cell.boxes) if b.name == "sink_floor"]
+    basin_ids = [k for k, b in enumerate(cell.boxes) if b.name.startswith("sink_")]
+    basin_n = basin_on = 0
     behind = agree = compared = 0
     floor_n, floor_z = 0, []
     for v in views:
@@ -104,6 +113,9 @@ def check_cell(views: list[View], cell: Cell, stride: int = 8, tol: float = 0.03
             behind += int(np.sum(both & (meas > pred + tol)))
             agree += int(np.sum(both & (np.abs(meas - pred) <= tol)))
         compared += int(both.sum())
+        on_basin = both & np.isin(gid, basin_ids)
+        basin_n += int(on_basin.sum())
+        basin_on += int(np.sum(on_basin & (np.abs(meas - pred) <= tol)))
         on_floor = both & np.isin(gid, floor_ids)
         floor_n += int(on_floor.sum())
         above = on_floor & (meas < pred - tol)
@@ -115,12 +127,18 @@ def check_cell(views: list[View], cell: Cell, stride: int = 8, tol: float = 0.03
                          f"the configured cell is hardly in view ({compared} pixels to compare): not used")
     b, a = behind / compared, agree / compared
     covered, level = _level_share(np.concatenate(floor_z) if floor_z else np.zeros(0), floor_n)
-    fits = b <= max_behind and covered <= max_covered
+    # Too few basin pixels in view (a scan elsewhere): no evidence either way.
+    seen = basin_on / basin_n if basin_n >= min_compared else 1.0
+    fits = b <= max_behind and covered <= max_covered and seen >= MIN_BASIN_SEEN
     msg = ""
     if b > max_behind:
         msg = (f"the configured cell does not fit the scan: {100 * b:.1f} % of the depth lies behind its surfaces "
                f"(at most {100 * max_behind:.0f} % expected); using surfaces found in the data")
+    elif covered <= max_covered and not fits:
+        msg = (f"the configured cell does not fit the scan: its basin's floor and walls are seen on their surfaces "
+               f"at only {100 * seen:.0f} % of their pixels (a table or a board over the sink?); using surfaces found "
+               f"in the data")
     elif not fits:
         msg = (f"the configured cell does not fit the scan: {100 * covered:.0f} % of its basin floor is seen on one "
                f"level at z = {level:.3f} m (a table or a board over the sink?); using surfaces found in the data")
-    return CellCheck(fits, b, a, compared, msg, covered, max_covered)
+    return CellCheck(fits, b, a, compared, msg, covered, max_covered, seen)
