@@ -46,7 +46,8 @@ def synthesis_key(model: ObjectModel) -> str:
     h.update(repr((SYNTHESIS_VERSION, MAX_OPENING, PAD_DEPTH, PAD_ENVELOPE, FINGERS, FRICTION_COEFF, SURFACE_SAMPLES,
                    APPROACHES, CONTACT_DEPTHS, OPEN_SLACKS, WIDTH_TOLERANCE, CONTACT_TOLERANCE, MIN_CONTACT,
                    CENTRE_WEIGHT, MAX_GRASPS, PINCH_MAX_WIDTH, WRAP_CONE_DEG, ROUND_COPIES, PINCH_TILTS,
-                   PINCH_TILT_AZIMUTHS, SLANTED_PINCH_CLASSES, model.cls in SLANTED_PINCH_CLASSES, MAX_RIM_SLANT)).encode())
+                   PINCH_TILT_AZIMUTHS, SLANTED_PINCH_CLASSES, model.cls in SLANTED_PINCH_CLASSES, MAX_RIM_SLANT,
+                   MAX_RIM_LEVEL)).encode())
     return h.hexdigest()[:20]
 
 
@@ -321,7 +322,9 @@ PINCH_TILT_AZIMUTHS = 4
 SLANTED_PINCH = "slant"  # name prefix of the slanted pinches among a plate's standard grasps
 RIM_SLANT = "rimslant"  # name prefix of a vessel's slanted pinches (fallbacks)
 MAX_RIM_SLANT = MAX_GRASPS // 2  # a vessel's slanted pinches kept, on top of its MAX_GRASPS straight ones
-SYNTHESIS_VERSION = 12  # part of the cache key: bump when the method changes
+RIM_LEVEL = "rimlevel"  # name prefix of a vessel's level pinches (fallbacks)
+MAX_RIM_LEVEL = 36  # a vessel's level pinches kept, on top of the others
+SYNTHESIS_VERSION = 13  # part of the cache key: bump when the method changes
 
 
 def _cast(scene: o3d.t.geometry.RaycastingScene, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -392,6 +395,26 @@ def _slanted_pinch_pairs(scene, P: np.ndarray, N: np.ndarray) -> tuple[np.ndarra
     return np.vstack(centres), np.vstack(axes)
 
 
+def _level_pinch_pairs(scene, P: np.ndarray, N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centres, closing axes) of pinches of one thin wall closing level (square to the item's z axis): from each
+    sample on a thin wall that does not lie flat, along its inward normal with the z part taken out (within
+    WRAP_CONE_DEG of the normal), to where the line leaves the wall, narrower than PINCH_MAX_WIDTH, the far normal
+    within WRAP_CONE_DEG of the closing axis. The pinch a Fin-Ray makes of a flared rim from straight above."""
+    thick, _ = _cast(scene, P - N * 1e-4, -N)
+    thin = np.isfinite(thick) & (thick < PINCH_MAX_WIDTH)
+    d = -N.copy()
+    d[:, 2] = 0.0
+    level = np.linalg.norm(d, axis=1)
+    cos_wrap = np.cos(np.radians(WRAP_CONE_DEG))
+    keep = thin & (level >= cos_wrap)  # level >= cos(angle between the normal and its level part)
+    P, N, d = P[keep], N[keep], d[keep] / level[keep, None]
+    t, n_hit = _cast(scene, P - N * 1e-4, d)
+    ok = np.isfinite(t)
+    w = np.where(ok, t + 1e-4, np.inf)
+    good = ok & (w > 0.001) & (w < PINCH_MAX_WIDTH) & (np.einsum("ij,ij->i", n_hit, d) >= cos_wrap)
+    return P[good] + d[good] * (w[good] / 2)[:, None], d[good] * w[good][:, None]
+
+
 def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
     """Fin-Ray grasps for any closed mesh: antipodal pairs within the opening, the open pads and the palm clear of
     the item along the approach, the pads closing on that pair first, each pad face touching over at least
@@ -413,6 +436,12 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
         more = _slanted_pinch_pairs(scene, P, N)
         centres, axes = np.vstack([centres, more[0]]), np.vstack([axes, more[1]])
         slant = np.concatenate([slant, np.ones(len(more[0]), bool)])
+    level = np.zeros(len(centres), bool)
+    if model.cls not in SLANTED_PINCH_CLASSES:
+        more = _level_pinch_pairs(scene, P, N)
+        centres, axes = np.vstack([centres, more[0]]), np.vstack([axes, more[1]])
+        slant = np.concatenate([slant, np.ones(len(more[0]), bool)])  # checked as slanted pinches are
+        level = np.concatenate([level, np.ones(len(more[0]), bool)])
     if not len(centres):
         return []
     widths = np.linalg.norm(axes, axis=1)
@@ -430,6 +459,7 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
     w = np.repeat(widths, APPROACHES * k)
     c = np.repeat(centres, APPROACHES * k, axis=0)
     slant = np.repeat(slant, APPROACHES * k)
+    level = np.repeat(level, APPROACHES * k)
     R = np.stack([np.cross(y, z), y, z], axis=2)
     t = c + z * np.tile(CONTACT_DEPTHS, len(z) // k)[:, None]
     centroid, diameter = P.mean(axis=0), max(model.diameter, 1e-3)
@@ -515,16 +545,17 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
     per = ROUND_COPIES if round_ else 1
     if model.cls in SLANTED_PINCH_CLASSES:
         kept = _spread(best, t, y, z, w, MAX_GRASPS // per)
-        fallback = set()
+        fallback, rim_level = set(), set()
     else:  # a vessel: its straight grasps as if there were no slanted ones, then its slanted ones as fallbacks
         kept = _spread({i: v for i, v in best.items() if not slant[i]}, t, y, z, w, MAX_GRASPS // per)
-        more = _spread({i: v for i, v in best.items() if slant[i]}, t, y, z, w, MAX_RIM_SLANT // per)
-        kept, fallback = kept + more, set(more)
+        more = _spread({i: v for i, v in best.items() if slant[i] and not level[i]}, t, y, z, w, MAX_RIM_SLANT // per)
+        rim = _spread({i: v for i, v in best.items() if level[i]}, t, y, z, w, MAX_RIM_LEVEL // per)
+        kept, fallback, rim_level = kept + more + rim, set(more), set(rim)
     out = []
     for rank, i in enumerate(kept):
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R[i], t[i]
-        prefix = RIM_SLANT if i in fallback else SLANTED_PINCH if slant[i] else "ap"
+        prefix = RIM_LEVEL if i in rim_level else RIM_SLANT if i in fallback else SLANTED_PINCH if slant[i] else "ap"
         if not round_:
             out.append(GraspSpec(f"{prefix}{rank:03d}", T, opening=best[i][1], width=best[i][2]))
             continue

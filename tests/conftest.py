@@ -106,3 +106,10 @@ def own_dishware(tmp_path_factory):
     """(models_dir, {obj_id: (name, expected class)}) of dishware this project has never seen."""
     folder = tmp_path_factory.mktemp("own_dishware") / "models"
     return folder, write_own_dishware(folder)
+
+
+@pytest.fixture(scope="session")
+def own_dishware_b(tmp_path_factory):
+    """(models_dir, {obj_id: (name, expected class)}) of the second set (`write_own_dishware_b`)."""
+    folder = tmp_path_factory.mktemp("own_dishware_b") / "models"
+    return folder, write_own_dishware_b(folder)

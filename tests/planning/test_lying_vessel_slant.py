@@ -12,7 +12,7 @@ import pytest
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning import grasp_synthesis
-from kitchenbot.planning.grasp_synthesis import RIM_SLANT, ensure_grasps, synthesise_grasps
+from kitchenbot.planning.grasp_synthesis import RIM_LEVEL, RIM_SLANT, ensure_grasps, synthesise_grasps
 from kitchenbot.planning.grasps import FALLBACK_GRASPS, GraspStats, select_grasps
 from kitchenbot.transforms import make_T, rot_y, rot_z
 from kitchenbot.world.inventory import Inventory
@@ -76,14 +76,16 @@ def test_a_tumbler_lying_in_a_bowl_is_pinched_at_its_rim_from_above(own, cfg, ho
 
 
 def test_a_vessels_straight_grasps_are_the_same_with_its_slanted_pinches(own, monkeypatch):
-    """The slanted pinches are spread on their own, after: a vessel's other grasps are exactly those synthesised
-    without them (mixed in, they took places from the straight pinches a conical bowl was taken by)."""
+    """The slanted and the level pinches are spread on their own, after: a vessel's other grasps are exactly those
+    synthesised without them (mixed in, they took places from the straight pinches a conical bowl was taken by)."""
     _, by = own
     bowl = by["deep_bowl"]
     with_slant = synthesise_grasps(bowl)
+    assert any(g.name.startswith(RIM_LEVEL) for g in with_slant)
     monkeypatch.setattr(grasp_synthesis, "PINCH_TILTS", ())
+    monkeypatch.setattr(grasp_synthesis, "MAX_RIM_LEVEL", 0)
     without = synthesise_grasps(bowl)
-    straight = [g for g in with_slant if not g.name.startswith(RIM_SLANT)]
+    straight = [g for g in with_slant if not g.name.startswith((RIM_SLANT, RIM_LEVEL))]
     assert len(with_slant) > len(straight) > 0
     assert [g.name for g in straight] == [g.name for g in without]
     assert all(np.allclose(a.T_obj_tcp, b.T_obj_tcp) and a.width == b.width for a, b in zip(straight, without))
