@@ -314,6 +314,12 @@ class Belief:
         if staged is not None:
             self.unplace(staged)
 
+    def dropped_at_target(self) -> None:
+        """The item that dropped last left the gripper while being lowered onto its target: it is verified there as
+        a placement is, not looked for as a drop (nor counted lost)."""
+        self.dropped = max(self.dropped - 1, 0)
+        self.drop_site = None
+
     def record_drop_found(self) -> None:
         """The item that dropped last is not lost: it fell back into the sink or was found where it fell."""
         self.drops_found = min(self.drops_found + 1, self.dropped)
