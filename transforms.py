@@ -51,16 +51,26 @@ def to_rotvec(T: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()])
 
 
+# Rotations about one axis written out: scipy's Rotation.from_euler costs ~0.3 ms a call, and the tasks' spot search
+# builds thousands of poses per target (a grid over a rack, each spot upside down).
+def _axis_rotation(a: float, i: int, j: int) -> np.ndarray:
+    """4x4 rotation by `a` (radians) turning axis i towards axis j."""
+    c, s = np.cos(a), np.sin(a)
+    T = np.eye(4)
+    T[i, i], T[i, j], T[j, i], T[j, j] = c, -s, s, c
+    return T
+
+
 def rot_x(a: float) -> np.ndarray:
-    return make_T(Rotation.from_euler("x", a).as_matrix())
+    return _axis_rotation(a, 1, 2)
 
 
 def rot_y(a: float) -> np.ndarray:
-    return make_T(Rotation.from_euler("y", a).as_matrix())
+    return _axis_rotation(a, 2, 0)
 
 
 def rot_z(a: float) -> np.ndarray:
-    return make_T(Rotation.from_euler("z", a).as_matrix())
+    return _axis_rotation(a, 0, 1)
 
 
 def trans(x: float, y: float, z: float) -> np.ndarray:

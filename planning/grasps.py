@@ -319,7 +319,8 @@ def select_grasps(
         for back in (0.0, 0.004, 0.008):
             Tb = T @ trans(0.0, 0.0, -back)
             branches = robot.ik_all(Tb, q_current)
-            if not branches:
+            # numerical IK only where it may find something: not where the pose is clearly out of reach
+            if not branches and not robot.surely_unreachable(Tb):
                 ik = robot.ik(Tb, q_current, max_seeds=6, max_iter=40)
                 branches = [ik.q] if ik.q is not None else []
             if back == 0.0 and not branches:

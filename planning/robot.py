@@ -22,7 +22,7 @@ from scipy.linalg.lapack import dgesv as _dgesv
 
 from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import URModel, ur_model
-from kitchenbot.planning.ur_ik import ik_flange
+from kitchenbot.planning.ur_ik import ik_flange, surely_unreachable
 
 _TURNS = np.array([0.0, -1.0, 1.0, -2.0, 2.0])  # the 2*pi turns wrap_near tries, nearest first
 JOINT_NAMES = (
@@ -242,6 +242,11 @@ class RobotModel:
         out = [qw for qw in self.wrap_near_rows(np.array(sols), q_ref) if qw is not None]
         out.sort(key=lambda q: float(np.max(np.abs(q - q_ref))))
         return out
+
+    def surely_unreachable(self, T_base_tcp: np.ndarray) -> bool:
+        """Whether no joint configuration reaches the TCP pose, by a margin numerical IK cannot close
+        (planning.ur_ik.surely_unreachable): callers skip the numerical fallback of ik_all there."""
+        return bool(surely_unreachable(self.ur, np.asarray(T_base_tcp, float) @ self._T_tcp_flange)[0])
 
     def ik_q(self, T_base_tcp: np.ndarray, q_current: np.ndarray, **kw) -> np.ndarray | None:
         return self.ik(T_base_tcp, q_current, **kw).q

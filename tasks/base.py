@@ -73,10 +73,13 @@ def as_is(R: np.ndarray):
     return pose
 
 
+# the eight corners of a unit box centred on the origin, as signs (x slowest, z fastest)
+_BOX_SIGNS = np.array([[sx, sy, sz] for sx in (-1.0, 1.0) for sy in (-1.0, 1.0) for sz in (-1.0, 1.0)])
+
+
 def footprint(model: ObjectModel, T_base_obj: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """xy box and top height of the model at that pose (from its bounding-box corners)."""
-    e = model.extents / 2
-    corners = np.array([[sx * e[0], sy * e[1], sz * e[2]] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    corners = _BOX_SIGNS * (model.extents / 2)
     P = corners @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
     return P[:, :2].min(0), P[:, :2].max(0), float(P[:, 2].max())
 
@@ -270,19 +273,20 @@ def area_spots(model: ObjectModel, lo_xy, hi_xy, z: float, placed: list[Placed],
     grid = [(c[0] + i * step, c[1] + j * step) for i in range(-nx, nx + 1) for j in range(-ny, ny + 1)]
     cands = sorted(list(preferred or []), key=order) + sorted(grid, key=order)
     out: list[np.ndarray] = []
+    taken: list[Placed] = []  # the spots chosen so far, as placed items (each footprint computed once)
     for xy in cands:
         T = pose(model, xy, z)
-        lo, hi, _ = footprint(model, T)
+        lo, hi, top = footprint(model, T)
         # Items larger than the area may overhang it evenly (e.g. a dinner plate on a small drop zone).
         over = np.maximum(0.0, ((hi - lo) - (hi_xy - lo_xy)) / 2) if centre_inside else 0.0
         if centre_inside == "any":
             over = (hi - lo) / 2
         m = np.where(over > 0, -over, CLEARANCE / 2) if centre_inside else CLEARANCE / 2
         inside = np.all(lo >= lo_xy + m - 1e-6) and np.all(hi <= hi_xy - m + 1e-6)
-        taken = placed + [Placed(model.obj_id, model.cls, t, *footprint(model, t), None) for t in out]
-        if not inside or _overlaps(lo, hi, placed, clearance) or _overlaps(lo, hi, taken[len(placed):]):
+        if not inside or _overlaps(lo, hi, placed, clearance) or _overlaps(lo, hi, taken):
             continue
         out.append(T)
+        taken.append(Placed(model.obj_id, model.cls, T, lo, hi, top, None))
         if len(out) >= limit:
             break
     return out
