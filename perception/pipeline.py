@@ -231,6 +231,8 @@ class Perceiver:
                 queue = [i for i in queue if np.mean(region(m.points[m.ids == i])) >= REGION_SHARE]
             ids_out = m.ids.copy()
             used: set[int] = set()  # priors kept (tracked): one instance each
+            tracked_at: dict[int, tuple[np.ndarray, int]] = {}  # index in `found` of a tracked pose -> (its
+            # instance's points, the prior's index)
             splits = 0
             found: list[tuple[Hypothesis, int, np.ndarray]] = []
             parts: set[int] = set()  # ids made by cutting a blob (never cut again)
@@ -242,9 +244,9 @@ class Perceiver:
                     ids_out[sel] = -1
                     continue
                 t0, c0 = time.perf_counter(), time.process_time()
-                hyp, k = self._track(m.select(sel), views, priors, used) if priors else (None, None)
+                hyp, prior_k = self._track(m.select(sel), views, priors, used) if priors else (None, None)
                 if hyp is not None:
-                    used.add(k)
+                    used.add(prior_k)
                 else:
                     hyp, _query = self.estimate(m.select(sel), views, [f[0] for f in found])
                 pose_ms.append(1000 * (time.perf_counter() - t0))
@@ -298,6 +300,8 @@ class Perceiver:
                         ids_out[also] = iid
                         own = np.concatenate([own, also])
                 found.append((hyp, iid, own))
+                if prior_k is not None:
+                    tracked_at[len(found) - 1] = (sel, prior_k)
                 rest = sel[~tight]
                 if splits < self.settings.max_splits and len(rest) >= 60:
                     pieces = [rest[part] for part in _clusters(m.points[rest], 1.5 * vox, 60, vox / 2)]
@@ -324,6 +328,18 @@ class Perceiver:
             # nothing, before duplicates are resolved (it cannot make a right pose a "duplicate"); its points stay
             # in the map, an obstacle for the planner.
             self._fine_check(m, found)
+            # A tracked pose the fine check rejects is not the end of that item: its instance gets the full
+            # estimate, as an instance no prior explains does (else the item would be missing from this scan).
+            retry = [k for k in tracked_at if found[k][0].verification is not None and
+                     found[k][0].verification.score < self.settings.verify_threshold]
+            for k in retry:
+                (sel, prior), iid = tracked_at[k], found[k][1]
+                used.discard(prior)
+                hyp, _query = self.estimate(m.select(sel), views, [f[0] for j, f in enumerate(found) if j != k])
+                if hyp is not None:
+                    found[k] = (hyp, iid, sel[self._explained(hyp, m.points[sel])])
+            if retry:
+                self._fine_check(m, found)
             verified = []
             for f in found:
                 ver = f[0].verification

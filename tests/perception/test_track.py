@@ -84,3 +84,24 @@ def test_a_pose_that_went_beyond_the_tolerances_counts_as_moved():
     assert moved(T, make_T(np.eye(3), [0.42, 0.0, 0.1]), symmetric=False)
     assert moved(T, yaw30, symmetric=False)
     assert not moved(T, yaw30, symmetric=True)  # a turn about a symmetric model's axis is no move
+
+
+def test_a_tracked_pose_the_fine_check_rejects_is_estimated_afresh(perceiver, inventory, cell, monkeypatch):
+    """A tracked pose that fails the fine check (forced here: the check is made to reject every tracked pose)
+    must not make its item vanish from the scan: its instance gets the full estimate, like one no prior explains."""
+    placed = _scene(inventory, cell)
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    first = perceiver.perceive(views)
+    assert len(first.poses) == 3
+    real = pipeline.Perceiver._fine_parts
+
+    def rejects_tracked(self, m, tree, tol, hyp, own, found):
+        real(self, m, tree, tol, hyp, own, found)
+        if hyp.verification is not None and hyp.source.startswith("track"):
+            hyp.verification.fine = 0.0
+
+    monkeypatch.setattr(pipeline.Perceiver, "_fine_parts", rejects_tracked)
+    again, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
+    r = perceiver.perceive(again, priors=first.poses)
+    assert sorted(p.obj_id for p in r.poses) == sorted(oid for oid, _ in placed)
+    assert max(_match(r.poses, placed, inventory)) < 0.01
