@@ -47,6 +47,7 @@ class Attempts:
     plan_epoch: int = -1
     slides: int = 0
     missed: list = field(default_factory=list)  # grasps (spec names) that closed on nothing here: not tried again
+    set_aside_plans: int = 0  # plans to set it aside on the counter (it had no target and blocked another item)
 
     def plan_failed(self, epoch: int) -> None:
         if self.plan_epoch != epoch:
@@ -261,6 +262,16 @@ class Belief:
         t.count = M.MAX_ATTEMPTS_PER_OBJECT
         if reason:
             t.reasons.append(reason)
+
+    def may_set_aside(self, obj: ObjectPose) -> bool:
+        """Whether `obj` (no target for it, named as blocking another item) may still be planned to be set aside:
+        bounded per item (M.MAX_SET_ASIDE_PLANS), whatever its attempts (an item with no target was given up)."""
+        t = self.attempts_for(obj)
+        return t is None or t.set_aside_plans < M.MAX_SET_ASIDE_PLANS
+
+    def record_set_aside(self, obj: ObjectPose) -> None:
+        """A plan to set `obj` aside on the counter starts."""
+        self.attempts_for(obj, create=True).set_aside_plans += 1
 
     def record_slide(self, obj: ObjectPose) -> Attempts:
         """A slide of `obj` starts (counted whether or not it completes: slides are bounded per item)."""

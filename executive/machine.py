@@ -69,6 +69,7 @@ TRANSITIONS: tuple[tuple[str, str | list[str], str], ...] = (
 MAX_ATTEMPTS_PER_OBJECT = 3  # grasp attempts on one object before it is skipped
 MAX_PLAN_FAILURES_PER_SCENE = 2  # planning failures on one object before it waits for the scene to change
 MAX_SLIDES_PER_OBJECT = 2  # sideways slides of one item (freeing a nested plate) before it is left
+MAX_SET_ASIDE_PLANS = 2  # plans to set aside one item with no target that blocks another (strategies.SetAsideBlocker)
 MAX_SCAN_RETRIES = 3  # consecutive failed scans (camera/arm faults) before giving up
 MAX_CONSECUTIVE_RECOVERIES = 6  # recoveries without a verified placement in between
 CONFIRM_EMPTY_SCANS = 2  # consecutive scans that must agree the work is done (missed detections)

@@ -131,10 +131,34 @@ class DirectPick(Strategy):
            f"{PLACE_GRASPS} grasps)"
 
     def applies(self, failure, obj, belief, req):
-        return failure is None
+        return failure is None and not _setting_aside(req)
 
     def plan(self, req):
         return _direct(req, self.name)
+
+
+def _setting_aside(req: PlanRequest) -> bool:
+    """The item is to be set down on the counter, not at a target of its own: every target is a staging spot
+    (the runner chose it to set aside, TaskRunner._aside_targets; tasks' own targets are never staging spots)."""
+    return req.staged is None and bool(req.targets) and all(t.kind == "stage" for t in req.targets)
+
+
+class SetAsideBlocker(Strategy):
+    """An item its task has no target for (the racks have no room for it) that lies on, or in the lift's way of,
+    an item that has one: set down on the counter as a staging, so that item can be picked (it was a deadlock:
+    the room kept for that item could be what left none for this one). Picked up again from the counter when a
+    target has room."""
+
+    name = "set_aside_blocker"
+    when = "the item has no target (`no_free_slot`) and an item still in the sink that has one was blocked by it " \
+           "(`blocker_first` named it): the runner gives it counter spots instead (`Task.staging_targets`)"
+    does = "a pick and a place onto the counter (a staging: it is picked up again when a target has room)"
+
+    def applies(self, failure, obj, belief, req):
+        return failure is None and _setting_aside(req)
+
+    def plan(self, req):
+        return _direct(req, self.name, staging=True)
 
 
 class EscapeThenPick(Strategy):
@@ -304,7 +328,7 @@ class BlockerFirst(Strategy):
 
 STRATEGIES: dict[str, type[Strategy]] = {s.name: s for s in (
     DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, PickHiddenBlocker,
-    BlockerFirst)}
+    SetAsideBlocker, BlockerFirst)}
 
 
 def strategies_for(task) -> list[Strategy]:

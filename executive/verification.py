@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from kitchenbot.drivers.errors import DriverTimeoutError
+from kitchenbot.executive.belief import as_pose
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.unrecognised import Unrecognised, unrecognised_things
@@ -92,8 +93,12 @@ class Verification:
             problems.append(f"{len(b.unverified)} placement(s) not verified at the target: "
                             f"{', '.join(b.unverified)}")
         if b.staged:
-            problems.append(f"{len(b.staged)} object(s) left on the counter after a regrasp failed: "
-                            f"{', '.join(st.cls for st in b.staged)}")
+            def why(st) -> str:  # its reasons (a regrasp that failed, no room at its targets)
+                t = b.attempts_for(as_pose(st))
+                rs = sorted(set(t.reasons)) if t is not None else []
+                return f"{st.cls} ({', '.join(rs)})" if rs else st.cls
+            problems.append(f"{len(b.staged)} object(s) left on the counter after a regrasp failed or set aside: "
+                            f"{', '.join(why(st) for st in b.staged)}")
         # First-scan items neither in the sink nor placed: dropped and not seen again, or never there (Belief.unaccounted)
         lost, never = b.unaccounted(self.report.objects_done)
         if lost > 0:

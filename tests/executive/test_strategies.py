@@ -397,3 +397,21 @@ def test_a_hidden_item_named_as_lying_on_another_is_planned_as_the_last_round_pl
     b.poses = [buried, bowl]
     with pytest.raises(StepFailed):
         plan_item(request(task, b, buried, planner), strategies_for(task), {})
+
+
+def test_an_item_set_aside_is_planned_as_a_staging_onto_the_counter(inv):
+    """The runner gives an item with no room in the racks that blocks another counter spots instead of targets
+    (TaskRunner._aside_targets, tests/executive/test_set_aside.py): it is planned as a staging there, not as a
+    direct pick onto spots taken for its targets."""
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    cup = item(inv, "cup")
+    planner = Situation(lambda staging, n: _Ok())
+    req = request(task, b, cup, planner)
+    req.targets = task.staging_targets(cup, b)
+    plan = plan_item(req, strategies_for(task), counts := {})
+    assert plan.strategy == "set_aside_blocker" and plan.staging
+    assert planner.calls == ["pick:stage", "place"]
+    assert counts["set_aside_blocker"] == {"tried": 1, "planned": 1} and "direct_pick" not in counts
+    # its own targets: the direct pick, as before
+    plan = plan_item(request(task, b, cup, planner), strategies_for(task), counts := {})
+    assert plan.strategy == "direct_pick" and not plan.staging
