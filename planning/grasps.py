@@ -211,6 +211,20 @@ def _crowded_by(scenes: dict, names: list[str], collided: list, taken: list, obj
     return out
 
 
+def _taken_in(T: np.ndarray, spec, gripper, others, scene: Scene, req) -> ObjectPose | None:
+    """The first other object (``others``: (pose, model) pairs) where a pad of grasp `spec` at `T` sweeps while
+    closing (it would be pushed or taken in with the target), or None."""
+    sweeps = [(vol, _tf(T @ T_v)) for vol, T_v in
+              pad_sweeps(spec.opening, spec.width, gripper.pad_width, gripper.pad_root, gripper.pad_tip)]
+    for po, pm in others:
+        if np.linalg.norm(po.T_base_obj[:3, 3] - T[:3, 3]) > pm.diameter / 2 + 0.15:
+            continue
+        if any(coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, coal.CollisionResult())
+               for vol, T_vol in sweeps):
+            return po
+    return None
+
+
 def select_grasps(
     robot: RobotModel,
     scene: Scene,
@@ -292,32 +306,25 @@ def select_grasps(
         grasp_scene = scenes[k]
         others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
                   if j != k and objects[j].obj_id in inventory.models]
-        # multi-object grasp: another object where a pad sweeps while closing
-        sweeps = [(vol, _tf(T @ T_v)) for vol, T_v in
-                  pad_sweeps(spec.opening, spec.width, gripper.pad_width, gripper.pad_root, gripper.pad_tip)]
-        taken_in = False
-        for po, pm in others:
-            if np.linalg.norm(po.T_base_obj[:3, 3] - T[:3, 3]) > pm.diameter / 2 + 0.15:
-                continue
-            if any(coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, coal.CollisionResult())
-                   for vol, T_vol in sweeps):
-                taken_in = True
-                taken.append(po)
-                break
-        if taken_in:
-            st.multi_object += 1
-            continue
         grasp_scene.set_opening(spec.opening)
         q_grasp = None
         brush: tuple = ()
         first_hit = None  # the first IK branch whose gripper collided (what crowds the item)
+        first_taken = None  # the first object a pad's closing sweep would take in
         reached = False
         # A Fin-Ray grasp still holds with a shallower bite: back off along the approach (up to 8 mm)
         # when the finger tips would touch what the object rests on. Every IK branch is tried, nearest to
         # the current configuration first (the nearest one's forearm often hits a basin wall where another
         # branch's does not); numerical IK covers wrist-singular poses, where the closed form gives none.
+        # The multi-object test (another object where a pad sweeps while closing) is made at each bite too:
+        # the pad tips of a grasp across an item lying on others (a mug on a plate stack) sweep into what it
+        # lies on at the full bite and clear it a few millimetres shallower.
         for back in (0.0, 0.004, 0.008):
             Tb = T @ trans(0.0, 0.0, -back)
+            taken_by = _taken_in(Tb, spec, gripper, others, scene, req)
+            if taken_by is not None:
+                first_taken = first_taken or taken_by
+                continue
             branches = robot.ik_all(Tb, q_current)
             # numerical IK only where it may find something: not where the pose is clearly out of reach
             if not branches and not robot.surely_unreachable(Tb):
@@ -342,6 +349,11 @@ def select_grasps(
                 break
             if q_grasp is not None:
                 break
+        if q_grasp is None and first_taken is not None:
+            taken.append(first_taken)  # what crowds the item, if nothing fits
+            if not reached:  # every bite takes in a neighbour (or is unreachable): a multi-object grasp
+                st.multi_object += 1
+                continue
         if q_grasp is None:
             if first_hit is not None and len(collided) < MAX_CROWD_CHECKS:
                 collided.append(first_hit)
