@@ -32,7 +32,7 @@ from kitchenbot.executive.motion import MotionTracks, Motions, spot_measured  # 
 from kitchenbot.executive.recovery import RecoveryActions
 from kitchenbot.executive.report import RunReport
 from kitchenbot.executive.stage_times import StageTimes
-from kitchenbot.executive.strategies import strategies_for
+from kitchenbot.executive.strategies import aside_targets, strategies_for
 from kitchenbot.executive.verification import Verification
 from kitchenbot.perception.pipeline import Perceiver
 from kitchenbot.perception.types import ObjectPose, View
@@ -403,9 +403,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
             obj = as_pose(st)
             targets = self.task.targets(obj, b)
             if isinstance(targets, NoFreeSlot):
-                # it waits on the counter while the sink has work: placing that may make room (a plate placed
-                # frees the room kept for it in the lower rack); given up when nothing else is left
-                if not self._candidates():
+                if not self._candidates():  # else it waits: a plate placed frees the room kept for it
                     b.give_up_on(obj, str(targets))
                 continue
             self.item = Item(obj, targets, st)
@@ -418,19 +416,18 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
                 # an item the task does not want lies on the one it does (a glass on a mug on a cup): it is
                 # moved out of the way (the task's targets for it) if it is in the sink and not tried out
                 extra = [p for p in b.poses if p.instance_id == prefer and self.task.in_sink(p)]
-                if extra and (not b.exhausted(extra[0]) or self._aside_targets(extra[0]) is not None):
+                if extra and (not b.exhausted(extra[0]) or aside_targets(self.task, b, extra[0]) is not None):
                     cands.insert(0, extra[0])
             cands.sort(key=lambda p: p.instance_id != prefer)  # stable: otherwise the task's order
         for obj in cands:
             targets = self.task.targets(obj, b)
             if isinstance(targets, NoFreeSlot):
-                aside = self._aside_targets(obj) if prefer is not None and obj.instance_id == prefer else None
+                aside = aside_targets(self.task, b, obj) if prefer is not None and obj.instance_id == prefer else None
                 if aside is not None:
                     b.record_set_aside(obj)
                     self.item = Item(obj, aside)
-                    self._log("note", "selected to set aside", obj_id=obj.obj_id, cls=obj.cls,
-                              xyz=obj.T_base_obj[:3, 3], reason=str(targets),
-                              targets=[t.T_base_obj[:3, 3] for t in aside])
+                    self._log("note", "selected to set aside", obj_id=obj.obj_id, cls=obj.cls, reason=str(targets),
+                              xyz=obj.T_base_obj[:3, 3], targets=[t.T_base_obj[:3, 3] for t in aside])
                     return "selected"
                 b.give_up_on(obj, str(targets))
                 self._log("note", "no_target", cls=obj.cls, reason=str(targets))
@@ -442,21 +439,6 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
                         "objects_total": self.report.objects_total})
             return "selected"
         return "nothing_left"
-
-
-    def _aside_targets(self, obj: ObjectPose) -> list | None:
-        """Counter spots to set `obj` down on when its task has no target for it (the racks have no room for it)
-        but it lies on, or in the lift's way of, an item that has one (`blocker_first` named it): a deadlock
-        otherwise, since the room kept for that item can be what leaves none for `obj` (a cup over a plate, the
-        lower rack's last room kept for the plate). Set down there as a staging (strategies.SetAsideBlocker), it
-        is picked up again when a target has room. None when the task does not set aside, there is no room on
-        the counter, or `obj` was planned to be set aside often enough (Belief.may_set_aside)."""
-        b = self.belief
-        if "set_aside_blocker" not in self.task.strategies or not b.may_set_aside(obj) \
-                or not isinstance(self.task.targets(obj, b), NoFreeSlot):
-            return None
-        spots = self.task.staging_targets(obj, b)
-        return None if isinstance(spots, NoFreeSlot) or not spots else list(spots)
 
 
 # ---- the entry point used by the CLI, the demo and the daemon ------------------------------------------------------

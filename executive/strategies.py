@@ -139,8 +139,22 @@ class DirectPick(Strategy):
 
 def _setting_aside(req: PlanRequest) -> bool:
     """The item is to be set down on the counter, not at a target of its own: every target is a staging spot
-    (the runner chose it to set aside, TaskRunner._aside_targets; tasks' own targets are never staging spots)."""
+    (the runner chose it to set aside, aside_targets; tasks' own targets are never staging spots)."""
     return req.staged is None and bool(req.targets) and all(t.kind == "stage" for t in req.targets)
+
+
+def aside_targets(task, belief: Belief, obj: ObjectPose) -> list | None:
+    """Counter spots to set `obj` down on when its task has no target for it (the racks have no room for it)
+    but it lies on, or in the lift's way of, an item that has one (`blocker_first` named it): a deadlock
+    otherwise, since the room kept for that item can be what leaves none for `obj` (a cup over a plate, the
+    lower rack's last room kept for the plate). Set down there as a staging (SetAsideBlocker), it is picked up
+    again when a target has room. None when the task does not set aside, there is no room on the counter, or
+    `obj` was planned to be set aside often enough (Belief.may_set_aside)."""
+    if "set_aside_blocker" not in task.strategies or not belief.may_set_aside(obj) \
+            or not isinstance(task.targets(obj, belief), NoFreeSlot):
+        return None
+    spots = task.staging_targets(obj, belief)
+    return None if isinstance(spots, NoFreeSlot) or not spots else list(spots)
 
 
 class SetAsideBlocker(Strategy):

@@ -1,5 +1,5 @@
 """An item the racks have no room for that blocks one they have room for (sink-to-dishwasher, a crowded sink): it is
-set aside on the counter (strategies.SetAsideBlocker, TaskRunner._aside_targets), and a staged item with no room
+set aside on the counter (strategies.SetAsideBlocker, strategies.aside_targets), and a staged item with no room
 waits on the counter while the sink has work. Hand-made: the racks filled with cup records but for a band too
 narrow for a cup that takes a plate on edge; a plate and a cup in the sink, the cup named as in the plate's lift."""
 

@@ -401,7 +401,7 @@ def test_a_hidden_item_named_as_lying_on_another_is_planned_as_the_last_round_pl
 
 def test_an_item_set_aside_is_planned_as_a_staging_onto_the_counter(inv):
     """The runner gives an item with no room in the racks that blocks another counter spots instead of targets
-    (TaskRunner._aside_targets, tests/executive/test_set_aside.py): it is planned as a staging there, not as a
+    (strategies.aside_targets, tests/executive/test_set_aside.py): it is planned as a staging there, not as a
     direct pick onto spots taken for its targets."""
     task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
     cup = item(inv, "cup")
