@@ -48,6 +48,7 @@ class Attempts:
     slides: int = 0
     missed: list = field(default_factory=list)  # grasps (spec names) that closed on nothing here: not tried again
     set_aside_plans: int = 0  # plans to set it aside on the counter (it had no target and blocked another item)
+    no_room: tuple | None = None  # (scene epoch, items keeping room) when its task last had no target for it
 
     def plan_failed(self, epoch: int) -> None:
         if self.plan_epoch != epoch:
@@ -118,7 +119,9 @@ class Belief:
     scene_epoch: int = 0
     placed: list[Placed] = field(default_factory=list)  # what the robot put down (staged items included)
     staged: list[Placed] = field(default_factory=list)  # of those, set down on the counter for a regrasp
-    pending: list = field(default_factory=list)  # ObjectModels the task still has to move
+    # what the task still has to move: (ObjectPose or None, ObjectModel) pairs; `pending` = the models of those
+    # that can still come out (room at the targets is kept for those only)
+    pending_items: list = field(default_factory=list)
     released: Released | None = None
     attempts: list[Attempts] = field(default_factory=list)
     unverified: list[str] = field(default_factory=list)  # classes gone from the sink but not seen at their target
@@ -133,13 +136,34 @@ class Belief:
     seen_staged: set = field(default_factory=set)  # instance ids of staged records whose pose a view gave
     _next_id: int = 0
 
+    # ---- what is still to do ------------------------------------------------------------------------------------
+    @property
+    def pending(self) -> list:
+        """The models of what the task still has to move and can still come out: an item that has proven stuck in
+        this scene (Belief.stuck: every plan for it failed since the scene last changed, or its grasps are used
+        up) keeps no room at the targets, so what can come out gets it (a crowded sink: the lower rack's last
+        room was kept for plates whose grasps all collide, and the bowls that could come out had no slot). The
+        room comes back when the scene changes (the item is tried again)."""
+        return [m for p, m in self.pending_items if p is None or not self.stuck(p)]
+
+    @pending.setter
+    def pending(self, models: list) -> None:
+        """Models alone (no poses: room is kept for each)."""
+        self.pending_items = [(None, m) for m in models]
+
+    def stuck(self, obj: ObjectPose) -> bool:
+        """`obj` cannot come out in this scene: its grasp attempts are used up, or every plan for it failed since
+        the scene last changed (Attempts.exhausted); an item that only waits for room (no_room) is not stuck."""
+        t = self.attempts_for(obj)
+        return t is not None and t.exhausted(self.scene_epoch)
+
     # ---- perception and the map ------------------------------------------------------------------------------
     def perceived(self, poses: list[ObjectPose], map_points: np.ndarray | None, pending: list, sink_lo_hi) -> None:
         """A new perception: its poses and map; contact marks in the sink made before the last change of the
         scene go (the scan saw the sink anew); `pending` = the models the task still has to move."""
         self.poses = list(poses)
         self.unplannable = []
-        self.pending = list(pending)
+        self.pending_items = _items(pending)
         self.map.set_base(map_points)
         lo, hi = sink_lo_hi
         c, e = self.map.contact_points, self.map.contact_epochs
@@ -152,7 +176,7 @@ class Belief:
         models the task still has to move. What failed to plan with the old scene is tried again."""
         self.poses = [p for p in self.poses if p is not obj]
         self.unplannable = []
-        self.pending = list(pending)
+        self.pending_items = _items(pending)
 
     def region_perceived(self, poses: list[ObjectPose], map_points: np.ndarray | None, pending: list) -> None:
         """One region was perceived again (perception/region.py) and merged with the rest, which stays as
@@ -160,7 +184,7 @@ class Belief:
         anew); what failed to plan with the old scene is tried again."""
         self.poses = list(poses)
         self.unplannable = []
-        self.pending = list(pending)
+        self.pending_items = _items(pending)
         self.map.set_base(map_points)
 
     @property
@@ -225,8 +249,23 @@ class Belief:
         return None
 
     def exhausted(self, obj: ObjectPose) -> bool:
+        """No attempts left on `obj`, every plan for it failed in this scene, or it waits for room (no_room)."""
         t = self.attempts_for(obj)
-        return t is not None and t.exhausted(self.scene_epoch)
+        return t is not None and (t.exhausted(self.scene_epoch) or t.no_room == self._room_key())
+
+    def _room_key(self) -> tuple:
+        """What the room at the targets depends on: the scene (what is placed) and what keeps room there."""
+        return self.scene_epoch, len(self.pending)
+
+    def no_room(self, obj: ObjectPose, reason: str) -> None:
+        """The task has no target for `obj` (its targets are full, or their room is kept for items still to come):
+        it waits until that room changes, a placement (the scene changes) or an item keeping room that proves
+        stuck (Belief.pending); then it is tried again. Not given up: the room kept for plates whose grasps
+        all collide is room it may get."""
+        t = self.attempts_for(obj, create=True)
+        t.no_room = self._room_key()
+        if reason not in t.reasons:
+            t.reasons.append(reason)
 
     def record_attempt(self, obj: ObjectPose) -> None:
         """A grasp of `obj` is executed."""
@@ -446,3 +485,9 @@ class Belief:
 def as_pose(p: Placed) -> ObjectPose:
     """A placed record as the object pose the planner and the tasks take."""
     return ObjectPose(p.obj_id, p.cls, p.T_base_obj, 1.0, instance_id=p.instance_id)
+
+
+def _items(pending: list) -> list:
+    """(pose, model) pairs from what a task says is pending (Task.pending_items, or models alone: room kept for
+    each)."""
+    return [x if isinstance(x, tuple) else (None, x) for x in pending]

@@ -362,7 +362,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         if self.fault_hook is not None:
             poses = self.fault_hook(poses)
         b = self.belief
-        b.perceived(poses, getattr(res, "map_points", None), self.task.pending_models(poses),
+        b.perceived(poses, getattr(res, "map_points", None), self.task.pending_items(poses),
                     self.robot.cell.sink_interior)
         self._log("result", "perceive", objects=[{"obj_id": p.obj_id, "cls": p.cls, "xyz": p.T_base_obj[:3, 3],
                                                   "score": p.score} for p in poses],
@@ -429,7 +429,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
                     self._log("note", "selected to set aside", obj_id=obj.obj_id, cls=obj.cls, reason=str(targets),
                               xyz=obj.T_base_obj[:3, 3], targets=[t.T_base_obj[:3, 3] for t in aside])
                     return "selected"
-                b.give_up_on(obj, str(targets))
+                b.no_room(obj, str(targets))  # tried again when the room changes
                 self._log("note", "no_target", cls=obj.cls, reason=str(targets))
                 continue
             self.item = Item(obj, targets)

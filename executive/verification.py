@@ -150,7 +150,7 @@ class Verification:
                 return False
             self._log("note", "verified with one view of the pick region, no re-scan", cls=p.obj.cls)
         else:
-            b.picked_away(p.obj, self.task.pending_models(others))
+            b.picked_away(p.obj, self.task.pending_items(others))
             self._log("note", "verified from the placement view, no re-scan", cls=p.obj.cls)
         self._verify_pending(presence)
         self.counts.empty_scans = 0
@@ -193,7 +193,7 @@ class Verification:
         if upd.rescan is not None:
             self._log("note", "re-scan: one view of the pick region does not settle it", reason=upd.rescan)
             return False
-        b.region_perceived(upd.poses, upd.map_points, self.task.pending_models(upd.poses))
+        b.region_perceived(upd.poses, upd.map_points, self.task.pending_items(upd.poses))
         return True
 
     # An item lies under another as seen from above when one at least COVER_WIDTH as wide as it rests higher up

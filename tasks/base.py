@@ -145,7 +145,12 @@ class Task:
 
     def pending_models(self, poses: list[ObjectPose]) -> list[ObjectModel]:
         """The models of what is still to do (the belief's `pending`: room is kept for them at the targets)."""
-        return [self.inventory[p.obj_id] for p in self.remaining(poses)]
+        return [m for _, m in self.pending_items(poses)]
+
+    def pending_items(self, poses: list[ObjectPose]) -> list[tuple[ObjectPose, ObjectModel]]:
+        """What is still to do, each with its model (the belief keeps room for those that can still come out:
+        executive/belief.py, Belief.pending)."""
+        return [(p, self.inventory[p.obj_id]) for p in self.remaining(poses)]
 
     # ---- where it goes --------------------------------------------------------------------------------------------
     def targets(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
