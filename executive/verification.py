@@ -73,16 +73,7 @@ class Verification:
             self.counts.empty_scans = 0
             return "next_object"
         if left:
-            why = []
-            for q in left:
-                t = b.attempts_for(q)
-                rs = sorted(set(t.reasons)) if t is not None else []
-                why.append(f"{q.cls} ({', '.join(rs) or 'no attempts left'})")
-            things = self._unrecognised_in_sink()
-            if things:
-                why.append(f"{len(things)} unrecognised thing(s) no pose explains (buried, seen too little, or not "
-                           "dishware): " + ", ".join(t.describe() for t in things))
-            self.report.message = f"{len(left)} object(s) left in the sink: " + "; ".join(why)
+            self.report.message = self._why_left(left)
             self.report.safe = self._make_safe()
             return "give_up"
         self.counts.empty_scans += 1
@@ -93,12 +84,7 @@ class Verification:
             problems.append(f"{len(b.unverified)} placement(s) not verified at the target: "
                             f"{', '.join(b.unverified)}")
         if b.staged:
-            def why(st) -> str:  # its reasons (a regrasp that failed, no room at its targets)
-                t = b.attempts_for(as_pose(st))
-                rs = sorted(set(t.reasons)) if t is not None else []
-                return f"{st.cls} ({', '.join(rs)})" if rs else st.cls
-            problems.append(f"{len(b.staged)} object(s) left on the counter after a regrasp failed or set aside: "
-                            f"{', '.join(why(st) for st in b.staged)}")
+            problems.append(self._left_on_counter())
         # First-scan items neither in the sink nor placed: dropped and not seen again, or never there (Belief.unaccounted)
         lost, never = b.unaccounted(self.report.objects_done)
         if lost > 0:
@@ -112,6 +98,33 @@ class Verification:
             self.report.safe = self._make_safe()
             return "give_up"
         return "complete"
+
+    def _why_left(self, left: list) -> str:
+        """The run's message when it gives up with `left` still in the sink: each item with its reasons, what no
+        pose explains, and the staged items on the counter with theirs."""
+        b, why = self.belief, []
+        for q in left:
+            t = b.attempts_for(q)
+            rs = sorted(set(t.reasons)) if t is not None else []
+            why.append(f"{q.cls} ({', '.join(rs) or 'no attempts left'})")
+        things = self._unrecognised_in_sink()
+        if things:
+            why.append(f"{len(things)} unrecognised thing(s) no pose explains (buried, seen too little, or not "
+                       "dishware): " + ", ".join(t.describe() for t in things))
+        if b.staged:  # on the counter too: each named with its reason, as when the sink is empty
+            why.append(self._left_on_counter())
+        return f"{len(left)} object(s) left in the sink: " + "; ".join(why)
+
+    def _left_on_counter(self) -> str:
+        """The staged items still on the counter (a regrasp that failed, set aside), each with its reasons."""
+        b = self.belief
+
+        def why(st) -> str:  # its reasons (a regrasp that failed, no room at its targets)
+            t = b.attempts_for(as_pose(st))
+            rs = sorted(set(t.reasons)) if t is not None else []
+            return f"{st.cls} ({', '.join(rs)})" if rs else st.cls
+        return (f"{len(b.staged)} object(s) left on the counter after a regrasp failed or set aside: "
+                f"{', '.join(why(st) for st in b.staged)}")
 
     def _unrecognised_in_sink(self) -> list[Unrecognised]:
         """What the map shows in the basin that neither the cell nor a perceived item explains, grouped into

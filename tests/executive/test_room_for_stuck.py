@@ -94,3 +94,24 @@ def test_a_plate_still_to_try_keeps_its_room(make_runner):
     for p in plates[1:]:
         _fail_to_plan(b, p)
     assert [m.cls for m in b.pending].count("plate") == 1
+
+
+def test_giving_up_with_items_in_the_sink_names_those_on_the_counter_too(make_runner, record_staged):
+    """The run's message names every item left: those in the sink and the staged ones on the counter (set aside
+    with no room), each with its reason. It used to name the counter's only when the sink was empty."""
+    runner, _ = make_runner(task="sink-to-dishwasher")
+    _full_upper_rack(runner)
+    plates, bowl = _crowded_sink(runner, plates=1)
+    b, task = runner.belief, runner.task
+    cup = runner.robot.inventory.by_name("cup")
+    spot = task.staging_targets(as_pose_of(cup), b)[0]
+    rec = record_staged(runner, cup, spot.T_base_obj)
+    b.no_room(as_pose_of(cup, rec.T_base_obj), "no_free_slot: no free slot for a cup in the upper or lower rack")
+    _fail_to_plan(b, plates[0])
+    msg = runner._why_left([plates[0]])
+    assert msg.startswith("1 object(s) left in the sink: plate (no_collision_free_grasp)")
+    assert "1 object(s) left on the counter" in msg and "cup (no_free_slot" in msg
+
+
+def as_pose_of(model, T=None):
+    return ObjectPose(model.obj_id, model.cls, make_T(np.eye(3), (0.5, 0.0, -0.15)) if T is None else T, 1.0)
