@@ -474,7 +474,10 @@ class Perceiver:
             if np.linalg.norm(d) > model.diameter + other.diameter:
                 continue
             along = abs(d @ z)
-            end_to_end = other.cls in FLIP_CLASSES and h.T_base_obj[:3, 2] @ z > np.cos(np.radians(30)) \
+            # (For a standing vessel a copy along the axis explains as any pose does: upright copies along one
+            # axis are a nested stack, and a copy fitted on a standing bottle is rejected on its own, after
+            # which it explains nothing: the judging is repeated without it.)
+            end_to_end = not standing and other.cls in FLIP_CLASSES and h.T_base_obj[:3, 2] @ z > np.cos(np.radians(30)) \
                 and np.linalg.norm(d - (d @ z) * z) < 0.5 * model.diameter \
                 and along > 0.25 * (model.extents[2] + other.extents[2])
             if not end_to_end:
