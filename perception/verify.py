@@ -12,7 +12,9 @@ The checks, each a share in [0, 1]:
   nudged first onto them by a short ICP (`fine_share`);
 - continued (tall vessels: cups, mugs, glasses): measured points just past the model's ends (3 cm along its axis,
   within its radius) that neither it nor another pose puts on a surface, per point of its own (`continuation`):
-  a bottle or a rolling pin lying there is longer than any cup, its surface goes on where the cup ends.
+  a bottle or a rolling pin lying there is longer than any cup, its surface goes on where the cup ends. A
+  standing vessel's end is judged only where nothing past it reaches out across the axis (a plate over a rim, the
+  support under a base): a standing bottle's body, shoulder and neck go on along it.
 
 - overhang (cups, mugs, glasses not standing): measured points in the plane of the model's base just past its edge
   that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base.
