@@ -453,15 +453,16 @@ class Perceiver:
                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
         """verify.continuation for a pose of a tall vessel lying down (axis over 45 deg from up): map points past
         its ends that no pose explains. A copy fitted end to end along the axis does not explain them: that is
-        how a bottle is fitted by cups (one after the other along its body). Standing vessels are not judged:
-        what lies across a cup's rim (a plate, a lying bottle) is past its end too."""
+        how a bottle is fitted by cups (one after the other along its body). For a standing vessel (upright or
+        upside down) an end is judged only where nothing past it reaches out across the axis: what lies across a
+        cup's rim (a plate, a lying bottle) or under its base (its support) is past its end too, while an
+        upright bottle's body, shoulder and neck go on past an upside-down cup's base within its radius."""
         model = self.inventory[hyp.obj_id]
         T = hyp.T_base_obj
         z = T[:3, 2]
         up = self._up()
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
-        if abs(z @ up) >= np.cos(np.radians(45)):
-            return 0.0
+        standing = abs(z @ up) >= np.cos(np.radians(45))
         P, explained = self._near_points(m, tree, hyp)
         if len(P) == 0:
             return 0.0
@@ -473,12 +474,15 @@ class Perceiver:
             if np.linalg.norm(d) > model.diameter + other.diameter:
                 continue
             along = abs(d @ z)
-            end_to_end = other.cls in FLIP_CLASSES and h.T_base_obj[:3, 2] @ z > np.cos(np.radians(30)) \
+            # (For a standing vessel a copy along the axis explains as any pose does: upright copies along one
+            # axis are a nested stack, and a copy fitted on a standing bottle is rejected on its own, after
+            # which it explains nothing: the judging is repeated without it.)
+            end_to_end = not standing and other.cls in FLIP_CLASSES and h.T_base_obj[:3, 2] @ z > np.cos(np.radians(30)) \
                 and np.linalg.norm(d - (d @ z) * z) < 0.5 * model.diameter \
                 and along > 0.25 * (model.extents[2] + other.extents[2])
             if not end_to_end:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
-        return continuation(P, model.points, T, explained, len(own))
+        return continuation(P, model.points, T, explained, len(own), only_along=standing)
 
     def _near_points(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis) -> tuple[np.ndarray, np.ndarray]:
         """Map points within the model's diameter of a pose, and which of them the pose puts on its surface."""

@@ -10,9 +10,11 @@ The checks, each a share in [0, 1]:
 - fine: of the segment's points that no other pose claims, how many lie on the model's surface, facing the same
   way, at the sensor's precision (`fine_tolerance`: 3 mm, more where the map's surfaces are rougher), the pose
   nudged first onto them by a short ICP (`fine_share`);
-- continued (tall vessels lying down: cups, mugs, glasses): measured points just past the model's ends (3 cm along its axis,
+- continued (tall vessels: cups, mugs, glasses): measured points just past the model's ends (3 cm along its axis,
   within its radius) that neither it nor another pose puts on a surface, per point of its own (`continuation`):
-  a bottle or a rolling pin lying there is longer than any cup, its surface goes on where the cup ends.
+  a bottle or a rolling pin lying there is longer than any cup, its surface goes on where the cup ends. A
+  standing vessel's end is judged only where nothing past it reaches out across the axis (a plate over a rim, the
+  support under a base): a standing bottle's body, shoulder and neck go on along it.
 
 - overhang (cups, mugs, glasses not standing): measured points in the plane of the model's base just past its edge
   that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base.
@@ -60,6 +62,11 @@ FINE_FULL = 0.6
 CONTINUED_FULL = 1.0
 # Past each end of the model along its axis, this far, is where a longer object would continue.
 CONTINUE_REACH = 0.03
+# A standing vessel's end is judged for continuation only where the unexplained surface past it does not reach
+# out across the axis: points in this ring (metres past the end's radius; clear of a bottle up to 1 cm wider than
+# the end) at least this share of those within the end's radius + 1 cm mean something lies across or beside it.
+ACROSS_RING = (0.02, 0.05)
+ACROSS_SHARE = 0.25
 # The filled share at which a pose scores 0 (linear from 0 at none; see `filled`): calibrated with
 # perception/calibrate_verify.py on development scenes with distractors (docs/perception.md "A can is closed").
 FILLED_FULL = 1.0
@@ -212,23 +219,34 @@ def _unexplained_along_axis(points: np.ndarray, model_points: np.ndarray, T_base
 
 
 def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
-                 n_own: int, reach: float = CONTINUE_REACH) -> float:
+                 n_own: int, reach: float = CONTINUE_REACH, only_along: bool = False) -> float:
     """Of map points near a pose (`points`, base frame; `explained`: those this pose or another one puts on its
     surface), how many lie past the model's ends along its axis (up to `reach`) within that end's radius, per
     point of the pose's own (`n_own`). A model of a surface of revolution about its z axis (`model_points`,
     object frame). An item that ends where the model ends leaves nothing there but what its neighbours explain;
-    a bottle fitted by a cup continues past the cup's rim or base."""
+    a bottle fitted by a cup continues past the cup's rim or base.
+
+    `only_along` (a standing vessel): an end past which the unexplained surface also reaches clearly wider than
+    the end (`ACROSS_RING` radially past it, at least `ACROSS_SHARE` of what lies within it) is not judged:
+    what lies there goes across the axis (a plate or a lying bottle over a cup's rim, the plate or the board a
+    vessel stands on, a neighbour beside it), not along it. A bottle's body, shoulder and neck going on past an
+    upright or upside-down cup or glass stay within the end's radius."""
     if n_own == 0 or len(points) == 0:
         return 0.0
     q, axis, r_model, z0, z1 = _unexplained_along_axis(points, model_points, T_base_obj, explained)
     r_q = np.linalg.norm(q[:, :2] - axis, axis=1)
     # Past each end, within that end's own radius (1 cm more: a bottle a little wider than a cup's base; not the
     # reach of a mug's handle, beside which a neighbour may lie).
-    r0 = r_model[model_points[:, 2] < z0 + 0.005].max() + 0.01
-    r1 = r_model[model_points[:, 2] > z1 - 0.005].max() + 0.01
-    past = ((q[:, 2] < z0) & (q[:, 2] > z0 - reach) & (r_q < r0)) | \
-        ((q[:, 2] > z1) & (q[:, 2] < z1 + reach) & (r_q < r1))
-    return float(past.sum() / n_own)
+    n_past = 0
+    for r_end, beyond in ((r_model[model_points[:, 2] < z0 + 0.005].max(), (q[:, 2] < z0) & (q[:, 2] > z0 - reach)),
+                          (r_model[model_points[:, 2] > z1 - 0.005].max(), (q[:, 2] > z1) & (q[:, 2] < z1 + reach))):
+        inner = int(np.count_nonzero(beyond & (r_q < r_end + 0.01)))
+        if only_along and inner:
+            wide = np.count_nonzero(beyond & (r_q > r_end + ACROSS_RING[0]) & (r_q < r_end + ACROSS_RING[1]))
+            if wide >= ACROSS_SHARE * inner:
+                continue
+        n_past += inner
+    return float(n_past / n_own)
 
 
 def filled(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,

@@ -97,6 +97,39 @@ def test_a_surface_going_on_past_the_models_end_is_continuation(perceiver, inven
     assert continuation(P, model.points, T, explained | (np.arange(len(P)) >= len(own)), len(own)) < 0.02
 
 
+def test_a_standing_vessel_is_continued_along_its_axis_not_across_it(perceiver, inventory):
+    """A cup upside down (standing on its rim): an upright bottle's body and neck going on past its base, within
+    the base's radius, are continuation; a plate lying across that end, or the board the cup stands on, reach
+    out wider than the end: something across the axis, not the same body going on, so that end is not judged.
+    (Lying vessels are judged as before: `only_along` off.)"""
+    from kitchenbot.perception.register import on_surface
+    from kitchenbot.perception.verify import continuation
+
+    entry, model = perceiver.database[4], inventory[4]
+    T = make_T(rot_x(np.pi)[:3, :3], np.array([0.4, 0.0, 0.10]))  # upside down: the base (object z0) on top
+    own, _ = _cup_surface(entry, T, 0.0005)
+    z0 = model.points[:, 2].min()
+    # A bottle's body (a little narrower than the base) going on 1.5 cm past the base, then a neck 1.5 cm on.
+    body = np.vstack([_cylinder_side(0.027, z0 - 0.015, z0), _cylinder_side(0.012, z0 - 0.03, z0 - 0.015, 2000)])
+    P = np.vstack([own, body @ T[:3, :3].T + T[:3, 3]])
+    explained = on_surface(P, None, entry, T, 0.004)
+    along = continuation(P, model.points, T, explained, len(own), only_along=True)
+    assert along > 0.2, along
+    # A plate lying across the base: a disk of 10 cm radius 1 cm past it. Within the base's radius it is "past
+    # the end" just as the bottle was, but it reaches out across the axis.
+    plate = _disk(0.10, z0 - 0.01, 12000) @ T[:3, :3].T + T[:3, 3]
+    P = np.vstack([own, plate])
+    explained = on_surface(P, None, entry, T, 0.004)
+    assert continuation(P, model.points, T, explained, len(own)) > 0.2  # judged when lying (as before)
+    assert continuation(P, model.points, T, explained, len(own), only_along=True) < 0.02
+    # The board it stands on (under its rim, object z1 end): across, not judged either.
+    z1 = model.points[:, 2].max()
+    board = _disk(0.15, z1 + 0.002, 20000) @ T[:3, :3].T + T[:3, 3]
+    P = np.vstack([own, board])
+    explained = on_surface(P, None, entry, T, 0.004)
+    assert continuation(P, model.points, T, explained, len(own), only_along=True) < 0.02
+
+
 def _disk(radius: float, z: float, n: int = 3000, seed: int = 2) -> np.ndarray:
     """Points on a flat disk across the object z axis at height z (object frame): a lid."""
     rng = np.random.default_rng(seed)
