@@ -170,9 +170,11 @@ def oriented_normals(points: np.ndarray, viewpoints: np.ndarray, voxel: float) -
 
 def fuse_instance(points: np.ndarray, view_idx: np.ndarray, pixel: np.ndarray, rgbs: list[np.ndarray],
                   masks: list[np.ndarray | None], cam_centres: np.ndarray, voxel: float,
-                  img_enc: ImageEncoder | None, pt_enc: PointEncoder) -> FusedCloud:
+                  img_enc: ImageEncoder | None, pt_enc: PointEncoder, point_features: bool = True) -> FusedCloud:
     """Alg. 1 for one instance: `points` (base frame) seen at `pixel` (row, col) of view `view_idx`;
-    `masks[k]` is the instance's mask in view k (None where it was not seen)."""
+    `masks[k]` is the instance's mask in view k (None where it was not seen). `point_features=False`: no point
+    features (`pts` (M, 0), `geo_token` empty): for a query that only registers and scores (pose tracking,
+    perception/track.py), where FPFH was most of the query's cost and never read."""
     dim_i = img_enc.dim if img_enc else 0
     img = np.zeros((len(points), dim_i))
     cls_tokens = []
@@ -196,7 +198,10 @@ def fuse_instance(points: np.ndarray, view_idx: np.ndarray, pixel: np.ndarray, r
     vp = np.zeros((len(P), 3))
     vp[inv_] = cam_centres[view_idx] if len(cam_centres) else 0.0
     N = oriented_normals(P, vp, voxel)
-    Fp = l2n(pt_enc.encode(P, N, voxel))
+    if not point_features:
+        Fp = np.zeros((len(P), 0))
+    else:
+        Fp = l2n(pt_enc.encode(P, N, voxel))
     cls_token = l2n(np.sum(cls_tokens, axis=0)) if cls_tokens else np.zeros(dim_i)
     if F is not None:
         # Voxels whose pixels fell on empty patches (mask edges) take the instance's class token.
@@ -204,4 +209,5 @@ def fuse_instance(points: np.ndarray, view_idx: np.ndarray, pixel: np.ndarray, r
         Fi = l2n(F)
     else:
         Fi = np.zeros((len(P), 0))
-    return FusedCloud(P, N, Fi, Fp, cls_token, l2n(Fp.mean(axis=0)) if len(Fp) else np.zeros(pt_enc.dim))
+    geo = l2n(Fp.mean(axis=0)) if len(Fp) and Fp.shape[1] else np.zeros(pt_enc.dim if point_features else 0)
+    return FusedCloud(P, N, Fi, Fp, cls_token, geo)

@@ -813,8 +813,9 @@ class Perceiver:
             return None, query
         return self._accepted(query, best, scorers[best.obj_id]), query
 
-    def _query(self, inst: InstanceMap, views: list[View]) -> FusedCloud:
-        """One instance's map points as voxel centres with normals and fused features."""
+    def _query(self, inst: InstanceMap, views: list[View], point_features: bool = True) -> FusedCloud:
+        """One instance's map points as voxel centres with normals and fused features (`point_features=False`:
+        without the point encoder's, for a query that is only registered and scored: pose tracking)."""
         masks: list[np.ndarray | None] = []
         for k, v in enumerate(views):
             sel = inst.view == k
@@ -825,7 +826,7 @@ class Perceiver:
             mk[inst.pixel[sel, 0], inst.pixel[sel, 1]] = True
             masks.append(mk)
         return fuse_instance(inst.points, inst.view, inst.pixel, [v.rgb for v in views], masks, inst.cam_centres,
-                             self.settings.voxel_size, self.img_enc, self.pt_enc)
+                             self.settings.voxel_size, self.img_enc, self.pt_enc, point_features)
 
     def _accepted(self, query: FusedCloud, best: Hypothesis, scorer: Scorer) -> Hypothesis | None:
         """`best` with its verification, if it passes the checks every pose must pass; else None."""
@@ -852,7 +853,7 @@ class Perceiver:
         if k is None:
             return None, None
         prior = priors[k]
-        query = self._query(inst, views)
+        query = self._query(inst, views, point_features=False)  # registered and scored only: no FPFH
         if len(query.points) < 8:
             return None, None
         entry = self.database[prior.obj_id]

@@ -572,7 +572,7 @@ class Scene:
         self.objects = objects
         self.voxels = np.asarray(voxels, float).reshape(-1, 3)
         self.held = held
-        self._shared = {"opening": float(held.width if held is not None else opening), "version": 0}
+        self._shared = {"opening": float(held.width if held is not None else opening)}
         robot = world.robot
         self.model = robot.model
         self.data = robot.model.createData()
@@ -620,7 +620,7 @@ class Scene:
             gm.addCollisionPair(pin.CollisionPair(i, j))
         self.gd = pin.GeometryData(gm)
         self._bp = None
-        self._pool_obj, self._pool_version = None, -1
+        self._pools: dict[float, object] = {}  # the batch checker's pools, one per pads' opening (_pool)
         self._tcp_in_j6 = robot.model.frames[robot.tcp_id].placement.translation.copy()
         self._ws_lo = np.asarray(robot.limits.workspace.lower, float)
         self._ws_hi = np.asarray(robot.limits.workspace.upper, float)
@@ -641,7 +641,6 @@ class Scene:
         if abs(opening - self._shared["opening"]) < 1e-9:
             return
         self._shared["opening"] = float(opening)
-        self._shared["version"] += 1
         robot = self.world.robot
         for tb in self.world.gripper.pads(robot.T_flange_tcp, float(opening)):
             gid = self.names.index(tb.name)
@@ -736,7 +735,7 @@ class Scene:
         other.data = self.model.createData()
         other.gd = pin.GeometryData(self.gm)
         other._bp = None
-        other._pool_obj, other._pool_version = None, -1
+        other._pools = {}  # its own pair activations and margins
         other._zone = None
         return other
 
@@ -807,10 +806,19 @@ class Scene:
             out[i] = d <= radius
         return out
 
+    # pools kept per scene (distinct pads' openings): a grasp search asks a few openings, alternately
+    MAX_POOLS = 8
+
     def _pool(self):
         """Pinocchio's batch checker (C++ loop over configurations, same broad phase, this scene's pair
-        activation and margins); rebuilt when the pads moved."""
-        if self._pool_obj is None or self._pool_version != self._shared["version"]:
+        activation and margins). The pool holds its own copy of the geometry, so it is built for the pads'
+        opening at the time: one per opening, kept (grasp selection alternates between a few openings, since
+        its candidates are ordered by height, not by opening; it rebuilt the pool at every change). A scene's
+        margins and activations are set when it is made and not changed after, the pads are the only geometry
+        that moves (set_opening): a kept pool answers as a new one would."""
+        key = self._shared["opening"]
+        pool = self._pools.get(key)
+        if pool is None:
             pool = pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager(self.model, self.gm, 1)
             gd = pool.getGeometryDatas()[0]
             reqs, mine = gd.collisionRequests, self.gd.collisionRequests  # views: one Python proxy each
@@ -819,8 +827,10 @@ class Scene:
                 reqs[k].security_margin = mine[k].security_margin
                 if want[k] != now[k]:
                     gd.activateCollisionPair(k) if want[k] else gd.deactivateCollisionPair(k)
-            self._pool_obj, self._pool_version = pool, self._shared["version"]
-        return self._pool_obj
+            if len(self._pools) >= self.MAX_POOLS:
+                self._pools.clear()
+            self._pools[key] = pool
+        return pool
 
     def valid_batch(self, Q: np.ndarray) -> np.ndarray:
         """Validity of each row of Q (N, 6): limits, workspace (vectorised DH FK) and collisions (batch)."""

@@ -105,3 +105,33 @@ def test_a_tracked_pose_the_fine_check_rejects_is_estimated_afresh(perceiver, in
     r = perceiver.perceive(again, priors=first.poses)
     assert sorted(p.obj_id for p in r.poses) == sorted(oid for oid, _ in placed)
     assert max(_match(r.poses, placed, inventory)) < 0.01
+
+
+def test_a_tracked_query_computes_no_point_features_and_gives_the_same_poses(perceiver, inventory, cell,
+                                                                            monkeypatch):
+    """Tracking only registers and scores its query (points, normals, colour): the point encoder (FPFH, most of
+    the query's cost) is not run for it, and the poses are bitwise those of a query built with the features."""
+    placed = _scene(inventory, cell)
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    first = perceiver.perceive(views)
+    again, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
+    encoded = []
+    real_encode = perceiver.pt_enc.encode
+
+    def counted(P, N, voxel):
+        encoded.append(len(P))
+        return real_encode(P, N, voxel)
+
+    monkeypatch.setattr(perceiver.pt_enc, "encode", counted)
+    r = perceiver.perceive(again, priors=first.poses)
+    assert r.tracked == 3 and encoded == []
+    # the same scan with every tracked query built with its point features (as before): the same poses
+    real_query = pipeline.Perceiver._query
+    monkeypatch.setattr(pipeline.Perceiver, "_query",
+                        lambda self, inst, views, point_features=True: real_query(self, inst, views))
+    r2 = perceiver.perceive(again, priors=first.poses)
+    assert r2.tracked == 3 and len(encoded) == 3
+    key = lambda p: (p.obj_id, tuple(p.T_base_obj[:3, 3]))  # noqa: E731
+    for p, q in zip(sorted(r.poses, key=key), sorted(r2.poses, key=key)):
+        assert p.obj_id == q.obj_id and np.array_equal(p.T_base_obj, q.T_base_obj)
+        assert p.score == q.score and p.verification == q.verification

@@ -183,3 +183,41 @@ def test_scenes_sharing_a_layout_get_their_own_pairs_and_margins(planner, home):
     Q = home + rng.normal(0.0, 0.6, size=(300, 6))
     assert np.array_equal(sf.valid_batch(Q), sb.valid_batch(Q))
     assert [sf.valid(q) for q in Q] == [sb.valid(q) for q in Q]
+
+
+def test_batch_pools_are_kept_per_opening(planner, home, resting, monkeypatch):
+    """A grasp search alternates between a few pad openings on one scene: the batch checker's pool (a copy of the
+    geometry with the pads where they were) is built once per opening and kept, and a kept pool answers as the
+    single checks do at that opening (the pads moved away and back in between)."""
+    from kitchenbot.planning import collision
+
+    built = []
+    real = collision.pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager
+
+    def counted(*a):
+        built.append(1)
+        return real(*a)
+
+    monkeypatch.setattr(collision.pin, "BroadPhaseManagerPool_DynamicAABBTreeCollisionManager", counted)
+    cup = resting("cup", (0.5, 0.0), 1)
+    spec = planner.inventory.by_name("cup").grasps[0]
+    q_grasp = planner.robot.ik_q(cup.T_base_obj @ spec.T_obj_tcp, home)
+    assert q_grasp is not None
+    rng = np.random.default_rng(11)
+    Q = np.clip(np.vstack([q_grasp + rng.normal(0.0, 0.02, (150, 6)), home + rng.uniform(-1.5, 1.5, (150, 6))]),
+                planner.robot.lower, planner.robot.upper)
+    for kind, scene in (("base", planner.scene([cup])), ("grasp", planner.scene([cup]).for_grasp("1"))):
+        built.clear()
+        answers = {}
+        for opening in (0.1, 0.03, 0.1, 0.03, 0.06, 0.1):
+            scene.set_opening(opening)
+            single = np.array([scene.valid(q) for q in Q])
+            batch = scene.valid_batch(Q)
+            np.testing.assert_array_equal(batch, single)
+            answers.setdefault(opening, batch)
+            np.testing.assert_array_equal(batch, answers[opening])
+        if kind == "base":  # the pads' opening matters here (closed into the cup wall near the grasp)
+            assert not np.array_equal(answers[0.1], answers[0.03])
+            assert len(built) == 3, len(built)  # one pool per opening
+        else:  # its strict scene (pad contacts checked) keeps its own: at most one more per opening
+            assert len(built) <= 2 * 3, len(built)
