@@ -689,9 +689,38 @@ class FakeArm(Arm):
 
     def _slip(self) -> None:
         uid = self.world.release()
+        if uid is not None:
+            self._topple(uid)
         self.world.gripper_opening = 0.0  # the fingers snap shut on nothing
         self.log.slips += 1
         self._event("slip", f"object {uid} slipped out of the gripper")
+
+    def _topple(self, uid: int) -> None:
+        """A slipped item falls in the attitude it was carried in; where that is on its edge (a plate carried
+        upright for a rack slot) nothing balances it there: it tips over its support (`settle`) until it rests.
+        In a rack's footprint the rack's tines (not modelled as collision geometry) hold it as it fell; in the
+        sink it tips no further than the basin's walls."""
+        from kitchenbot.fakes.placement import settle
+        from kitchenbot.transforms import make_T
+
+        w = self.world
+        o = w.objects[uid]
+        T = np.asarray(o.T_base_obj, float)
+        dw = w.cell.spec.dishwasher
+        for r in (dw.lower, dw.upper):
+            lo, size = np.asarray(r.origin_xy, float), np.asarray(r.size_xy, float)
+            if np.all(T[:2, 3] >= lo) and np.all(T[:2, 3] <= lo + size):
+                return
+        z_h = np.array([T[0, 2], T[1, 2], 0.0])
+        if np.linalg.norm(z_h) > 0.5:  # its axis more than 30 degrees off vertical: on its edge or side
+            # a carried item is never exactly balanced on its edge: a degree off, towards its top face up (the
+            # exact balance of the model left a plate standing on its rim wherever it fell)
+            a = np.cross(z_h / np.linalg.norm(z_h), [0.0, 0.0, 1.0])
+            T = make_T(Rotation.from_rotvec(a * np.radians(1.0)).as_matrix(), (0.0, 0.0, 0.0)) @ T
+            T[:3, 3] = o.T_base_obj[:3, 3]
+        inside = w.cell.in_sink(T[:3, 3])[0]
+        o.T_base_obj = settle(w, uid, T, max_deg=90.0, keep_inside=w.cell.sink_interior if inside else None)
+        w.version += 1
 
     def _raise_pending(self) -> None:
         err, self._pending = self._pending, None

@@ -379,3 +379,33 @@ def test_retiming_a_motion_does_not_move_where_the_item_slips():
     slips_b, p_b = _slip_on_a_timed_swing(3.0 * (0.3 * s + 0.7 * s * s))
     assert slips_a == slips_b == 1
     assert np.linalg.norm(p_a[:2] - p_b[:2]) < 0.005
+
+
+@pytest.mark.parametrize("face", [1.0, -1.0], ids=["top_face_to_the_robot", "top_face_away"])
+def test_a_plate_that_slips_out_upright_over_the_counter_does_not_stay_standing_on_its_rim(face):
+    # A plate carried upright (as for a rack slot) slips out over the counter. Before, it fell straight down in
+    # the attitude it was carried in and stood on its rim wherever it landed (the model balanced exactly): 0.7-0.8
+    # m from the base, facing the robot, no grasp reached it. A real plate falls over; it lies where it fell.
+    world, arm, _ = make_rig()
+    arm.move_linear(tcp_down(0.0, 0.60, 0.45), speed=0.25, accel=1.0)  # over the counter beside the robot
+    T_tcp = world.T_base_tcp()
+    xy = T_tcp[:2, 3]
+    assert not world.cell.in_sink(np.array([xy[0], xy[1], 0.0]))[0]  # over the counter
+    radial = np.array([xy[0], xy[1], 0.0]) / np.linalg.norm(xy)
+    z_axis = face * radial  # the plate's axis level, pointing along the line from the base
+    up = np.array([0.0, 0.0, 1.0])
+    R = np.column_stack([np.cross(up, z_axis), up, z_axis])  # x level, y up, z (the axis) level
+    plate = INVENTORY.by_name("dinner_plate")
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = T_tcp[:3, 3] - [0.0, 0.0, 0.05 + plate.extents[0] / 2]
+    uid = world.add_object(plate, T)
+    world.attach(uid, slip=False)
+    world.slip_in_motions = 0  # this hold slips in the next motion
+    arm.move_linear(trans(0.03, 0.0, 0.0) @ T_tcp, speed=0.1)
+    assert arm.log.slips == 1 and world.held_uid is None
+    T_end = world.objects[uid].T_base_obj
+    tilt = np.degrees(np.arccos(abs(T_end[2, 2])))
+    assert tilt < 15.0, f"the plate's axis is {tilt:.0f} degrees off vertical (standing on its rim)"
+    z_bottom = np.asarray(world.object_mesh(uid).vertices)[:, 2].min()
+    assert -0.002 < z_bottom < 0.01  # on the counter
