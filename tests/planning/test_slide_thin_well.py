@@ -15,7 +15,7 @@ from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.transforms import make_T
 from kitchenbot.world.inventory import Inventory
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = pytest.mark.timeout(900)
 
 
 @pytest.fixture(scope="module")
