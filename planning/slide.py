@@ -88,6 +88,20 @@ def _touching(planner, a: ObjectPose, b: ObjectPose, gap: float = 0.003) -> bool
     return d < gap
 
 
+def _cell_touching(planner, a: ObjectPose, gap: float = 0.003) -> list:
+    """The cell's boxes (the sink floor, a basin wall) within `gap` of item `a`."""
+    if a.obj_id not in planner.inventory.models:
+        return []
+    bvh, T = planner.world.bvh(planner.inventory[a.obj_id]), _tf(a.T_base_obj)
+    out = []
+    for b in planner.cell.boxes:
+        d = coal.distance(bvh, T, coal.Box(*np.asarray(b.size, float)), _tf(make_T(t=b.centre)),
+                          coal.DistanceRequest(), coal.DistanceResult())
+        if d < gap:
+            out.append(b)
+    return out
+
+
 def slide_directions(planner, target: ObjectPose, others: list, distance: float) -> list[tuple[np.ndarray, float]]:
     """(unit direction, clearance) of each of 8 horizontal directions the item can slide `distance` along:
     it stays inside the sink (5 mm from the walls), touches nothing it does not already touch and ends farther from
@@ -209,11 +223,13 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     base_scene = planner.scene(objects, map_points)
     base_scene.set_opening(0.0)
     # the fingers press on the item, towards what it rests on (never reaching it: the item is between; the
-    # planner's fingers are 2 mm longer than the simulator's, so they may seem to)
-    under = [names[k] for k, o in enumerate(objects) if o is not target and _touching(planner, target, o)]
+    # planner's fingers are 2 mm longer than the simulator's, so they may seem to); what it rests on may be the
+    # cell itself (a plate lying on the sink floor whose well is one thin wall: its fingers seem to reach the floor)
+    under = [f"obj:{names[k]}" for k, o in enumerate(objects) if o is not target and _touching(planner, target, o)]
+    under += [f"cell:{b.name}" for b in _cell_touching(planner, target)]
     press_scene = base_scene.for_grasp(names[k_t])
     if under:
-        press_scene = press_scene.allowing([(f"obj:{u}", pad) for u in under for pad in ("pad_a", "pad_b")])
+        press_scene = press_scene.allowing([(u, pad) for u in under for pad in ("pad_a", "pad_b")])
     z_tcp = p[2] + FINGERS.tip_z - PRESS_DEPTH
     timings: dict = {}
     first: PlanningFailure | None = None

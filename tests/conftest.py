@@ -101,6 +101,47 @@ def write_own_dishware_b(folder):
     return {i: (name, cls) for i, (name, cls, _, _) in enumerate(specs, start=1)}
 
 
+def write_own_dishware_c(folder):
+    """A third models/ folder of unseen dishware, shapes neither other set has: a square plate (rounded corners),
+    an oval gravy-boat-like bowl (not round), a stemless glass whose mouth is narrower than its belly, and a
+    fluted ramekin (a wavy wall, not round). Meshes (mm) and diameters only. Returns {obj_id: (name, expected
+    class)}."""
+    from kitchenbot.world.dishware import _profile_closed, lathe
+    from kitchenbot.world.inventory import Inventory, ObjectModel, _diameter
+
+    def vessel(outer, thickness):
+        return lathe(_profile_closed(np.array(outer, float), thickness), segments=96)
+
+    def warp(mesh, radius_factor):  # each vertex moved radially by radius_factor(azimuth): a closed mesh stays closed
+        V = np.asarray(mesh.vertices).copy()
+        V[:, :2] *= radius_factor(np.arctan2(V[:, 1], V[:, 0]))[:, None]
+        mesh.vertices = o3d.utility.Vector3dVector(V)
+        return mesh
+
+    import open3d as o3d
+
+    square = warp(vessel([(0, 0), (0.060, 0), (0.064, 0.002), (0.080, 0.014), (0.095, 0.018), (0.118, 0.022)],
+                         0.0045),
+                  lambda a: (np.abs(np.cos(a)) ** 6 + np.abs(np.sin(a)) ** 6) ** (-1 / 6))
+    oval = vessel([(0, 0), (0.030, 0), (0.034, 0.003), (0.050, 0.020), (0.060, 0.045), (0.064, 0.068)], 0.004)
+    oval = warp(oval, lambda a: 1.0 / np.sqrt((np.cos(a) / 1.35) ** 2 + (np.sin(a) / 0.9) ** 2))
+    stemless = vessel([(0, 0), (0.026, 0), (0.029, 0.003), (0.038, 0.025), (0.041, 0.045), (0.039, 0.070),
+                       (0.035, 0.095), (0.033, 0.110)], 0.0025)
+    fluted = warp(vessel([(0, 0), (0.036, 0), (0.040, 0.003)] + [(0.042, z) for z in np.linspace(0.008, 0.045, 5)],
+                         0.005),
+                  lambda a: 1.0 + 0.05 * np.cos(12 * a))
+    specs = [("square_plate", "plate", square, (0.92, 0.90, 0.85)), ("oval_bowl", "bowl", oval, (0.85, 0.80, 0.60)),
+             ("stemless_glass", "glass", stemless, (0.82, 0.88, 0.92)),
+             ("fluted_ramekin", "bowl", fluted, (0.95, 0.93, 0.90))]
+    models = []
+    for i, (name, _, mesh, colour) in enumerate(specs, start=1):
+        mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
+        mesh.compute_vertex_normals()
+        models.append(ObjectModel(i, name, "?", mesh, _diameter(np.asarray(mesh.vertices)), colour=colour))
+    Inventory(models).save_bop(folder)
+    return {i: (name, cls) for i, (name, cls, _, _) in enumerate(specs, start=1)}
+
+
 @pytest.fixture(scope="session")
 def own_dishware(tmp_path_factory):
     """(models_dir, {obj_id: (name, expected class)}) of dishware this project has never seen."""
@@ -113,3 +154,10 @@ def own_dishware_b(tmp_path_factory):
     """(models_dir, {obj_id: (name, expected class)}) of the second set (`write_own_dishware_b`)."""
     folder = tmp_path_factory.mktemp("own_dishware_b") / "models"
     return folder, write_own_dishware_b(folder)
+
+
+@pytest.fixture(scope="session")
+def own_dishware_c(tmp_path_factory):
+    """(models_dir, {obj_id: (name, expected class)}) of the third set (`write_own_dishware_c`)."""
+    folder = tmp_path_factory.mktemp("own_dishware_c") / "models"
+    return folder, write_own_dishware_c(folder)
