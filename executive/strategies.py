@@ -291,6 +291,60 @@ class SlideOffStack(Strategy):
         return ItemPlan(self.name, slide=slide)
 
 
+def _blocked_below(req: PlanRequest, failure: PlanFailure) -> list[ObjectPose]:
+    """The perceived items in the sink that `req.obj` lies on and blocks: named by this failure (its grasps are
+    crowded by the item under it) or whose own failure named `req.obj` (it lies in their lift's way)."""
+    obj, b = req.obj, req.belief
+    if obj.instance_id < 0:
+        return []
+    blocked = {k for k, v in b.blocked_by.items() if v == obj.instance_id}
+    if failure.blocking is not None and failure.blocking >= 0:
+        blocked.add(failure.blocking)
+    under = [p for p in req.scene_objs if p.instance_id in blocked and p.instance_id != obj.instance_id]
+    return [p for p in under if any(o is obj for o in req.planner.items_on(p, [*req.scene_objs]))]
+
+
+class SlideOffBlocked(Strategy):
+    """Two items that block each other: this one lies on the other (in its lift's way, so that one cannot go
+    first) and cannot be picked itself (every grasp collides, or its lift is blocked: a lying cup wedged between
+    the cup under it and the basin's wall). Pushed off the one below with the closed fingers pressing on its top;
+    where it touches a wall, along that wall (the only way out of a corner). Lying items and plates only: an
+    item standing on its base or rim would tip over when pushed at its top."""
+
+    name = "slide_off_blocked"
+    when = "the item's pick failed (no collision-free grasp, or its lift blocked) and it lies on an item it " \
+           "blocks (`blocker_first` named either one as the other's blocker): neither can go first; lying or a " \
+           f"plate, not staged, slid fewer than {M.MAX_SLIDES_PER_OBJECT} times"
+    does = "press on its top with the closed fingers (off its centre where the palm would meet a wall) and slide " \
+           "it off the item below, along a wall it touches where that is the way out (`Planner.plan_slide` " \
+           "with `off`: it no longer lies on that item; no grasp of it needed there)"
+
+    KINDS = ("no_collision_free_grasp", "cartesian_path_failed")
+
+    def applies(self, failure, obj, belief, req):
+        if failure is None or failure.stage != "pick" or failure.kind not in self.KINDS or req.staged is not None:
+            return False
+        t = belief.attempts_for(obj)
+        if t is not None and t.slides >= M.MAX_SLIDES_PER_OBJECT:
+            return False
+        if obj.cls not in SLIDABLE and not is_lying(np.asarray(obj.T_base_obj, float)):
+            return False
+        return bool(_blocked_below(req, failure))
+
+    def plan(self, req):
+        below = _blocked_below(req, PlanFailure("", "", "pick", self.name))
+        req.note("command", "plan_slide", cls=req.obj.cls, off=[p.instance_id for p in below])
+        slide = req.planner.plan_slide(req.joints(), req.scene_objs, req.obj, map_points=req.belief.map_points,
+                                       then_pickable=False, off=below)
+        req.check_deadline()
+        if not slide.ok:
+            req.note("note", "no slide", reason=str(slide))
+            return None
+        req.note("result", "planned slide", direction=slide.direction, distance=slide.distance,
+                 to=slide.T_base_obj_after[:3, 3])
+        return ItemPlan(self.name, slide=slide)
+
+
 class PickHiddenBlocker(Strategy):
     """An item judged too hidden to plan (`no_graspable_object`: more than `settings.max_occlusion` of it unseen)
     that the planner named as lying on another item or in its lift's way. What lies on another is not buried
@@ -341,8 +395,8 @@ class BlockerFirst(Strategy):
 
 
 STRATEGIES: dict[str, type[Strategy]] = {s.name: s for s in (
-    DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, PickHiddenBlocker,
-    SetAsideBlocker, BlockerFirst)}
+    DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, SlideOffBlocked,
+    PickHiddenBlocker, SetAsideBlocker, BlockerFirst)}
 
 
 def strategies_for(task) -> list[Strategy]:

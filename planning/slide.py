@@ -29,6 +29,8 @@ from kitchenbot.planning.types import CartesianPathFailed, NoIK, PlanningFailure
 from kitchenbot.transforms import inv, make_T, rot_z, trans
 from kitchenbot.world.gripper import FINGERS
 
+FLOOR = "cell:sink_floor"  # a slid item that slides off what it rested on comes down onto it (_slide_path)
+CLIMB_START, CLIMB_SLOPE = 0.004, 0.4  # m, m/m: the most a slid item may rise over the way slid (_slide_path)
 PRESS_DEPTH = 0.003  # m the finger tips go into the surface (the simulator's tips; see fakes.arm._press_drag)
 
 
@@ -39,14 +41,50 @@ def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
 
 def press_point(model, T_base_obj: np.ndarray) -> np.ndarray | None:
     """Top surface point (base frame) on the vertical line through the item's centre, or None if it misses."""
+    pts = press_points(model, T_base_obj)
+    return pts[0] if pts and np.allclose(pts[0][:2], np.asarray(T_base_obj, float)[:2, 3]) else None
+
+
+PRESS_SHIFTS = (0.02, 0.035)  # m off the centre, along the item's level axes, where the fingers may press too
+PRESS_LEVEL = 0.008  # m: such a point is on the item's top, at most this far below the centre's
+PRESS_FARTHER, PRESS_EXTRA = 0.01, 2  # m farther from the walls than the centre, and how many such points at most
+
+
+def press_points(model, T_base_obj: np.ndarray, sink_lo_hi=None) -> list[np.ndarray]:
+    """Top surface points (base frame) to press on: where the vertical line through the item's centre meets it,
+    then (for a lying cup whose centre is too near a wall for the palm above it) points PRESS_SHIFTS along each of
+    its axes that lies about level, on its top as high as the centre's (within PRESS_LEVEL); with `sink_lo_hi`,
+    only those PRESS_FARTHER or more farther from the basin's walls than the centre, farthest first, at most
+    PRESS_EXTRA. [] when the centre's line misses the item."""
     scene = o3d.t.geometry.RaycastingScene()
     mesh = o3d.geometry.TriangleMesh(model.mesh)
-    mesh.transform(np.asarray(T_base_obj, float))
+    T = np.asarray(T_base_obj, float)
+    mesh.transform(T)
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    c = np.asarray(T_base_obj, float)[:3, 3]
-    ray = np.array([[c[0], c[1], c[2] + 0.3, 0.0, 0.0, -1.0]], np.float32)
-    t = float(scene.cast_rays(o3d.core.Tensor(ray))["t_hit"].numpy()[0])
-    return None if not np.isfinite(t) else np.array([c[0], c[1], c[2] + 0.3 - t])
+    c = T[:3, 3]
+    xy = [c[:2]]
+    for k in range(3):
+        a = T[:3, k].copy()
+        a[2] = 0.0
+        if np.linalg.norm(a) < 0.7:  # not level enough: off the centre, the top drops away along it
+            continue
+        a /= np.linalg.norm(a)
+        xy += [c[:2] + sgn * r * a[:2] for r in PRESS_SHIFTS for sgn in (1.0, -1.0)]
+    rays = np.array([[x, y, c[2] + 0.3, 0.0, 0.0, -1.0] for x, y in xy], np.float32)
+    t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    if not np.isfinite(t[0]):
+        return []
+    pts = [np.array([x, y, c[2] + 0.3 - ti]) for (x, y), ti in zip(xy, t) if np.isfinite(ti)]
+    out, rest = pts[:1], [p for p in pts[1:] if p[2] >= pts[0][2] - PRESS_LEVEL]
+    if sink_lo_hi is None:
+        return out + rest
+    lo, hi = (np.asarray(v, float)[:2] for v in sink_lo_hi)
+
+    def room(p):
+        return float(min(np.min(p[:2] - lo), np.min(hi - p[:2])))
+    # only points that take the palm farther from the walls than the centre does (by PRESS_FARTHER or more)
+    rest = sorted((p for p in rest if room(p) >= room(out[0]) + PRESS_FARTHER), key=lambda p: -room(p))
+    return out + rest[:PRESS_EXTRA]
 
 
 class SupportHeight:
@@ -102,10 +140,22 @@ def _cell_touching(planner, a: ObjectPose, gap: float = 0.003) -> list:
     return out
 
 
+WALL_ROOM = 0.005  # m a slid item keeps from the basin's walls ...
+ALONG_WALL_TOL = 0.0005  # ... or, from a wall it is already nearer than that, at least what it kept at the start
+
+
+def _wall_rooms(V: np.ndarray, lo, hi) -> np.ndarray:
+    """Room (m) between the points V (N, 3) and each of the basin's four walls (-x, -y, +x, +y)."""
+    return np.concatenate([np.min(V[:, :2], axis=0) - np.asarray(lo, float)[:2],
+                           np.asarray(hi, float)[:2] - np.max(V[:, :2], axis=0)])
+
+
 def slide_directions(planner, target: ObjectPose, others: list, distance: float) -> list[tuple[np.ndarray, float]]:
     """(unit direction, clearance) of each of 8 horizontal directions the item can slide `distance` along:
-    it stays inside the sink (5 mm from the walls), touches nothing it does not already touch and ends farther from
-    the centre of each item it lies on. Most room first."""
+    it stays inside the sink (WALL_ROOM from each wall; from a wall it already lies nearer than that, no nearer than
+    it starts: a slide along that wall, the only way out for an item wedged between the wall and a neighbour),
+    touches nothing it does not already touch and ends farther from the centre of each item it lies on. Most room
+    first."""
     model = planner.inventory[target.obj_id]
     T0 = np.asarray(target.T_base_obj, float)
     V = np.asarray(model.mesh.vertices) @ T0[:3, :3].T + T0[:3, 3]
@@ -126,6 +176,7 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
     # back towards the middle of the plate below passed as "free" (a second slide undid the first and left the
     # plate squarely nested again).
     under = [np.asarray(o.T_base_obj, float)[:2, 3] for o in others if planner._lies_on(target, o)]
+    sides0 = _wall_rooms(V, lo, hi)
     out = []
     for a in np.radians(np.arange(0, 360, 45)):
         d = np.array([np.cos(a), np.sin(a), 0.0])
@@ -133,9 +184,10 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
         if any(np.linalg.norm(c1 - c) <= np.linalg.norm(T0[:2, 3] - c) for c in under):
             continue
         W = V + distance * d
-        room = min(float(np.min(W[:, :2] - lo[:2])), float(np.min(hi[:2] - W[:, :2])))
-        if room < 0.005:
+        sides = _wall_rooms(W, lo, hi)
+        if np.any((sides < WALL_ROOM) & (sides < sides0 - ALONG_WALL_TOL)):
             continue
+        room = float(np.min(sides))
         T1 = trans(*(distance * d)) @ T0
         hit = False
         for k, o in enumerate(others):
@@ -159,7 +211,12 @@ def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: 
                 step: float = 0.01):
     """The slide as straight pieces every `step` metres whose heights follow the item's resting height (it
     climbs out of the one it is nested in): (trajectory, q_end, T_base_tcp_end, T_base_obj_end) or a failure.
-    The item may not need to rise faster than 1:1 (the fingers would push it into its support)."""
+    The item may not need to rise faster than 1:1 over a step (the fingers would push it into its support), nor
+    more than CLIMB_START + CLIMB_SLOPE x the way slid so far (pressed from above, it is pushed along, not up
+    over a neighbour: the friction of the pads on it does not lift it over a steep rise). The same holds going down:
+    where it would drop away faster (off what it rested on) the pressing fingers lose it. It may come down onto
+    the basin's floor (it rests there, at its resting height, and slides on along it: that contact is not
+    checked)."""
     T_obj = np.asarray(target.T_base_obj, float)
     z0 = support.drop(T_obj)  # ~0: it rests where it is
     Q = [np.asarray(q_press, float)]
@@ -170,8 +227,10 @@ def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: 
         shift = distance * k / n * d
         T1 = trans(*shift) @ T_obj
         rise = -(support.drop(T1) - z0)
-        if rise - prev_rise > distance / n:
+        if rise - prev_rise > distance / n or rise > CLIMB_START + CLIMB_SLOPE * distance * k / n:
             return CartesianPathFailed("slide: the item would have to climb too steeply", {"segment": "slide"})
+        if rise < -(CLIMB_START + CLIMB_SLOPE * distance * k / n):
+            return CartesianPathFailed("slide: the item would fall off the fingers", {"segment": "slide"})
         prev_rise = rise
         T1 = trans(0.0, 0.0, rise) @ T1
         T_end = trans(shift[0], shift[1], rise) @ T_press
@@ -190,10 +249,10 @@ def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: 
 
 def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: ObjectPose, *,
                map_points: np.ndarray | None = None, distance: float = 0.06,
-               then_pickable: bool = True) -> SlidePlan | PlanningFailure:
+               then_pickable: bool = True, off=()) -> SlidePlan | PlanningFailure:
     """Plan sliding `target` sideways by `distance` (or 3/4, 1/2 of it where there is no room; see the module
     docstring); with `then_pickable`, only a slide after which `planner.select_grasps` finds a grasp of the moved
-    item is used."""
+    item is used; with `off` (perceived items), only one after which the item no longer lies on any of them."""
     t0 = time.perf_counter()
     s = planner.settings
     q0 = np.asarray(q_start, float)
@@ -210,8 +269,8 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
         f = CartesianPathFailed(f"slide: the {on_it[0].cls} lies on the item", {"segment": "slide"})
         planner._report_blocking(f, target, objects, on_it)
         return f
-    p = press_point(model, target.T_base_obj)
-    if p is None:
+    presses = press_points(model, target.T_base_obj, planner.cell.sink_interior)
+    if not presses:
         return NoIK("slide: no top surface above the item's centre", {})
     # the longest slide that has room first (most overhang afterwards), shorter ones where the sink is full
     cands = [(dist, d) for dist in (distance, 0.75 * distance, 0.5 * distance)
@@ -230,17 +289,30 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     press_scene = base_scene.for_grasp(names[k_t])
     if under:
         press_scene = press_scene.allowing([(u, pad) for u in under for pad in ("pad_a", "pad_b")])
-    z_tcp = p[2] + FINGERS.tip_z - PRESS_DEPTH
     timings: dict = {}
     first: PlanningFailure | None = None
-    for dist, d in cands:
-        T1 = trans(*(dist * d)) @ np.asarray(target.T_base_obj, float)
+    pickable: dict = {}  # candidate index -> whether the moved item can be picked there
+    # the centre first; where the palm above it cannot come down (a wall beside it), points farther from the walls
+    for p, (ci, (dist, d)) in ((p, c) for p in presses for c in enumerate(cands)):
+        z_tcp = p[2] + FINGERS.tip_z - PRESS_DEPTH
+        if off:
+            if ("off", ci) not in pickable:
+                moved = _moved(target, dist * d)
+                pickable["off", ci] = not any(planner._lies_on(moved, o) for o in off)
+                if not pickable["off", ci]:
+                    first = first or CartesianPathFailed("slide: the item would still lie on the one below",
+                                                         {"segment": "slide"})
+            if not pickable["off", ci]:
+                continue
         if then_pickable:
-            moved = [o if o is not target else _moved(o, dist * d) for o in objects]
-            grasps = planner.select_grasps(q0, moved, target=moved[k_t], map_points=None, limit=1)
-            if isinstance(grasps, PlanningFailure):
-                first = first or CartesianPathFailed("slide: the item would still not be pickable there",
-                                                     {"segment": "slide", "after": grasps.kind})
+            if ci not in pickable:
+                moved = [o if o is not target else _moved(o, dist * d) for o in objects]
+                grasps = planner.select_grasps(q0, moved, target=moved[k_t], map_points=None, limit=1)
+                pickable[ci] = not isinstance(grasps, PlanningFailure)
+                if not pickable[ci]:
+                    first = first or CartesianPathFailed("slide: the item would still not be pickable there",
+                                                         {"segment": "slide", "after": grasps.kind})
+            if not pickable[ci]:
                 continue
         for yaw in np.radians((0.0, 90.0, 45.0, 135.0)):
             # closed fingers pointing down; the closing axis across the slide or along it
@@ -268,7 +340,8 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
             resting = [pr for pr in slide_scene.colliding_pairs(q_press) if "held" in pr]
             under = {b if a == "held" else a for a, b in resting}
             shielded = [(f, u) for f in ("pad_a", "pad_b") for u in under]
-            r = _slide_path(planner, slide_scene.allowing(resting + shielded), q_press, T_press, target, d,
+            r = _slide_path(planner, slide_scene.allowing(resting + shielded + [("held", FLOOR)]), q_press, T_press,
+                            target, d,
                             dist, support)
             if isinstance(r, PlanningFailure):
                 first = first or r
