@@ -281,14 +281,19 @@ class SlideOffStack(Strategy):
 
     def plan(self, req):
         req.note("command", "plan_slide", cls=req.obj.cls)
-        slide = req.planner.plan_slide(req.joints(), req.scene_objs, req.obj, map_points=req.belief.map_points)
-        req.check_deadline()
-        if not slide.ok:
-            req.note("note", "no slide", reason=str(slide))
-            return None
-        req.note("result", "planned slide", direction=slide.direction, distance=slide.distance,
-                 to=slide.T_base_obj_after[:3, 3])
-        return ItemPlan(self.name, slide=slide)
+        return _slide_plan(self.name, req)
+
+
+def _slide_plan(name: str, req: PlanRequest, **kw) -> ItemPlan | None:
+    """Strategy `name`'s slide of `req.obj` (`Planner.plan_slide` with `kw`), or None (the reason noted)."""
+    slide = req.planner.plan_slide(req.joints(), req.scene_objs, req.obj, map_points=req.belief.map_points, **kw)
+    req.check_deadline()
+    if not slide.ok:
+        req.note("note", "no slide", reason=str(slide))
+        return None
+    req.note("result", "planned slide", direction=slide.direction, distance=slide.distance,
+             to=slide.T_base_obj_after[:3, 3])
+    return ItemPlan(name, slide=slide)
 
 
 def _blocked_below(req: PlanRequest, failure: PlanFailure) -> list[ObjectPose]:
@@ -334,15 +339,7 @@ class SlideOffBlocked(Strategy):
     def plan(self, req):
         below = _blocked_below(req, PlanFailure("", "", "pick", self.name))
         req.note("command", "plan_slide", cls=req.obj.cls, off=[p.instance_id for p in below])
-        slide = req.planner.plan_slide(req.joints(), req.scene_objs, req.obj, map_points=req.belief.map_points,
-                                       then_pickable=False, off=below)
-        req.check_deadline()
-        if not slide.ok:
-            req.note("note", "no slide", reason=str(slide))
-            return None
-        req.note("result", "planned slide", direction=slide.direction, distance=slide.distance,
-                 to=slide.T_base_obj_after[:3, 3])
-        return ItemPlan(self.name, slide=slide)
+        return _slide_plan(self.name, req, then_pickable=False, off=below)
 
 
 class PickHiddenBlocker(Strategy):
