@@ -66,7 +66,6 @@ def write_own_dishware_b(folder):
     glass and a small ramekin (thick, straight walls). Meshes (mm) and diameters only. Returns {obj_id: (name,
     expected class)}."""
     from kitchenbot.world.dishware import _profile_closed, lathe, tube
-    from kitchenbot.world.inventory import Inventory, ObjectModel, _diameter
 
     def vessel(outer, thickness):
         return lathe(_profile_closed(np.array(outer, float), thickness))
@@ -92,6 +91,14 @@ def write_own_dishware_b(folder):
     specs = [("pasta_plate", "plate", pasta, (0.93, 0.92, 0.88)), ("conical_bowl", "bowl", cone, (0.35, 0.45, 0.70)),
              ("tall_mug", "mug", mug, (0.75, 0.30, 0.20)), ("wine_glass", "glass", wine, (0.80, 0.88, 0.93)),
              ("ramekin", "bowl", ramekin, (0.95, 0.95, 0.95))]
+    return _save_own_set(folder, specs)
+
+
+def _save_own_set(folder, specs):
+    """Write (name, expected class, mesh in metres, colour) specs as a BOP models/ folder with no classes (ids from
+    1, meshes centred). Returns {obj_id: (name, expected class)}."""
+    from kitchenbot.world.inventory import Inventory, ObjectModel, _diameter
+
     models = []
     for i, (name, _, mesh, colour) in enumerate(specs, start=1):
         mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
@@ -107,7 +114,6 @@ def write_own_dishware_c(folder):
     fluted ramekin (a wavy wall, not round). Meshes (mm) and diameters only. Returns {obj_id: (name, expected
     class)}."""
     from kitchenbot.world.dishware import _profile_closed, lathe
-    from kitchenbot.world.inventory import Inventory, ObjectModel, _diameter
 
     def vessel(outer, thickness):
         return lathe(_profile_closed(np.array(outer, float), thickness), segments=96)
@@ -133,13 +139,7 @@ def write_own_dishware_c(folder):
     specs = [("square_plate", "plate", square, (0.92, 0.90, 0.85)), ("oval_bowl", "bowl", oval, (0.85, 0.80, 0.60)),
              ("stemless_glass", "glass", stemless, (0.82, 0.88, 0.92)),
              ("fluted_ramekin", "bowl", fluted, (0.95, 0.93, 0.90))]
-    models = []
-    for i, (name, _, mesh, colour) in enumerate(specs, start=1):
-        mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
-        mesh.compute_vertex_normals()
-        models.append(ObjectModel(i, name, "?", mesh, _diameter(np.asarray(mesh.vertices)), colour=colour))
-    Inventory(models).save_bop(folder)
-    return {i: (name, cls) for i, (name, cls, _, _) in enumerate(specs, start=1)}
+    return _save_own_set(folder, specs)
 
 
 @pytest.fixture(scope="session")
