@@ -152,6 +152,11 @@ class Verification:
         if not (presence.decided and presence.present):
             return False  # not seen there (or the view cannot tell): the re-scan looks at the sink too
         others = [q for q in b.poses if q is not p.obj]
+        held_up = self._held_up_by_unseen(p.obj, others)
+        if held_up is not None:  # what it lay on has no pose: it hid it, and the map of before the pick lacks it
+            self._log("note", "re-scan: it lay on something no pose describes", cls=p.obj.cls,
+                      above_floor=round(held_up, 3))
+            return False
         moved = self._moved_with(p.obj, others)
         for q, why in moved:
             self._log("note", "an item may have moved with the one picked", cls=q.cls, xyz=q.T_base_obj[:3, 3],
@@ -253,6 +258,32 @@ class Verification:
             elif q.visible_fraction < seen_whole:
                 out.append((q, "seen in part"))
         return out
+
+    def _held_up_by_unseen(self, obj: ObjectPose, others: list[ObjectPose]) -> float | None:
+        """How high (m) above the sink floor `obj` lay when no perceived item was under it to hold it up (its lowest
+        point more than SAME_SUPPORT above the floor, and no item of `others` touching it lower down), else None.
+        What held it up was hidden by it: a pick from such a pile is verified by a re-scan, or the next plan would
+        run on a map that does not show what the pick uncovered (a plate lifted into the plate under the one
+        picked, which no pose described)."""
+        lo, hi = self.robot.cell.sink_interior
+        T = obj.T_base_obj
+        if not (lo[0] <= T[0, 3] <= hi[0] and lo[1] <= T[1, 3] <= hi[1]):
+            return None  # not picked from the sink
+        m = self.robot.inventory[obj.obj_id]
+        above = _lowest(m, T) - float(lo[2])
+        if above <= self.SAME_SUPPORT:
+            return None  # on the sink floor
+        P = m.points[::4] @ T[:3, :3].T + T[:3, 3]
+        tree = cKDTree(P)
+        for q in others:
+            mq = self.robot.inventory[q.obj_id]
+            if np.linalg.norm(q.T_base_obj[:3, 3] - T[:3, 3]) > m.diameter + mq.diameter:
+                continue
+            Q = mq.points[::4] @ q.T_base_obj[:3, :3].T + q.T_base_obj[:3, 3]
+            if Q[:, 2].min() < P[:, 2].min() - self.SAME_SUPPORT / 2 and \
+                    np.isfinite(tree.query(Q, distance_upper_bound=self.TOUCH_DISTANCE)[0]).any():
+                return None  # a perceived item under it, touching it, holds it up
+        return above
 
     def _same_class_near(self, obj: ObjectPose) -> list[ObjectPose]:
         return [q for q in self.belief.poses if q.cls == obj.cls and

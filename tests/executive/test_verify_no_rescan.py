@@ -5,6 +5,7 @@ under test."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from kitchenbot.executive.runner import RunOptions
 from kitchenbot.fakes.placement import drop_onto
@@ -144,3 +145,29 @@ def test_an_item_under_another_from_above_is_left_to_a_rescan(make_runner):
     assert runner._covered_from_above([upper], [lower, upper]) is None
     assert runner._covered_from_above([lower], [lower, at(mug, 0.4, -0.15)]) is None  # narrower
     assert runner._covered_from_above([lower], [lower, at(plate, 0.4 + plate.diameter, -0.18)]) is None  # beside
+
+
+def test_an_item_held_up_by_nothing_perceived_is_left_to_a_rescan(make_runner):
+    """A plate picked from where it lay on a plate no pose described (it hid it): the map of before the pick lacks
+    what it uncovered, so the placement is verified by a re-scan (the next lift would meet the plate under it). On
+    the sink floor, or on a perceived plate under it, the retreat view may settle it."""
+    runner, world = make_runner(task="sink-pick", cups=1)
+    inv = runner.robot.inventory
+    plate = next(m for m in inv.models.values() if m.cls == "plate")
+    lo, hi = runner.robot.cell.sink_interior
+    c = (np.asarray(lo) + np.asarray(hi)) / 2
+
+    def at(z_above: float, dx: float = 0.0, iid: int = 1) -> ObjectPose:
+        T = np.eye(4)
+        T[:3, 3] = (c[0] + dx, c[1], lo[2] - plate.points[:, 2].min() + z_above)
+        return ObjectPose(plate.obj_id, "plate", T, 1.0, instance_id=iid)
+
+    on_floor, on_hidden, below = at(0.001), at(0.012, dx=0.01), at(0.001, iid=2)
+    assert runner._held_up_by_unseen(on_floor, []) is None
+    assert runner._held_up_by_unseen(on_hidden, []) == pytest.approx(0.012, abs=1e-3)
+    assert runner._held_up_by_unseen(on_hidden, [below]) is None  # the plate under it is perceived
+    far = at(0.001, dx=plate.diameter + 0.05, iid=3)
+    assert runner._held_up_by_unseen(on_hidden, [far]) == pytest.approx(0.012, abs=1e-3)  # not under it
+    counter = ObjectPose(plate.obj_id, "plate", np.eye(4), 1.0, instance_id=4)
+    counter.T_base_obj[:3, 3] = (hi[0] + 0.3, hi[1] + 0.3, 0.05)
+    assert runner._held_up_by_unseen(counter, []) is None  # not in the sink
