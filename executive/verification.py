@@ -45,6 +45,12 @@ def _lowest(model, T_base_obj: np.ndarray) -> float:
     return float((model.points @ T[:3, :3].T + T[:3, 3])[:, 2].min())
 
 
+def _surface(model, T_base_obj: np.ndarray) -> np.ndarray:
+    """Every fourth of `model`'s points with the item at T_base_obj (base frame): enough to tell touching items."""
+    T = np.asarray(T_base_obj, float)
+    return model.points[::4] @ T[:3, :3].T + T[:3, 3]
+
+
 class Verification:
     # What a pick can move is what rested or leaned on the item: items beside it on the same support, or under it,
     # stay where they were. An item touching the picked one (model surfaces at their perceived poses within
@@ -238,7 +244,7 @@ class Verification:
         out: list[tuple[ObjectPose, str]] = []
         inv = self.robot.inventory
         m = inv[obj.obj_id]
-        P = m.points[::4] @ obj.T_base_obj[:3, :3].T + obj.T_base_obj[:3, 3]
+        P = _surface(m, obj.T_base_obj)
         tree = cKDTree(P)
         seen_whole = self.SEEN_IN_PART * self.planner.settings.visible_fraction_unoccluded \
             if self.planner is not None else 0.0
@@ -247,7 +253,7 @@ class Verification:
             gap = np.linalg.norm(q.T_base_obj[:3, 3] - obj.T_base_obj[:3, 3]) - m.diameter - mq.diameter
             if gap > self.TOUCH_DISTANCE:  # far apart (an origin lies within its model, within a diameter of it)
                 continue
-            Q = mq.points[::4] @ q.T_base_obj[:3, :3].T + q.T_base_obj[:3, 3]
+            Q = _surface(mq, q.T_base_obj)
             d, _ = tree.query(Q, distance_upper_bound=self.TOUCH_DISTANCE)
             if not np.isfinite(d).any():
                 continue
@@ -273,13 +279,13 @@ class Verification:
         above = _lowest(m, T) - float(lo[2])
         if above <= self.SAME_SUPPORT:
             return None  # on the sink floor
-        P = m.points[::4] @ T[:3, :3].T + T[:3, 3]
+        P = _surface(m, T)
         tree = cKDTree(P)
         for q in others:
             mq = self.robot.inventory[q.obj_id]
             if np.linalg.norm(q.T_base_obj[:3, 3] - T[:3, 3]) > m.diameter + mq.diameter:
                 continue
-            Q = mq.points[::4] @ q.T_base_obj[:3, :3].T + q.T_base_obj[:3, 3]
+            Q = _surface(mq, q.T_base_obj)
             if Q[:, 2].min() < P[:, 2].min() - self.SAME_SUPPORT / 2 and \
                     np.isfinite(tree.query(Q, distance_upper_bound=self.TOUCH_DISTANCE)[0]).any():
                 return None  # a perceived item under it, touching it, holds it up

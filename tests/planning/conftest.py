@@ -33,6 +33,14 @@ def home(cfg) -> np.ndarray:
     return np.asarray(cfg.robot.home, float)
 
 
+@pytest.fixture(scope="session")
+def own_b(own_dishware_b, tmp_path_factory):
+    """The second own dishware set with grasps synthesised from its meshes: (inventory, {name: model})."""
+    folder, names = own_dishware_b
+    inv = ensure_grasps(Inventory.load(folder), tmp_path_factory.mktemp("grasps_b"))
+    return inv, {name: inv[i] for i, (name, _) in names.items()}
+
+
 def _resting(planner: Planner, name: str, xy, instance_id: int, upside_down: bool = False, z_floor: float | None = None) -> ObjectPose:
     """An object of the builtin inventory standing on the sink floor (or `z_floor`) at `xy`."""
     from kitchenbot.transforms import make_T, rot_x

@@ -12,18 +12,15 @@ import numpy as np
 import pytest
 
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.grasp_synthesis import RIM_LEVEL, ensure_grasps
+from kitchenbot.planning.grasp_synthesis import RIM_LEVEL
 from kitchenbot.planning.grasps import FALLBACK_GRASPS, GraspStats, select_grasps
 from kitchenbot.transforms import make_T, rot_x
-from kitchenbot.world.inventory import Inventory
 
 
 @pytest.fixture(scope="module")
-def cone(own_dishware_b, tmp_path_factory):
-    folder, names = own_dishware_b
-    inv = ensure_grasps(Inventory.load(folder), tmp_path_factory.mktemp("grasps"))
-    (obj_id,) = [i for i, (name, _) in names.items() if name == "conical_bowl"]
-    return inv, inv[obj_id]
+def cone(own_b):
+    inv, by_name = own_b
+    return inv, by_name["conical_bowl"]
 
 
 def _tf(T):

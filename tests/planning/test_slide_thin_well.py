@@ -11,19 +11,15 @@ import numpy as np
 import pytest
 
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.transforms import make_T
-from kitchenbot.world.inventory import Inventory
 
 pytestmark = pytest.mark.timeout(900)
 
 
 @pytest.fixture(scope="module")
-def pasta(own_dishware_b, tmp_path_factory):
-    folder, names = own_dishware_b
-    inv = ensure_grasps(Inventory.load(folder), tmp_path_factory.mktemp("grasps"))
-    (obj_id,) = [i for i, (name, _) in names.items() if name == "pasta_plate"]
-    return inv, inv[obj_id]
+def pasta(own_b):
+    inv, by_name = own_b
+    return inv, by_name["pasta_plate"]
 
 
 def test_a_large_plate_alone_in_the_sink_is_slid_then_picked(pasta, cfg, home, run_pick_on_fake_arm):
