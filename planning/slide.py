@@ -41,8 +41,8 @@ def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
 
 def press_point(model, T_base_obj: np.ndarray) -> np.ndarray | None:
     """Top surface point (base frame) on the vertical line through the item's centre, or None if it misses."""
-    pts = press_points(model, T_base_obj)
-    return pts[0] if pts and np.allclose(pts[0][:2], np.asarray(T_base_obj, float)[:2, 3]) else None
+    pts = press_points(model, T_base_obj)  # the centre's point first, [] when its line misses
+    return pts[0] if pts else None
 
 
 PRESS_SHIFTS = (0.02, 0.035)  # m off the centre, along the item's level axes, where the fingers may press too
@@ -78,10 +78,9 @@ def press_points(model, T_base_obj: np.ndarray, sink_lo_hi=None) -> list[np.ndar
     out, rest = pts[:1], [p for p in pts[1:] if p[2] >= pts[0][2] - PRESS_LEVEL]
     if sink_lo_hi is None:
         return out + rest
-    lo, hi = (np.asarray(v, float)[:2] for v in sink_lo_hi)
 
     def room(p):
-        return float(min(np.min(p[:2] - lo), np.min(hi - p[:2])))
+        return float(np.min(_wall_rooms(p[None, :], *sink_lo_hi)))
     # only points that take the palm farther from the walls than the centre does (by PRESS_FARTHER or more)
     rest = sorted((p for p in rest if room(p) >= room(out[0]) + PRESS_FARTHER), key=lambda p: -room(p))
     return out + rest[:PRESS_EXTRA]
@@ -341,8 +340,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
             under = {b if a == "held" else a for a, b in resting}
             shielded = [(f, u) for f in ("pad_a", "pad_b") for u in under]
             r = _slide_path(planner, slide_scene.allowing(resting + shielded + [("held", FLOOR)]), q_press, T_press,
-                            target, d,
-                            dist, support)
+                            target, d, dist, support)
             if isinstance(r, PlanningFailure):
                 first = first or r
                 continue
