@@ -67,6 +67,14 @@ CONTINUE_REACH = 0.03
 # the end) at least this share of those within the end's radius + 1 cm mean something lies across or beside it.
 ACROSS_RING = (0.02, 0.05)
 ACROSS_SHARE = 0.25
+# ... and only where it goes on around the axis: a body going on past the end (a bottle's body, shoulder and neck,
+# a closed surface round the axis) is seen by the views over a wide arc of directions from the axis; what the
+# unexplained points past an end cover, in bins of AROUND_BIN (degrees; a bin counts with at least AROUND_MIN of
+# those points, 2 at least), under AROUND_SPAN is one side only: something leaning on the rim, a handle or
+# cutlery poking out of the opening, a neighbour's edge. Not tuned: the first values tried.
+AROUND_BIN = 15
+AROUND_MIN = 0.02
+AROUND_SPAN = 120
 # The filled share at which a pose scores 0 (linear from 0 at none; see `filled`): calibrated with
 # perception/calibrate_verify.py on development scenes with distractors (docs/perception.md "A can is closed").
 FILLED_FULL = 1.0
@@ -230,7 +238,9 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
     the end (`ACROSS_RING` radially past it, at least `ACROSS_SHARE` of what lies within it) is not judged:
     what lies there goes across the axis (a plate or a lying bottle over a cup's rim, the plate or the board a
     vessel stands on, a neighbour beside it), not along it. A bottle's body, shoulder and neck going on past an
-    upright or upside-down cup or glass stay within the end's radius."""
+    upright or upside-down cup or glass stay within the end's radius. Nor is an end judged where what lies past it
+    within its radius covers under `AROUND_SPAN` degrees around the axis (`around_span`): one side only (a cup
+    leaning on a mug's rim), not a body going on around the axis."""
     if n_own == 0 or len(points) == 0:
         return 0.0
     q, axis, r_model, z0, z1 = _unexplained_along_axis(points, model_points, T_base_obj, explained)
@@ -245,8 +255,30 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
             wide = np.count_nonzero(beyond & (r_q > r_end + ACROSS_RING[0]) & (r_q < r_end + ACROSS_RING[1]))
             if wide >= ACROSS_SHARE * inner:
                 continue
+            sel = beyond & (r_q < r_end + 0.01)
+            if around_span(q[sel, :2] - axis) < AROUND_SPAN:
+                continue
         n_past += inner
     return float(n_past / n_own)
+
+
+def around_span(xy: np.ndarray, bin_deg: float = AROUND_BIN, min_share: float = AROUND_MIN) -> float:
+    """Degrees of directions around an axis that points cover (`xy`: offsets from the axis, across it): 360 less
+    the longest run of empty `bin_deg` bins (a bin counts with at least `min_share` of the points, 2 at least)."""
+    if len(xy) == 0:
+        return 0.0
+    nb = int(round(360 / bin_deg))
+    b = (np.floor(np.degrees(np.arctan2(xy[:, 1], xy[:, 0])) % 360 / bin_deg).astype(int)) % nb
+    full = np.bincount(b, minlength=nb) >= max(2, min_share * len(xy))
+    if not full.any():
+        return 0.0
+    # the longest circular run of empty bins
+    k = int(np.argmax(full))
+    run = gap = 0
+    for x in np.roll(~full, -k):
+        run = run + 1 if x else 0
+        gap = max(gap, run)
+    return float(360 - gap * bin_deg)
 
 
 def filled(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
