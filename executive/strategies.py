@@ -364,14 +364,17 @@ class SlideFromWall(Strategy):
     items only: one standing on its base or rim tips over when pushed at its top; plates are slide_off_stack's."""
 
     name = "slide_from_wall"
-    when = "a lying item other than a plate with no collision-free grasp (`no_collision_free_grasp`) within " \
-           f"{WALL_NEAR * 100:.0f} cm of a basin wall, not staged, slid fewer than {M.MAX_SLIDES_PER_OBJECT} times"
+    when = "a lying item other than a plate with no collision-free grasp (`no_collision_free_grasp`, no " \
+           f"neighbour named as crowding it) within {WALL_NEAR * 100:.0f} cm of a basin wall, not staged, slid " \
+           f"fewer than {M.MAX_SLIDES_PER_OBJECT} times"
     does = "press on its top with the closed fingers and slide it up to 6 cm, most room first, only to where a " \
            "grasp of it is free (`Planner.plan_slide` with `then_pickable`); picked on the next round"
 
     def applies(self, failure, obj, belief, req):
         if failure is None or failure.stage != "pick" or failure.kind != "no_collision_free_grasp":
             return False
+        if failure.blocking is not None and failure.blocking >= 0:
+            return False  # a neighbour crowds its grasps: that one goes first (blocker_first)
         if obj.cls in SLIDABLE or req.staged is not None or not is_lying(np.asarray(obj.T_base_obj, float)):
             return False
         t = belief.attempts_for(obj)

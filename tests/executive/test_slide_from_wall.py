@@ -75,6 +75,8 @@ def test_a_lying_mug_at_the_wall_is_slid_to_where_it_can_be_picked(scene):
     assert s.applies(crowded, mug, belief, req)
     assert not s.applies(PlanFailure("cartesian_path_failed", "", "pick", "direct_pick"), mug, belief, req)
     assert not s.applies(None, mug, belief, req)
+    # a neighbour named as crowding its grasps goes first (blocker_first), no slide
+    assert not s.applies(PlanFailure("no_collision_free_grasp", "", "pick", "direct_pick", 3), mug, belief, req)
     # standing on its base (pushed at its top it would tip over): not this strategy's
     T = np.asarray(mug.T_base_obj, float).copy()
     T[:3, :3] = np.eye(3)
