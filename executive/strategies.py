@@ -342,6 +342,52 @@ class SlideOffBlocked(Strategy):
         return _slide_plan(self.name, req, then_pickable=False, off=below)
 
 
+WALL_NEAR = 0.04  # m: an item this close to a basin wall (its mesh) is slid away from it by slide_from_wall
+
+
+def _wall_room(planner, obj: ObjectPose) -> float | None:
+    """Least room (m) between the item's mesh (its pose as perceived) and the basin's four walls; None when its
+    model is unknown."""
+    if obj.obj_id not in planner.inventory.models:
+        return None
+    T = np.asarray(obj.T_base_obj, float)
+    V = np.asarray(planner.inventory[obj.obj_id].mesh.vertices) @ T[:3, :3].T + T[:3, 3]
+    lo, hi = planner.cell.sink_interior
+    return float(min(np.min(V[:, :2] - np.asarray(lo, float)[:2]), np.min(np.asarray(hi, float)[:2] - V[:, :2])))
+
+
+class SlideFromWall(Strategy):
+    """A vessel lying on its side close to a basin wall with every grasp in collision: the grasps across its
+    body that come from above are those whose pads miss its handle, and beside a wall those put the wrist over
+    the counter or the outer pad into the wall. Pushed sideways (the closed fingers pressing on its top) to where
+    a grasp is free (`Planner.plan_slide` checks a grasp of it there), then picked on the next round. Lying
+    items only: one standing on its base or rim tips over when pushed at its top; plates are slide_off_stack's."""
+
+    name = "slide_from_wall"
+    when = "a lying item other than a plate with no collision-free grasp (`no_collision_free_grasp`, no " \
+           f"neighbour named as crowding it) within {WALL_NEAR * 100:.0f} cm of a basin wall, not staged, slid " \
+           f"fewer than {M.MAX_SLIDES_PER_OBJECT} times"
+    does = "press on its top with the closed fingers and slide it up to 6 cm, most room first, only to where a " \
+           "grasp of it is free (`Planner.plan_slide` with `then_pickable`); picked on the next round"
+
+    def applies(self, failure, obj, belief, req):
+        if failure is None or failure.stage != "pick" or failure.kind != "no_collision_free_grasp":
+            return False
+        if failure.blocking is not None and failure.blocking >= 0:
+            return False  # a neighbour crowds its grasps: that one goes first (blocker_first)
+        if obj.cls in SLIDABLE or req.staged is not None or not is_lying(np.asarray(obj.T_base_obj, float)):
+            return False
+        t = belief.attempts_for(obj)
+        if t is not None and t.slides >= M.MAX_SLIDES_PER_OBJECT:
+            return False
+        room = _wall_room(req.planner, obj)
+        return room is not None and room < WALL_NEAR
+
+    def plan(self, req):
+        req.note("command", "plan_slide", cls=req.obj.cls, from_wall=True)
+        return _slide_plan(self.name, req)
+
+
 class PickHiddenBlocker(Strategy):
     """An item judged too hidden to plan (`no_graspable_object`: more than `settings.max_occlusion` of it unseen)
     that the planner named as lying on another item or in its lift's way. What lies on another is not buried
@@ -393,7 +439,7 @@ class BlockerFirst(Strategy):
 
 STRATEGIES: dict[str, type[Strategy]] = {s.name: s for s in (
     DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, SlideOffBlocked,
-    PickHiddenBlocker, SetAsideBlocker, BlockerFirst)}
+    SlideFromWall, PickHiddenBlocker, SetAsideBlocker, BlockerFirst)}
 
 
 def strategies_for(task) -> list[Strategy]:

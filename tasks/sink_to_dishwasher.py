@@ -51,7 +51,7 @@ class SinkToDishwasher(Task):
     # rack poses admit few grasps: a blocked or unplaceable one is staged too (see Task.strategies)
     # (and an item with no room in the racks that blocks one with room is set aside on the counter)
     strategies = ("direct_pick", "escape_then_pick", "stage_for_regrasp", "stage_when_blocked", "slide_off_stack",
-                  "slide_off_blocked",
+                  "slide_off_blocked", "slide_from_wall",
                   "pick_hidden_blocker", "set_aside_blocker", "blocker_first")
 
     def wants(self, obj: ObjectPose) -> bool:
