@@ -59,10 +59,9 @@ class RunOptions:
     # no re-scan after a placement its retreat view settles (executive/verification.py); False: always re-scan
     verify_without_rescan: bool = True
     # where an item may have moved with the pick (or it came off a stack): one view straight down at the pick spot
-    # re-perceives that region instead of a re-scan, where it settles it (executive/verification.py). Off: on the
-    # fresh block it was measured on it showed no gain in items per minute, and lost one item (docs/executive.md,
-    # "Incremental perception")
-    verify_region_view: bool = False
+    # re-perceives that region instead of a re-scan, where it settles it: each of its items found again where it
+    # was, nothing new (executive/verification.py; docs/executive.md, "Incremental perception")
+    verify_region_view: bool = True
     confirm_empty_scans: int = M.CONFIRM_EMPTY_SCANS  # consecutive scans that must agree the sink is done
 
 

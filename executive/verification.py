@@ -5,10 +5,11 @@ and why.
 Where the view taken at the retreat pose settles it (the item seen at its target: then it is no longer where it
 was picked, and nothing else in the sink touched it, so nothing else there moved) the sink is not scanned again:
 the other poses and the map stay as perceived. Where a neighbour may have moved with it, or it came off a stack,
-and RunOptions.verify_region_view is on (off by default), one view straight down at the pick spot re-perceives
+and RunOptions.verify_region_view is on (the default), one view straight down at the pick spot re-perceives
 that region and the rest stays as perceived (incremental perception, perception/region.py), where that view
-settles it. Otherwise (the view does not decide, the item is not seen there, the region's view misses an item it
-should show, nothing left to do) a re-scan and a new perception decide, as the first perception after a
+settles it: every known item of the region found again where the scan put it, nothing new there. Otherwise (the
+view does not decide, the item is not seen there, the region's view misses an item it should show or finds one
+moved or new, nothing left to do) a re-scan and a new perception decide, as the first perception after a
 placement.
 
 An item staged on the counter for a regrasp is recorded where it was put down, and it settles when let go (it
@@ -204,7 +205,8 @@ class Verification:
         view = self._capture_view(f"region{self.report.attempts}", "region")
         z_floor = _lowest(m, obj.T_base_obj)
         with self.stages.within("perceive"):
-            upd = update_region(self.perceiver, b.map_base, others, view, region, z_floor)
+            upd = update_region(self.perceiver, b.map_base, others, view, region, z_floor,
+                                symmetric=lambda q: inv[q.obj_id].is_rotationally_symmetric)
         self._check_deadline()
         self._log("result", "perceive region", coverage=round(upd.coverage, 3), rescan=upd.rescan,
                   replaced=len(upd.replaced), found=[{"cls": p.cls, "xyz": p.T_base_obj[:3, 3]} for p in upd.found],
@@ -214,6 +216,12 @@ class Verification:
             # too little of it seen to be grasped (the grasp filter skips it as buried): the scan's views may see
             # more of it now that the picked item is gone
             upd.rescan = "seen too little in the region's view to be grasped: " + ", ".join(f.cls for f in hidden)
+        if upd.rescan is None and (upd.moved or upd.appeared):
+            # One view settles only what it confirms: every item of the region where the scan put it. A pose fitted
+            # from one view straight down (an item that moved, one the pick uncovered) is left to a re-scan's views:
+            # plans near it are as good as its pose.
+            upd.rescan = "moved or new in the region's view: " + ", ".join(
+                [f"{f.cls} moved" for _, f in upd.moved] + [f"{f.cls} new" for f in upd.appeared])
         if upd.rescan is not None:
             self._log("note", "re-scan: one view of the pick region does not settle it", reason=upd.rescan)
             return False

@@ -16,6 +16,10 @@ moved). Instead of a new three-view scan, one view of that region is perceived a
 - **rescan** (why one view does not settle it, else None): the view does not cover the region
   (`min_coverage` of the region's floor measured); a known item in the region is not found there again (it
   moved out of the view, or the one view cannot make it out: occluded, a stack seen from above).
+- **moved**: a known item found again where it was (within pose tracking's tolerances, perception/track.py)
+  keeps its known pose, the same object (fitted from the scan's several views, not this one); one found farther
+  off is listed in `moved` with the view's pose: whether one view's fit is good enough for it is the caller's
+  decision (the executive re-scans).
 
 Every known item in the region must be found again, by class; items the view finds besides (uncovered by the
 pick, or a dropped item) are added. One view confirms less of an item than a scan's views, and a pick can
@@ -28,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from kitchenbot.perception.track import moved as _moved
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.world.same_item import same_item
 
@@ -84,6 +89,8 @@ class RegionUpdate:
     appeared: list[ObjectPose] = field(default_factory=list)  # of `found`, matched by no known item
     coverage: float = 0.0  # share of the region's floor the view measured
     rescan: str | None = None  # why one view does not settle it; None when it does
+    # (known, found) pairs whose found pose is off the known one by more than tracking's tolerances
+    moved: list[tuple[ObjectPose, ObjectPose]] = field(default_factory=list)
 
 
 def project(view: View, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -147,9 +154,11 @@ def match_known(known_in: list[ObjectPose], found: list[ObjectPose]) \
 
 
 def update_region(perceiver, map_points: np.ndarray | None, known: list[ObjectPose], view: View, region: Region,
-                  z_floor: float, min_coverage: float = 0.8) -> RegionUpdate:
+                  z_floor: float, min_coverage: float = 0.8, symmetric=None) -> RegionUpdate:
     """Re-perceive `region` from `view` with `perceiver` and merge it into the known poses and map (module doc).
-    `z_floor`: the height of the support the region's items stand on (for the coverage check). A pipeline
+    `z_floor`: the height of the support the region's items stand on (for the coverage check). `symmetric`:
+    ObjectPose -> whether its model is symmetric about its z axis (only the axis' turn counts as moving); None:
+    none is. A pipeline
     Perceiver estimates poses only for the instances in the region (the rest of the view is segmented, not
     fitted; a known pose that still explains its instance is tracked, perception/track.py); any other perceiver (the oracle) is asked for the whole view and filtered."""
     from kitchenbot.perception.pipeline import Perceiver
@@ -167,14 +176,22 @@ def update_region(perceiver, map_points: np.ndarray | None, known: list[ObjectPo
     found = [p for p in res.poses if region.contains(p.T_base_obj[None, :3, 3])[0]
              and not any(same_item(p.cls, p.T_base_obj[:3, 3], k.cls, k.T_base_obj[:3, 3]) for k in kept)]
     pairs, lost, appeared = match_known(replaced, found)
+    moved, poses = [], list(kept)
     for k, f in pairs:
         # One view confirms less of an item than the scan's views did; a pick only uncovers what stays: the
         # item is seen at least as fully as the scan saw it (what the grasp filter's occlusion test reads).
         f.visible_fraction = max(f.visible_fraction, k.visible_fraction)
+        if _moved(k.T_base_obj, f.T_base_obj, bool(symmetric and symmetric(k))):
+            moved.append((k, f))
+            poses.append(f)
+        else:  # where it was: the scan's pose (several views) stays, the same object
+            k.visible_fraction = f.visible_fraction
+            poses.append(k)
+    poses += appeared
     seen = getattr(res, "map_points", None)
     merged = merge_map(map_points, seen, view, region) if seen is not None else map_points
     why = None
     if lost:
         why = "not found again in the region's view: " + ", ".join(
             f"{p.cls} at {np.round(p.T_base_obj[:3, 3], 3).tolist()}" for p in lost)
-    return RegionUpdate(kept + found, merged, kept, found, replaced, appeared, cov, why)
+    return RegionUpdate(poses, merged, kept, found, replaced, appeared, cov, why, moved)

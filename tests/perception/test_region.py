@@ -175,3 +175,25 @@ def test_the_pipeline_fits_only_the_region(perceiver, inventory, cell):
                         min_coverage=0.5)
     assert upd.rescan is None and upd.kept == [known[1], known[3]]
     assert sorted(p.obj_id for p in upd.found) == [4, 5] and upd.appeared == []
+
+
+def test_an_item_found_where_it_was_keeps_its_known_pose_and_one_that_moved_is_reported():
+    """One view's fit of an item that did not move is not taken over the scan's: the known pose object stays.
+    One found farther off than pose tracking's tolerances (1 cm, 8 deg) is reported as moved, with the view's pose
+    in the merged poses; a symmetric model's turn about its axis is no move."""
+    still, shifted, spun = _pose("cup", 0.0, 0.05, iid=1), _pose("bowl", 0.08, -0.05, iid=2), \
+        _pose("plate", -0.08, -0.05, iid=3)
+    seen_still = _pose("cup", 0.004, 0.05, iid=11)  # 4 mm off: a fit's noise
+    seen_shifted = _pose("bowl", 0.08, -0.02, iid=12)  # 3 cm off: it moved
+    seen_spun = _pose("plate", -0.08, -0.05, iid=13)
+    c, s = np.cos(1.0), np.sin(1.0)
+    seen_spun.T_base_obj[:2, :2] = [[c, -s], [s, c]]  # turned 57 deg about its own axis
+    upd = update_region(_Scene([seen_still, seen_shifted, seen_spun]), None, [still, shifted, spun], _view(),
+                        _region(r=0.2), z_floor=0.0, symmetric=lambda p: p.cls == "plate")
+    assert upd.rescan is None
+    assert [(k.instance_id, f.instance_id) for k, f in upd.moved] == [(2, 12)]
+    assert any(p is still for p in upd.poses) and any(p is spun for p in upd.poses)
+    assert sorted(p.instance_id for p in upd.poses) == [1, 3, 12]
+    # without knowing the plate is symmetric, its turn is a move
+    upd = update_region(_Scene([seen_still, seen_spun]), None, [still, spun], _view(), _region(r=0.2), z_floor=0.0)
+    assert [k.instance_id for k, _ in upd.moved] == [3]
