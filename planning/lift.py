@@ -46,6 +46,20 @@ def base_directions(sink_lo_hi, p: np.ndarray, T_base_obj: np.ndarray | None = N
     return out
 
 
+def between_up_and_axis(axis: np.ndarray, fractions=(1 / 3, 2 / 3)) -> list[np.ndarray]:
+    """Unit directions between straight up and a tilted item's `axis` (at these fractions of its tilt, in its
+    vertical plane): an item resting tilted in a nest whose straight-up lift sweeps its side into the rim below,
+    and whose lift along its own axis runs into what it leans towards, comes out in between."""
+    axis = np.asarray(axis, float)
+    tilt = float(np.arccos(np.clip(axis[2], -1.0, 1.0)))
+    h = axis[:2] / max(float(np.linalg.norm(axis[:2])), 1e-9)
+    out = []
+    for f in fractions:
+        t = f * tilt
+        out.append(np.array([np.sin(t) * h[0], np.sin(t) * h[1], np.cos(t)]))
+    return out
+
+
 def _away_angle(centre: np.ndarray, objects, names: set[str], unknown=()) -> float | None:
     """Heading (rad, base frame) away from the named perceived objects' centres and from the centroid of
     `unknown` (base-frame points: map voxels no perceived object explains that the lifts ran into; they count as
@@ -94,6 +108,9 @@ def lift_fallbacks(sink_lo_hi, T_base_obj: np.ndarray, objects, ran_into: set[st
     tilted = tilted_axis(T_base_obj) is not None
     for k, d in enumerate(base):
         yield d, k == 0 or (k == 1 and tilted)
+        if k == 1 and tilted:
+            for d_between in between_up_and_axis(d):
+                yield d_between, True
     unknown = sorted(ran_into_unknown or ())
     if ran_into or unknown:
         for d in directions_away(centre, objects, ran_into, base, unknown=unknown):

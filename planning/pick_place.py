@@ -552,6 +552,11 @@ class Planner:
                 lift_unknown.update(self._voxels_hit(lift_scene, r, g))
             else:
                 lift, q_lifted = r
+                back = self._contact_comes_back(lift_scene, lift.q, start_contacts)
+                if back is not None:  # a start contact left and made again: a new contact (a protective stop)
+                    first = first or back
+                    lift_objects.update(n[4:] for p in back.details["pairs"] for n in p if n.startswith("obj:"))
+                    continue
                 if not held_scene.valid(q_lifted):
                     # An item that rested against a basin wall is lifted along it with the grasp margin (2 mm)
                     # and ends within the transport margin of it: move it on, away from the walls
@@ -579,7 +584,7 @@ class Planner:
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 continue
             lift, q_lifted = r
-            if held_scene.valid(q_lifted):
+            if held_scene.valid(q_lifted) and self._contact_comes_back(lift_scene, lift.q, start_contacts) is None:
                 base_scene.set_opening(g.spec.opening)
                 approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
                 if isinstance(approach, PlanningFailure):
@@ -592,6 +597,22 @@ class Planner:
                 first.details["lift_objects"] = sorted(lift_objects)
             first.details["held_blocked"] = held_only
         return first
+
+    @staticmethod
+    def _contact_comes_back(lift_scene: Scene, Q: np.ndarray, start_contacts) -> PlanningFailure | None:
+        """A failure when one of the held item's start contacts (pairs within the margin at the grasp, which the
+        lift's first centimetres do not check) breaks along the lift's samples `Q` and is made again, or is first
+        made only on the way: the simulator, like a real arm's contact detection, tolerates a resting contact while
+        it lasts, not a new one (a bowl resting tilted in a nest, lifted straight up, leaves the bowl below and its
+        side then sweeps into that bowl's rim). Exact contact (no margin); None when every such contact only ends."""
+        for pair in start_contacts:
+            touching = lift_scene.touching_along(Q, pair)
+            apart = np.flatnonzero(~touching)
+            if len(apart) and touching[apart[0]:].any():
+                k = int(apart[0] + np.argmax(touching[apart[0]:]))
+                return CartesianPathFailed(f"lift: a start contact comes back ({pair[0]}/{pair[1]}, "
+                                           f"sample {k} of {len(Q)})", {"pairs": [tuple(pair)], "segment": "lift"})
+        return None
 
     # m around the TCP and the flange within which a voxel the gripper (palm 75 x 140 mm, pads, camera) ran into lies
     TOOL_REACH = 0.08

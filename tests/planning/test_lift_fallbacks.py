@@ -20,8 +20,13 @@ def test_up_first_then_along_a_tilted_item_then_away_from_the_walls():
     got = list(lift_fallbacks(sink, T, [], set(), near_wall=True))
     assert np.allclose(got[0][0], [0, 0, 1]) and got[0][1] is True
     assert got[1][1] is True and np.allclose(got[1][0], T[:3, 2] * np.sign(T[2, 2]))  # along its axis
-    assert all(not along for _, along in got[2:]) and len(got) == len(base_directions(sink, p, T))
-    assert len(list(lift_fallbacks(sink, T, [], set(), near_wall=False))) == 2  # not near a wall: no tilts
+    # then between straight up and its axis (a third and two thirds of its tilt, in its vertical plane)
+    axis = T[:3, 2] * np.sign(T[2, 2])
+    for (d, along), f in zip(got[2:4], (1 / 3, 2 / 3)):
+        assert along is True and np.isclose(np.degrees(np.arccos(d[2])), 20 * f)
+        assert np.isclose(d[:2] @ axis[:2], np.linalg.norm(d[:2]) * np.linalg.norm(axis[:2]))
+    assert all(not along for _, along in got[4:]) and len(got) == len(base_directions(sink, p, T)) + 2
+    assert len(list(lift_fallbacks(sink, T, [], set(), near_wall=False))) == 4  # not near a wall: no tilts
 
 
 def test_away_from_what_the_lifts_ran_into_once_the_others_are_used_up():
