@@ -729,15 +729,16 @@ class Scene:
             lo, hi = (mid, hi) if overlaps(mid) else (lo, mid)
         return hi
 
-    def touching_along(self, Q: np.ndarray, pair: tuple[str, str]) -> np.ndarray:
-        """Whether the pair's geometries touch (no margin, whatever this scene allows) at each row of Q (N, 6)."""
+    def touching(self, Q: np.ndarray, pair: tuple[str, str], margin: float = 0.0) -> np.ndarray:
+        """Per configuration of `Q` (N, 6): whether the pair's geometries come within `margin` (m; 0: they touch
+        or overlap), whether or not this scene checks the pair. All False for a pair the scene does not have."""
         names = {tuple(p): k for k, p in enumerate(self.pair_names)}
         k = names.get(tuple(pair), names.get((pair[1], pair[0])))
         Q = np.asarray(Q, float).reshape(-1, 6)
         if k is None:
             return np.zeros(len(Q), bool)
         other = self._variant()
-        other.gd.collisionRequests[k].security_margin = 0.0
+        other.gd.collisionRequests[k].security_margin = float(margin)
         out = np.zeros(len(Q), bool)
         for i, q in enumerate(Q):
             pin.updateGeometryPlacements(self.model, other.data, self.gm, other.gd, q)

@@ -524,6 +524,9 @@ class Planner:
         item_contacts = [p for p in start_contacts
                          if any(x in by_name and self._lies_on(g.obj, by_name[x]) for x in p)]
         clear_scene = lift_scene.allowing(item_contacts) if item_contacts else None
+        # Every lift may leave those start contacts with other items, none may meet one again once left (see
+        # _contact_comes_back): the margins above see one unbroken contact where the items part and meet again.
+        held_item_pairs = [p for p in start_contacts if any(x in by_name for x in p)]
         # Straight up first; an item resting tilted in a stack comes off along its own axis (as it was
         # stacked); an item leaning on a basin wall (or in a corner) would slide up along it, so then up and
         # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
@@ -552,10 +555,12 @@ class Planner:
                 lift_unknown.update(self._voxels_hit(lift_scene, r, g))
             else:
                 lift, q_lifted = r
-                back = self._contact_comes_back(lift_scene, lift.q, start_contacts)
-                if back is not None:  # a start contact left and made again: a new contact (a protective stop)
-                    first = first or back
-                    lift_objects.update(n[4:] for p in back.details["pairs"] for n in p if n.startswith("obj:"))
+                back = self._contact_comes_back(lift_scene, lift.q, held_item_pairs)
+                if back is not None:
+                    lift_objects.update(n[4:] for n in back if n.startswith("obj:"))
+                    first = first or CartesianPathFailed(
+                        "lift: the held item leaves a neighbour it started against and meets it again",
+                        {"pairs": [back], "segment": "lift"})
                     continue
                 if not held_scene.valid(q_lifted):
                     # An item that rested against a basin wall is lifted along it with the grasp margin (2 mm)
@@ -584,7 +589,9 @@ class Planner:
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 continue
             lift, q_lifted = r
-            if held_scene.valid(q_lifted) and self._contact_comes_back(lift_scene, lift.q, start_contacts) is None:
+            if self._contact_comes_back(lift_scene, lift.q, held_item_pairs) is not None:
+                continue
+            if held_scene.valid(q_lifted):
                 base_scene.set_opening(g.spec.opening)
                 approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
                 if isinstance(approach, PlanningFailure):
@@ -598,20 +605,26 @@ class Planner:
             first.details["held_blocked"] = held_only
         return first
 
-    @staticmethod
-    def _contact_comes_back(lift_scene: Scene, Q: np.ndarray, start_contacts) -> PlanningFailure | None:
-        """A failure when one of the held item's start contacts (pairs within the margin at the grasp, which the
-        lift's first centimetres do not check) breaks along the lift's samples `Q` and is made again, or is first
-        made only on the way: the simulator, like a real arm's contact detection, tolerates a resting contact while
-        it lasts, not a new one (a bowl resting tilted in a nest, lifted straight up, leaves the bowl below and its
-        side then sweeps into that bowl's rim). Exact contact (no margin); None when every such contact only ends."""
-        for pair in start_contacts:
-            touching = lift_scene.touching_along(Q, pair)
-            apart = np.flatnonzero(~touching)
-            if len(apart) and touching[apart[0]:].any():
-                k = int(apart[0] + np.argmax(touching[apart[0]:]))
-                return CartesianPathFailed(f"lift: a start contact comes back ({pair[0]}/{pair[1]}, "
-                                           f"sample {k} of {len(Q)})", {"pairs": [tuple(pair)], "segment": "lift"})
+    # m of gap after which the held item has left a neighbour it started against (a touch after that is a new
+    # contact); finer than the grasp margin, coarser than the mesh noise of resting contacts
+    CONTACT_LEFT_GAP = 0.0005
+
+    def _contact_comes_back(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]]) -> tuple[str, str] | None:
+        """The first of `pairs` (the held item with a neighbour it touches at the start of the lift `Q`) that the
+        lift parts by more than CONTACT_LEFT_GAP and then brings into contact again (no margin), or None. The
+        simulator, like a real arm's contact detection, tolerates a resting contact that lasts while the item is
+        lifted off, not one that breaks and comes back: a bowl lying across the mouth of a tilted bowl, lifted
+        straight up, leaves its rim and runs into the tilted bowl's raised wall a centimetre higher. The lift's
+        own check lets such a pair touch for the first centimetres (a support is left by any lift) and, within the
+        margins, saw one unbroken contact."""
+        if not pairs or len(Q) < 2:
+            return None
+        Q = np.asarray(Q, float)
+        Q = np.vstack([np.vstack([a, (a + b) / 2]) for a, b in zip(Q[:-1], Q[1:])] + [Q[-1:]])  # half steps
+        for p in pairs:
+            apart = np.flatnonzero(~scene.touching(Q, p, self.CONTACT_LEFT_GAP))
+            if len(apart) and scene.touching(Q[apart[0]:], p).any():
+                return p
         return None
 
     # m around the TCP and the flange within which a voxel the gripper (palm 75 x 140 mm, pads, camera) ran into lies

@@ -9,14 +9,17 @@ planned, recovered, where it looked for a dropped item and what it found), the c
 
     KITCHENBOT_PLANNER_MAX_ITERATIONS=200 KITCHENBOT_PLANNER_SEED=0 \\
         python scripts/collision_forensics.py sink-to-dishwasher 800 > f.json
+        python scripts/collision_forensics.py sink-to-dishwasher 800 --objects 20 --oracle-perception > f.json
+
+Options as `kitchenbot bench tasks`: --slip, --objects, --oracle-perception.
 
 Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events, log.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 
 import numpy as np
 
@@ -25,9 +28,11 @@ from kitchenbot.executive.runner import run_task
 from kitchenbot.transforms import rotation_angle
 
 
-def main(task: str, seed: int, slip: float = 0.05) -> dict:
+def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, oracle: bool = False) -> dict:
     cfg = load_config(None).model_copy(update={"drivers": DriversConfig()})
     cfg.sim.slip_probability = slip
+    if objects is not None:  # as `kitchenbot bench tasks --objects`
+        cfg.sim.min_objects = cfg.sim.max_objects = objects
     events: list[dict] = []
     log: list[str] = []  # the runner's notes and results (not its device commands), in order
     moving = {"name": None}
@@ -59,7 +64,7 @@ def main(task: str, seed: int, slip: float = 0.05) -> dict:
 
         cls._run_trajectory, cls._move_joints, arm._event, cls._log = _run_trajectory, _move_joints, _event, _log
 
-    rep = run_task(cfg, task, seed, progress=False, journal_path=False, runner_hook=hook)
+    rep = run_task(cfg, task, seed, progress=False, oracle_perception=oracle, journal_path=False, runner_hook=hook)
     return {"task": task, "seed": seed, "delivered": rep.truth["end"]["delivered"],
             "wanted": rep.truth["start"]["in_sink"], "collisions": rep.collisions, "events": events, "log": log}
 
@@ -97,6 +102,11 @@ def describe(runner, motion: str | None, detail: str) -> dict:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 3:
-        sys.exit("usage: collision_forensics.py TASK SEED")
-    print(json.dumps(main(sys.argv[1], int(sys.argv[2])), indent=1))
+    ap = argparse.ArgumentParser(description="trace the collisions of one simulated task run")
+    ap.add_argument("task")
+    ap.add_argument("seed", type=int)
+    ap.add_argument("--slip", type=float, default=0.05, help="as `kitchenbot bench tasks --slip`")
+    ap.add_argument("--objects", type=int, default=None, help="as `kitchenbot bench tasks --objects`")
+    ap.add_argument("--oracle-perception", action="store_true", help="as `kitchenbot bench tasks`")
+    a = ap.parse_args()
+    print(json.dumps(main(a.task, a.seed, a.slip, a.objects, a.oracle_perception), indent=1))

@@ -73,7 +73,7 @@ def test_straight_up_the_bowl_leaves_the_rim_below_and_meets_it_again(planner, n
         T = T_grasp.copy()
         T[2, 3] += dz
         Q.append(planner.robot.ik(T, Q[-1], max_seeds=0).q)
-    touching = held.touching_along(np.array(Q), ("held", f"obj:{object_name(p['A'], 0)}"))
+    touching = held.touching(np.array(Q), ("held", f"obj:{object_name(p['A'], 0)}"))
     assert touching[0] and not touching.all()
     first_apart = int(np.argmin(touching))
     assert touching[first_apart:].any()  # made again: what the planner now refuses
