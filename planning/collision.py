@@ -278,18 +278,52 @@ class _ObjectPoints:
 
 class _PointsMemo:
     """What `CollisionWorld.explained` computes for one point set (by content) that does not depend on which
-    objects explain their own points: the owners per instance-point list, per object its `_ObjectPoints`."""
+    objects explain their own points: the owners per instance-point list, per object its `_ObjectPoints`, and per
+    instance (by its points' content) which of the set's points are its own (`same_points`)."""
 
     def __init__(self, P: np.ndarray):
         self.P = P
         self._owners: dict[tuple, np.ndarray] = {}
         self._objects: dict[tuple, _ObjectPoints] = {}
+        self._same: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+    def same_points(self, ip: np.ndarray, key: bytes) -> tuple[np.ndarray, np.ndarray]:
+        """(indices, distances): the set's points within _SAME_POINT of one of the instance points `ip` (N, 3)
+        and the distance to the nearest of them, as `_owners`' query measures it (only the points in their box,
+        grown: farther in one coordinate is farther)."""
+        hit = self._same.get(key)
+        if hit is None:
+            from scipy.spatial import cKDTree
+
+            lo, hi = ip.min(axis=0) - 2 * _SAME_POINT, ip.max(axis=0) + 2 * _SAME_POINT
+            cand = np.flatnonzero(np.all((self.P >= lo) & (self.P <= hi), axis=1))
+            d = cKDTree(ip).query(self.P[cand], distance_upper_bound=_SAME_POINT)[0] if len(cand) else np.zeros(0)
+            ok = np.isfinite(d)
+            hit = self._same[key] = (cand[ok], d[ok])
+        return hit
 
     def owners(self, instance_points: Sequence[np.ndarray | None], n: int) -> np.ndarray:
-        key = (n, tuple(None if ip is None else _digest(np.asarray(ip, float)) for ip in instance_points[:n]))
+        """`_owners(P, instance_points, n)`, from each instance's own points (`same_points`, kept per instance: the
+        asks of one pick and place differ by one or two instances, the held or the placed item). A point that two
+        instances hold at the same distance (where `_owners`' one tree picks either) is left to `_owners`."""
+        ips = [None if ip is None else np.asarray(ip, float).reshape(-1, 3) for ip in instance_points[:n]]
+        digests = tuple(None if ip is None else _digest(ip) for ip in ips)
+        key = (n, digests)
         hit = self._owners.get(key)
         if hit is None:
-            hit = self._owners[key] = _owners(self.P, instance_points, n)
+            owner = np.full(len(self.P), -1, np.int64)
+            best = np.full(len(self.P), np.inf)
+            for k, (ip, dg) in enumerate(zip(ips, digests)):
+                if ip is None or not len(ip) or not len(self.P):
+                    continue
+                idx, d = self.same_points(ip, dg)
+                if np.any(d == best[idx]):
+                    owner = _owners(self.P, instance_points, n)  # a tie: the one tree's answer
+                    break
+                closer = d < best[idx]
+                best[idx[closer]] = d[closer]
+                owner[idx[closer]] = k
+            hit = self._owners[key] = owner
         return hit
 
     def object(self, o: SceneObject, radius: float) -> _ObjectPoints:
@@ -625,6 +659,10 @@ class Scene:
         self._ws_lo = np.asarray(robot.limits.workspace.lower, float)
         self._ws_hi = np.asarray(robot.limits.workspace.upper, float)
         self._q_lo, self._q_hi = robot.lower - 1e-9, robot.upper + 1e-9  # the joint limits as valid() allows them
+        # the same bounds as Python floats, per coordinate: valid() compares one configuration at a time (RRT-Connect
+        # asks it ~20k times per query), where numpy's per-call overhead on 6 values was most of the bounds' cost
+        self._q_box = tuple(zip(self._q_lo.tolist(), self._q_hi.tolist()))
+        self._ws_box = tuple(zip(self._ws_lo.tolist(), self._ws_hi.tolist()))
         self.pair_names = [(self.names[i], self.names[j]) for i, j in pairs]
         # pairs with the gripper or the held item (their margin is the grasp margin in for_grasp's variants)
         self._gripper_pair = [a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held" for a, b in self.pair_names]
@@ -796,14 +834,19 @@ class Scene:
     def valid(self, q: np.ndarray) -> bool:
         """True when q is within the joint limits and nothing collides (within the margins)."""
         q = np.asarray(q, float)
-        if (q < self._q_lo).any() or (q > self._q_hi).any():
+        if q.shape == (6,):  # the same comparisons as the arrays' below, on Python floats (a NaN fails none)
+            for a, (lo, hi) in zip(q.tolist(), self._q_box):
+                if a < lo or a > hi:
+                    return False
+        elif (q < self._q_lo).any() or (q > self._q_hi).any():
             return False
         if pin.computeCollisions(self.model, self.data, self._broadphase(), q, True):
             return False
         # the TCP must stay inside the safety workspace (the Arm refuses trajectories that leave it)
         p = self.data.oMi[6].act(self._tcp_in_j6)
-        if (p < self._ws_lo).any() or (p > self._ws_hi).any():
-            return False
+        for a, (lo, hi) in zip(p.tolist(), self._ws_box):
+            if a < lo or a > hi:
+                return False
         if self._zone is not None and not self._zone[0].valid(q):
             return bool(self._in_contact_zone(p[None])[0])
         return True

@@ -112,3 +112,39 @@ def test_a_moved_object_is_computed_afresh(planner, resting):
     got = w.explained(P, moved, instance_points=inst)
     assert np.array_equal(got, _fresh(P, moved, instance_points=inst))
     assert not np.array_equal(got, before)
+
+
+def test_owners_are_kept_per_instance_and_are_the_one_tree_answer(monkeypatch):
+    """The owners of a map's points (which instance's observed points each one is) for instance lists that differ
+    by one instance (plan_place's held item, the retreat's placed one) query only the changed instance's points;
+    the answer is `_owners`' one tree over all instances, ties between two instances (the same points twice)
+    included."""
+    import scipy.spatial
+
+    rng = np.random.default_rng(3)
+    inst = [rng.uniform(-0.1, 0.1, (400, 3)) + c for c in ([0.5, 0.0, 0.1], [0.6, -0.1, 0.1], [0.45, 0.1, 0.12])]
+    near = [ip[::4] + rng.normal(0, 3e-5, ip[::4].shape) for ip in inst]  # the map's copies, a little off
+    P = np.vstack(near + [rng.uniform(0.3, 0.8, (3000, 3))])
+    held = inst[1] + [0.0, 0.0, 0.3]  # the held item: its points where it was (a list of four)
+    P = np.vstack([P, held[::5]])
+    rows = []
+    real = scipy.spatial.cKDTree
+
+    class Counting(real):
+        def query(self, x, *a, **k):
+            rows.append(len(x))
+            return super().query(x, *a, **k)
+
+    monkeypatch.setattr(scipy.spatial, "cKDTree", Counting)
+    memo = col._PointsMemo(np.ascontiguousarray(P))
+    lists = [inst, inst + [held], inst + [held + [0.001, 0, 0]], inst + [held]]
+    for k, ips in enumerate(lists):
+        n0 = sum(rows)
+        got = memo.owners(ips, len(ips))
+        assert np.array_equal(got, _owners(P, ips, len(ips))), k
+        assert (got >= 0).sum() >= 250
+        if k == 2:  # only the new instance's points near the map asked: not the whole map again
+            assert 0 < sum(rows) - n0 - len(P) < len(P) // 4
+    # a tie: the same points in two instances (one tree picks either): the one tree's answer
+    twice = inst + [inst[0].copy()]
+    assert np.array_equal(memo.owners(twice, 4), _owners(P, twice, 4))
