@@ -259,6 +259,12 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
         # (a pitched foot pinch comes as its backed-off alternatives, nearest first: the first that fits is kept)
         for T in (Ts if isinstance(Ts, list) else [Ts]):
             w = pad_span(model, T, scene=scene)
+            if w is not None and kind.startswith("handle"):
+                # the handle's extent along the axis changes across the pad's width (the loop curves away from
+                # the body): the conforming pads stop on the widest within 5 mm of their centre (as the simulated
+                # ones do, fakes.gripper), so that is the width they close to
+                spans = [pad_span(model, T @ make_T(t=(dx, 0.0, 0.0)), scene=scene) for dx in (-0.005, 0.0, 0.005)]
+                w = max((v for v in spans if v is not None), default=None)
             if w is None or w > MAX_OPENING - 0.01 or w <= 0:
                 continue
             if kind.startswith("footpitch") and abs(w - foot[1]) > 0.002:
