@@ -330,7 +330,8 @@ def _handle_grasps(V: np.ndarray, axis: np.ndarray, r_body: float) -> list:
     for gap in HANDLE_PAD_GAP:
         pos = axis + h * (r_body + gap + PAD_ENVELOPE.width / 2) + side * mid_side + np.array([0.0, 0.0, z_mid])
         for sgn in (1, -1):
-            out.append((f"handle{sgn:+d}", int(round(gap * 1000)), _tcp_frame(-sgn * side, np.array([0.0, 0.0, 1.0]), pos)))
+            T = _tcp_frame(-sgn * side, np.array([0.0, 0.0, 1.0]), pos)
+            out.append((f"handle{sgn:+d}", int(round(gap * 1000)), T))
     return out
 
 
