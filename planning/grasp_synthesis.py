@@ -245,6 +245,8 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
                 tangent = np.array([-np.sin(a), np.cos(a), 0.0])
                 T = _tcp_frame(-radial, tangent, axis + np.array([0, 0, z]))
                 grasps.append((tag, k, T))
+    if model.cls in ("cup", "mug", "glass"):
+        grasps += _handle_grasps(V, axis, r_rim)
     out = []
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(model.mesh))
@@ -257,6 +259,12 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
         # (a pitched foot pinch comes as its backed-off alternatives, nearest first: the first that fits is kept)
         for T in (Ts if isinstance(Ts, list) else [Ts]):
             w = pad_span(model, T, scene=scene)
+            if w is not None and kind.startswith("handle"):
+                # the handle's extent along the axis changes across the pad's width (the loop curves away from
+                # the body): the conforming pads stop on the widest within 5 mm of their centre (as the simulated
+                # ones do, fakes.gripper), so that is the width they close to
+                spans = [pad_span(model, T @ make_T(t=(dx, 0.0, 0.0)), scene=scene) for dx in (-0.005, 0.0, 0.005)]
+                w = max((v for v in spans if v is not None), default=None)
             if w is None or w > MAX_OPENING - 0.01 or w <= 0:
                 continue
             if kind.startswith("footpitch") and abs(w - foot[1]) > 0.002:
@@ -272,6 +280,58 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
     if rim_w:
         limit = 2.0 * float(np.median(rim_w))
         out = [g for g in out if not (g.name.startswith(("rim_", "rimroll")) and g.width > limit)]
+    return out
+
+
+# A handle: mesh beyond the body's radius by more than HANDLE_MARGIN, all within HANDLE_HALF_WIDTH of one
+# half-plane through the axis (a lump on one side, not a flange or a flared foot all around).
+HANDLE_MARGIN = 0.003
+HANDLE_HALF_WIDTH = 0.015
+HANDLE_MIN_REACH = 0.010  # m beyond the body: a smaller lump is not a handle a pad can close on
+HANDLE_PAD_GAP = (0.002, 0.006)  # m between the body and the pads' inner edge
+
+
+def find_handle(V: np.ndarray, axis: np.ndarray, r_body: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The handle of a vessel found by shape (vertices `V`, item frame, z the body's axis through `axis`, the body's
+    widest radius `r_body`): (its outward direction, level; its points), or None when there is none."""
+    d = V[:, :2] - axis[:2]
+    r = np.linalg.norm(d, axis=1)
+    out = r > r_body + HANDLE_MARGIN
+    if np.count_nonzero(out) < 10:
+        return None
+    h = d[out].mean(axis=0)
+    if np.linalg.norm(h) < 1e-6:
+        return None
+    h = np.array([*(h / np.linalg.norm(h)), 0.0])
+    side = np.cross([0.0, 0.0, 1.0], h)
+    P = V[out]
+    if np.abs((P[:, :2] - axis[:2]) @ side[:2]).max() > HANDLE_HALF_WIDTH or ((P[:, :2] - axis[:2]) @ h[:2]).min() < 0:
+        return None
+    if r[out].max() < r_body + HANDLE_MIN_REACH:
+        return None
+    return h, P
+
+
+def _handle_grasps(V: np.ndarray, axis: np.ndarray, r_body: float) -> list:
+    """Grasps of a handle (cups, mugs, glasses that have one, `find_handle`): approaching across the handle's plane
+    (from either side), closing along the body's axis, the pads' inner edge just outside the body: the pads straddle
+    the handle and close on its two roots. Lying on its side with the handle part-way up, a mug leaves no grasp
+    across its body clear of the handle (a pad lands on it, or, turned far enough to clear it, the lower pad meets
+    the floor); this one comes in across the handle's plane, that is from above, tilted by the handle's angle
+    above level."""
+    found = find_handle(V, axis, r_body)
+    if found is None:
+        return []
+    h, P = found
+    side = np.cross([0.0, 0.0, 1.0], h)
+    mid_side = float(np.median((P[:, :2] - axis[:2]) @ side[:2]))
+    z_mid = (P[:, 2].max() + P[:, 2].min()) / 2
+    out = []
+    for gap in HANDLE_PAD_GAP:
+        pos = axis + h * (r_body + gap + PAD_ENVELOPE.width / 2) + side * mid_side + np.array([0.0, 0.0, z_mid])
+        for sgn in (1, -1):
+            T = _tcp_frame(-sgn * side, np.array([0.0, 0.0, 1.0]), pos)
+            out.append((f"handle{sgn:+d}", int(round(gap * 1000)), T))
     return out
 
 

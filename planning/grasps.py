@@ -130,8 +130,10 @@ def observed_in_grip(P_tcp: np.ndarray, opening: float, gripper, pad_depth: floa
 # the standard pinches); the foot-ring pinch pitched in from outside the ring, for a bowl lying tilted (it
 # closes across the ring at a slant, the outer pad's tip next to the body); and the side grasp across a cup's,
 # mug's or glass's base end (the pads' edge at the base: it holds less of the body), for one lying with a
-# neighbour along its body. They rank after every feasible standard grasp.
-FALLBACK_GRASPS = ("rimnarrow", "footpitch", "side10", "rimslant", "rimlevel")
+# neighbour along its body; and the grasps that straddle a handle on its roots (held by the handle, the body's
+# weight turns about the closing line), for a mug lying with its handle part-way up. They rank after every feasible
+# standard grasp.
+FALLBACK_GRASPS = ("rimnarrow", "footpitch", "side10", "rimslant", "rimlevel", "handle")
 FALLBACK_PENALTY = 1.0
 # A grasp whose pads brush a neighbour (planning/pad_give.py) ranks after the standard grasps that keep clear.
 PAD_GIVE_PENALTY = 1.0
