@@ -871,12 +871,15 @@ class Perceiver:
 # How far (metres) a pose may be off and still count as right (the fits' error on partly hidden items lying or
 # leaning: about a centimetre): the free-space check judges the best rigid shift within it (see free_space_within).
 FREE_SPACE_SHIFT = 0.01
+# ... and counts only a shift that clears most of it (at most this share left): a fit merely off is cleared by one
+# shift, a wrong one only in part.
+FREE_SPACE_CLEARED = 1 / 3
 
 
 def free_space_within(scorer: Scorer, T_base_obj: np.ndarray, shift: float) -> tuple[float, float]:
     """(seen, free space share) of the pose, where the free-space share is the least over the pose and its rigid
     shifts by `shift` and half of it along the base axes that fit at least as well (overlap score) and keep at
-    least as much of the model seen.
+    least as much of the model seen, if that shift leaves at most FREE_SPACE_CLEARED of the pose's own.
 
     A fit a centimetre off (inside the pose tolerance) puts its outline's model points over the surface behind,
     just past the item's silhouette, where the depth jumps: the pose is right, yet a fifth of its visible points
@@ -891,8 +894,8 @@ def free_space_within(scorer: Scorer, T_base_obj: np.ndarray, shift: float) -> t
     Ts[:, :3, 3] += np.array(moves)
     score_s, _, seen_s, free_s, _ = scorer.batch(Ts)
     ok = (seen_s >= seen) & (score_s >= score)
-    if ok.any():
-        free = min(free, float(free_s[ok].min()))
+    if ok.any() and free_s[ok].min() <= FREE_SPACE_CLEARED * free:
+        free = float(free_s[ok].min())
     return seen, free
 
 
