@@ -183,3 +183,35 @@ def test_batched_scores_are_each_poses_own_and_rank_the_true_pose_first(scene, p
         alone = np.array([scorer.batch(T[None], coarse) for T in poses])[..., 0]
         np.testing.assert_allclose(rows, alone, atol=1e-12)
         assert rows[0, 0] == rows[:, 0].max() and rows[0, 0] > rows[1:, 0].max() + 0.05, rows[:, 0]
+
+
+
+def test_free_space_spares_a_fit_a_centimetre_off_at_the_outline_but_not_a_wrong_one(inventory, cell, perceiver):
+    """A cup lying on its side next to a plate. A fit 1 cm off (inside the pose tolerance) puts its outline's model
+    points over the floor just past the cup's silhouette, where the depth jumps by the cup's height: the plain
+    per-point test reads a large share of free space; judged over the rigid shifts within a centimetre
+    (free_space_within) the right shift clears it. Fits 4 cm off, or 3 cm towards the cameras, still claim space
+    the views see through."""
+    from kitchenbot.perception.pipeline import FREE_SPACE_SHIFT, free_space_within
+    from kitchenbot.perception.register import Scorer, clean_depths
+    from kitchenbot.perception.rgbd import backproject
+    from kitchenbot.transforms import make_T
+
+    radius = float(inventory[4].mesh.get_axis_aligned_bounding_box().get_max_bound()[0])
+    T_cup = make_T(np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]), [0.45, 0.0, cell.sink_interior[0][2] + radius])
+    placed = [(4, T_cup), (2, resting_pose(inventory, 2, 0.45, -0.1, 0.0, cell))]
+    views, labels = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    pts = np.concatenate([backproject(v, lab == 0)[0] for v, lab in zip(views, labels)])
+    scorer = Scorer(perceiver.database[4], pts[::5], views, 0.01, depths=clean_depths(views))
+
+    def moved(shift):
+        S = np.eye(4)
+        S[:3, 3] = shift
+        return S @ T_cup
+
+    assert free_space_within(scorer, T_cup, FREE_SPACE_SHIFT)[1] < 0.02
+    for s in ([0.01, 0, 0], [-0.01, 0, 0], [0, 0.01, 0], [0, -0.01, 0]):
+        assert scorer(moved(s))[3] > 0.08, s  # what the per-point test reads
+        assert free_space_within(scorer, moved(s), FREE_SPACE_SHIFT)[1] < 0.03, s
+    for s in ([0.04, 0, 0], [0, 0.04, 0], [0, 0, 0.03]):
+        assert free_space_within(scorer, moved(s), FREE_SPACE_SHIFT)[1] > 0.15, s
