@@ -263,6 +263,12 @@ class StageWhenBlocked(StageForRegrasp):
         return failure.kind == "cartesian_path_failed" and t is not None and failure.kind in t.reasons
 
 
+def _may_slide(belief, obj) -> bool:
+    """Whether `obj` has been slid fewer than MAX_SLIDES_PER_OBJECT times (the slide strategies' shared limit)."""
+    t = belief.attempts_for(obj)
+    return t is None or t.slides < M.MAX_SLIDES_PER_OBJECT
+
+
 class SlideOffStack(Strategy):
     """Nested in a stack (the top plate): no pinch fits under its lip. Slide it sideways with the closed fingers;
     the next scan sees it overhanging the one below, where a lip pinch fits. At most MAX_SLIDES_PER_OBJECT."""
@@ -276,8 +282,7 @@ class SlideOffStack(Strategy):
     def applies(self, failure, obj, belief, req):
         if failure is None or failure.stage != "pick" or failure.kind != "no_collision_free_grasp":
             return False
-        t = belief.attempts_for(obj)
-        return obj.cls in SLIDABLE and req.staged is None and (t is None or t.slides < M.MAX_SLIDES_PER_OBJECT)
+        return obj.cls in SLIDABLE and req.staged is None and _may_slide(belief, obj)
 
     def plan(self, req):
         req.note("command", "plan_slide", cls=req.obj.cls)
@@ -329,8 +334,7 @@ class SlideOffBlocked(Strategy):
     def applies(self, failure, obj, belief, req):
         if failure is None or failure.stage != "pick" or failure.kind not in self.KINDS or req.staged is not None:
             return False
-        t = belief.attempts_for(obj)
-        if t is not None and t.slides >= M.MAX_SLIDES_PER_OBJECT:
+        if not _may_slide(belief, obj):
             return False
         if obj.cls not in SLIDABLE and not is_lying(np.asarray(obj.T_base_obj, float)):
             return False
@@ -377,8 +381,7 @@ class SlideFromWall(Strategy):
             return False  # a neighbour crowds its grasps: that one goes first (blocker_first)
         if obj.cls in SLIDABLE or req.staged is not None or not is_lying(np.asarray(obj.T_base_obj, float)):
             return False
-        t = belief.attempts_for(obj)
-        if t is not None and t.slides >= M.MAX_SLIDES_PER_OBJECT:
+        if not _may_slide(belief, obj):
             return False
         room = _wall_room(req.planner, obj)
         return room is not None and room < WALL_NEAR

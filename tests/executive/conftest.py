@@ -122,3 +122,31 @@ def record_staged():
         return rec
 
     return record
+
+
+@pytest.fixture
+def run_slide():
+    """A function (world, cfg, slide, uid) -> (start, moved): runs a planned slide's trajectories on the simulated
+    arm (gripper closed), checks it met nothing and dragged item `uid` more than 2 cm to within 1 cm of where the
+    planner said, and returns the item's pose before and after."""
+    import numpy as np
+
+    from kitchenbot.fakes.arm import FakeArm
+    from kitchenbot.fakes.gripper import FakeGripper
+
+    def run(world, cfg, slide, uid):
+        arm = FakeArm(world, cfg.safety_limits())
+        arm.connect()
+        grip = FakeGripper(world)
+        grip.connect()
+        grip.open(0.0)
+        start = world.objects[uid].T_base_obj.copy()
+        for traj in slide.trajectories:
+            arm.execute_trajectory(traj.times, traj.q)
+        assert arm.log.collisions == 0 and arm.log.protective_stops == 0
+        moved = world.objects[uid].T_base_obj
+        assert np.linalg.norm(moved[:2, 3] - start[:2, 3]) > 0.02  # dragged along
+        assert np.linalg.norm(moved[:2, 3] - slide.T_base_obj_after[:2, 3]) < 0.01  # where the planner said
+        return start, moved
+
+    return run

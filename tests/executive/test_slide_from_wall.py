@@ -17,8 +17,6 @@ from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.config import load_config
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.executive.strategies import WALL_NEAR, PlanFailure, PlanRequest, SlideFromWall, _wall_room
-from kitchenbot.fakes.arm import FakeArm
-from kitchenbot.fakes.gripper import FakeGripper
 from kitchenbot.fakes.placement import drop_onto
 from kitchenbot.planning.pick_place import Planner
 from kitchenbot.tasks import TASKS
@@ -59,7 +57,7 @@ def test_the_sink_tasks_use_it():
         assert "slide_from_wall" in TASKS[name].strategies
 
 
-def test_a_lying_mug_at_the_wall_is_slid_to_where_it_can_be_picked(scene):
+def test_a_lying_mug_at_the_wall_is_slid_to_where_it_can_be_picked(scene, run_slide):
     cfg, world, planner, u = scene
     poses = OraclePerceiver(world).perceive([]).poses
     mug = next(o for o in poses if o.instance_id == u)
@@ -86,18 +84,7 @@ def test_a_lying_mug_at_the_wall_is_slid_to_where_it_can_be_picked(scene):
     plan = s.plan(req)
     assert plan is not None and plan.slide is not None and plan.strategy == "slide_from_wall"
     assert plan.slide.direction[0] < -0.5  # away from the +x wall
-    arm = FakeArm(world, cfg.safety_limits())
-    arm.connect()
-    grip = FakeGripper(world)
-    grip.connect()
-    grip.open(0.0)
-    start = world.objects[u].T_base_obj.copy()
-    for traj in plan.slide.trajectories:
-        arm.execute_trajectory(traj.times, traj.q)
-    assert arm.log.collisions == 0 and arm.log.protective_stops == 0
-    moved = world.objects[u].T_base_obj
-    assert np.linalg.norm(moved[:2, 3] - start[:2, 3]) > 0.02  # dragged along
-    assert np.linalg.norm(moved[:2, 3] - plan.slide.T_base_obj_after[:2, 3]) < 0.01  # where the planner said
+    run_slide(world, cfg, plan.slide, u)
     poses = OraclePerceiver(world).perceive([]).poses
     mug = next(o for o in poses if o.instance_id == u)
     r = planner.plan_pick(world.q.copy(), poses, target=mug)

@@ -16,8 +16,6 @@ from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.config import load_config
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.executive.strategies import PlanFailure, PlanRequest, SlideOffBlocked
-from kitchenbot.fakes.arm import FakeArm
-from kitchenbot.fakes.gripper import FakeGripper
 from kitchenbot.fakes.placement import drop_onto
 from kitchenbot.planning.pick_place import Planner
 from kitchenbot.planning.slide import slide_directions
@@ -67,7 +65,7 @@ def test_an_item_touching_a_wall_may_slide_along_it(scene):
     assert all(d[0] <= 1e-6 for d, _ in dirs)  # never towards the wall it touches
 
 
-def test_mutual_blockers_the_upper_is_slid_off(scene):
+def test_mutual_blockers_the_upper_is_slid_off(scene, run_slide):
     cfg, world, planner, p, c = scene
     poses = _poses(world)
     plate = next(o for o in poses if o.instance_id == p)
@@ -93,18 +91,7 @@ def test_mutual_blockers_the_upper_is_slid_off(scene):
 
     plan = s.plan(req)
     assert plan is not None and plan.slide is not None and plan.strategy == "slide_off_blocked"
-    arm = FakeArm(world, cfg.safety_limits())
-    arm.connect()
-    grip = FakeGripper(world)
-    grip.connect()
-    grip.open(0.0)
-    start = world.objects[c].T_base_obj.copy()
-    for traj in plan.slide.trajectories:
-        arm.execute_trajectory(traj.times, traj.q)
-    assert arm.log.collisions == 0 and arm.log.protective_stops == 0
-    moved = world.objects[c].T_base_obj
-    assert np.linalg.norm(moved[:2, 3] - start[:2, 3]) > 0.02  # dragged along
-    assert np.linalg.norm(moved[:2, 3] - plan.slide.T_base_obj_after[:2, 3]) < 0.01  # where the planner said
+    start, moved = run_slide(world, cfg, plan.slide, c)
     assert moved[2, 3] < start[2, 3] - 0.01  # down off the plate's rim
     poses = _poses(world)
     plate = next(o for o in poses if o.instance_id == p)
