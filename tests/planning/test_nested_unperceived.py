@@ -7,6 +7,7 @@ the scene held no voxel there and a lift met the nested item."""
 from __future__ import annotations
 
 import numpy as np
+import open3d as o3d
 
 from kitchenbot.planning.collision import SceneObject, _surface_distance
 from kitchenbot.transforms import rot_x, trans
@@ -23,6 +24,10 @@ def _nested(planner, resting):
     To = outer.T_base_obj
     Ti = To @ trans(0.0, 0.0, 0.025) @ rot_x(np.radians(25))  # resting on the outer's inner wall, tilted
     rng = np.random.default_rng(4)
+    # Open3D samples the surfaces from its own global generator: seeded here, so the points do not depend on which
+    # tests ran before in the worker (1-3 of the ~400 body points of some samplings lie where the outer's points
+    # explain them: an order-dependent failure)
+    o3d.utility.random.seed(4)
     outer_pts = _surface(m, To) + rng.normal(0, 0.002, (3000, 3))
     inner_pts = _surface(m, Ti) + rng.normal(0, 0.002, (3000, 3))
     # the inner bowl's points inside the outer's box and more than 2 cm from its surface: the nested item's body
