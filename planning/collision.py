@@ -742,11 +742,15 @@ class Scene:
             other.gd.activateCollisionPair(k) if self.gd.activeCollisionPairs[k] else other.gd.deactivateCollisionPair(k)
         return other
 
+    def _pair_index(self, pair: tuple[str, str]) -> int | None:
+        """Index of the collision pair of these two geometry names (either order); None where the scene has none."""
+        names = {tuple(p): k for k, p in enumerate(self.pair_names)}
+        return names.get(tuple(pair), names.get((pair[1], pair[0])))
+
     def penetration(self, q: np.ndarray, pair: tuple[str, str], limit: float = 0.03, tol: float = 1e-4) -> float:
         """How deep (m, within `tol`) the pair's geometries overlap at q: 0 where they do not touch, `limit` where
         they overlap by that much or more (bisection on a negative security margin)."""
-        names = {tuple(p): k for k, p in enumerate(self.pair_names)}
-        k = names.get(tuple(pair), names.get((pair[1], pair[0])))
+        k = self._pair_index(pair)
         if k is None:
             return 0.0
         other = self._variant()
@@ -770,8 +774,7 @@ class Scene:
     def touching(self, Q: np.ndarray, pair: tuple[str, str], margin: float = 0.0) -> np.ndarray:
         """Per configuration of `Q` (N, 6): whether the pair's geometries come within `margin` (m; 0: they touch
         or overlap), whether or not this scene checks the pair. All False for a pair the scene does not have."""
-        names = {tuple(p): k for k, p in enumerate(self.pair_names)}
-        k = names.get(tuple(pair), names.get((pair[1], pair[0])))
+        k = self._pair_index(pair)
         Q = np.asarray(Q, float).reshape(-1, 6)
         if k is None:
             return np.zeros(len(Q), bool)
