@@ -967,6 +967,30 @@ class Scene:
             return box
         return g
 
+    def voxels_at_robot(self, q: np.ndarray, centres: np.ndarray) -> np.ndarray:
+        """Which voxels (centres (N, 3), cubes of the world's voxel size, base frame) lie within the collision
+        margin of the arm, the tool or the held item at `q`: the ones that make `q` collide."""
+        C = np.asarray(centres, float).reshape(-1, 3)
+        out = np.zeros(len(C), bool)
+        if not len(C):
+            return out
+        pin.updateGeometryPlacements(self.model, self.data, self.gm, self.gd, np.asarray(q, float))
+        vs = self.world.voxel_size
+        box = coal.Box(vs, vs, vs)
+        req = coal.CollisionRequest()
+        req.security_margin = self.world.margin
+        eye = np.eye(3)
+        for gid, group in self.group.items():
+            if group == "env":
+                continue
+            g = self.gm.geometryObjects[gid].geometry
+            M = self.gd.oMg[gid]
+            Tg = coal.Transform3s(np.asarray(M.rotation), np.asarray(M.translation))
+            for k in np.flatnonzero(~out):
+                if coal.collide(g, Tg, box, coal.Transform3s(eye, C[k]), req, coal.CollisionResult()):
+                    out[k] = True
+        return out
+
     def placements(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """T_base_geometry of every geometry at q (used by the independent checker)."""
         pin.updateGeometryPlacements(self.model, self.data, self.gm, self.gd, np.asarray(q, float))

@@ -957,6 +957,18 @@ class Planner:
             return q0
         return plan_escape(self, q0, list(objects), map_points=map_points, held=held, opening=opening)
 
+    def points_at_robot(self, q: np.ndarray, points: np.ndarray, *, held: Grasp | None = None) -> np.ndarray:
+        """Which of `points` (N, 3, base frame) make `q` collide as map points: those whose voxel lies within the
+        collision margin of the arm, the tool (pads fully open, as plan_move has them) or `held` there."""
+        P = np.asarray(points, float).reshape(-1, 3)
+        if not len(P):
+            return np.zeros(0, bool)
+        vs = self.world.voxel_size
+        cells, inverse = np.unique(np.floor(P / vs).astype(np.int64), axis=0, return_inverse=True)
+        h = None if held is None else Held(self.inventory[held.obj.obj_id], held.T_tcp_obj, held.spec.width)
+        hit = self.world.scene([], None, h).voxels_at_robot(q, (cells + 0.5) * vs)
+        return hit[np.asarray(inverse).reshape(-1)]
+
     def plan_move(
         self,
         q_start: np.ndarray,
