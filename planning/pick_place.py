@@ -60,6 +60,9 @@ LIFT_CLEAR_TRAVEL = 0.06
 # m: how much deeper than at the grasp the held item may overlap a neighbour it does not rest on during the first
 # LIFT_CONTACT_TRAVEL of its lift (the mesh overlap's measurement noise; any real deepening is a new contact)
 LIFT_DEEPEN_TOL = 0.00025
+# m: how much of a neighbour's clearance at the grasp a lift may use up (see Planner._plan_pick_with: the lift keeps
+# the clearance the held item has from a neighbour at the grasp, up to the collision margin)
+LIFT_CLEARANCE_TOL = 0.001
 PLACED_ID = 1_000_000  # instance id of the just-released object in the retreat scene
 # Gaps (m, per pad) the pads open to past the held item's width at release when the grasp's full opening would put
 # a pad into a neighbour at the target (a bowl set on its rim beside a plate in a rack: its rim pinch opens 3.5 cm,
@@ -495,12 +498,17 @@ class Planner:
         # centimetres; anything else it would touch is checked from the start
         at_grasp = lift_scene.colliding_pairs(q_grasp)
         # The release margins (the grasp margin, 2 mm) are for what the held item rests against where it is taken:
-        # a neighbour it stands clear of there (outside the full collision margin) keeps the full margin for the
-        # whole lift. Its pose is an estimate (an item 11 % visible, 5 mm off): a lift tilted towards it, checked
-        # with 2 mm, drove the held item into it.
-        near = {frozenset(p) for p in held_scene.colliding_pairs(q_grasp)}
-        clear = {p: s.collision_margin for p in lift_scene.pair_names
-                 if "held" in p and any(x.startswith("obj:") or x == "voxels" for x in p) and frozenset(p) not in near}
+        # a neighbour it stands clear of there keeps, for the whole lift, the clearance it has at the grasp, up to
+        # the full collision margin; the lift may pass it as close as it already is, not closer. Its pose is an
+        # estimate (an item 11 % visible, 5 mm off): a lift tilted towards it, checked with 2 mm, drove the held
+        # item into it.
+        near = {frozenset(p) for p in lift_scene.colliding_pairs(q_grasp)}
+        clear = {}
+        for p in lift_scene.pair_names:
+            if "held" in p and any(x.startswith("obj:") or x == "voxels" for x in p) and frozenset(p) not in near:
+                d = lift_scene.clearance(q_grasp, p, s.collision_margin)
+                if d > s.grasp_margin + LIFT_CLEARANCE_TOL:
+                    clear[p] = d - LIFT_CLEARANCE_TOL
         if clear:
             lift_scene = lift_scene.with_pair_margins(clear)
         # ... but not with an item lying on it (leaning on its rim): lifted, the item drags that one along, and
