@@ -212,11 +212,14 @@ class Belief:
         self.map.add_contacts(pts, self.scene_epoch)
         return len(pts)
 
-    def drop_contacts(self, near: np.ndarray | None = None, radius: float = 0.0) -> int:
-        """Forget the contact marks within `radius` of any of the points `near` (N, 3), every one without `near`:
-        they block a move the arm must make. Returns how many went."""
+    def drop_contacts(self, near: np.ndarray | None = None, radius: float = 0.0, where: np.ndarray | None = None) -> int:
+        """Forget the contact marks within `radius` of any of the points `near` (N, 3), or those `where` (a mask
+        over contact_points) says, every one without either: they block a move the arm must make. Returns how
+        many went."""
         c = self.map.contact_points
-        if near is None:
+        if where is not None:
+            gone = np.asarray(where, bool).reshape(-1)
+        elif near is None:
             gone = np.ones(len(c), bool)
         else:
             from scipy.spatial import cKDTree

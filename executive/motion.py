@@ -120,7 +120,7 @@ class Motions:
             return
         b = self.belief
         if self.planner is not None:
-            plan, escaped, scale, tries, narrowed = None, False, 1.0, 0, False
+            plan, escaped, scale, tries, narrowed = None, False, 1.0, 0, set()
             while tries < 3:
                 tries += 1
                 plan = self.planner.plan_move(q_now, q, objects=b.scene_objects(), map_points=b.map_points,
@@ -130,20 +130,22 @@ class Motions:
                     return
                 if plan.kind == "planner_timeout":
                     scale *= self.TIMEOUT_GROWTH
-                if plan.kind in ("start_in_collision", "goal_in_collision") and len(b.contact_points):
-                    # the marks of a stop (RecoveryActions._mark_contact) block where the arm is or must go: they
-                    # have done their part (the arm backed off); a move they make impossible is planned without
-                    # those around the arm there (marks elsewhere, e.g. on an item fallen outside the sink, stay);
-                    # without any if that is not enough
+                if plan.kind in ("start_in_collision", "goal_in_collision") and len(b.contact_points) \
+                        and plan.kind not in narrowed:
+                    # the marks of a stop (RecoveryActions._mark_contact) block where the arm is or must go: those
+                    # the arm's own bodies stand in there (within the margin) have done their part (the arm backed
+                    # off, or let go there); the others stay. They mark something real beside the arm (what a
+                    # stopped lift met; an item let go over a stack lies there now): a move planned without them
+                    # left the tool standing among the marks and went straight through what they marked.
+                    narrowed.add(plan.kind)
                     q_at = q_now if plan.kind == "start_in_collision" else q
-                    n = 0 if narrowed else b.drop_contacts(self._arm_points(q_at), self.MARKS_BLOCKING_RADIUS)
-                    if n:
-                        narrowed, tries = True, tries - 1  # (a try of its own, as dropping them all was)
-                    else:
-                        n = b.drop_contacts()
-                    self._log("note", "contact marks dropped: they block the move", what=what, reason=str(plan),
-                              dropped=n, left=len(b.contact_points))
-                    continue
+                    at = self.planner.points_at_robot(q_at, b.contact_points)
+                    if at.any():
+                        n = b.drop_contacts(where=at)
+                        tries -= 1  # (a try of its own)
+                        self._log("note", "contact marks dropped: they block the move", what=what, reason=str(plan),
+                                  dropped=n, left=len(b.contact_points))
+                        continue
                 if plan.kind == "start_in_collision" and not escaped:
                     escaped = True  # stopped within the margin of something (a protective stop): jog out first
                     if self._escape():
@@ -155,18 +157,6 @@ class Motions:
             self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
         dist = float(np.max(np.abs(q - q_now)))
         self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
-
-    MARKS_BLOCKING_RADIUS = 0.12  # m around the arm's axis and tool: marks there may block a configuration
-
-    def _arm_points(self, q: np.ndarray, step: float = 0.03) -> np.ndarray:
-        """Points every 3 cm along the arm's chain of joint origins to the TCP at `q` (base frame)."""
-        robot = self.planner.robot
-        P = [np.asarray(T)[:3, 3] for T in robot.joint_placements(q)] + [robot.fk_tcp(q)[:3, 3]]
-        out = [P[0]]
-        for a, c in zip(P[:-1], P[1:]):
-            n = max(1, int(np.ceil(np.linalg.norm(c - a) / step)))
-            out.extend(a + (c - a) * (k / n) for k in range(1, n + 1))
-        return np.asarray(out)
 
     def _move_joints_via(self, q: np.ndarray, what: str, via: np.ndarray) -> None:
         """_move_joints; when it finds no path, by way of `via` (home: a pose the planner connects easily to the

@@ -771,6 +771,30 @@ class Scene:
             lo, hi = (mid, hi) if overlaps(mid) else (lo, mid)
         return hi
 
+    def clearance(self, q: np.ndarray, pair: tuple[str, str], limit: float, tol: float = 2.5e-4) -> float:
+        """How far apart (m, within `tol`) the pair's geometries are at q, up to `limit` (bisection on the pair's
+        security margin); 0 where they touch or the scene has no such pair."""
+        k = self._pair_index(pair)
+        if k is None:
+            return 0.0
+        other = self._variant()
+        pin.updateGeometryPlacements(self.model, other.data, self.gm, other.gd, np.asarray(q, float))
+        req = other.gd.collisionRequests[k]
+
+        def within(m: float) -> bool:
+            req.security_margin = m
+            return bool(pin.computeCollision(self.gm, other.gd, k))
+
+        if not within(limit):
+            return float(limit)
+        lo, hi = 0.0, float(limit)
+        if within(lo):
+            return 0.0
+        while hi - lo > tol:
+            mid = (lo + hi) / 2
+            lo, hi = (lo, mid) if within(mid) else (mid, hi)
+        return lo
+
     def touching(self, Q: np.ndarray, pair: tuple[str, str], margin: float = 0.0) -> np.ndarray:
         """Per configuration of `Q` (N, 6): whether the pair's geometries come within `margin` (m; 0: they touch
         or overlap), whether or not this scene checks the pair. All False for a pair the scene does not have."""
@@ -966,6 +990,30 @@ class Scene:
                 self.world._proxy_cache[key] = box
             return box
         return g
+
+    def voxels_at_robot(self, q: np.ndarray, centres: np.ndarray) -> np.ndarray:
+        """Which voxels (centres (N, 3), cubes of the world's voxel size, base frame) lie within the collision
+        margin of the arm, the tool or the held item at `q`: the ones that make `q` collide."""
+        C = np.asarray(centres, float).reshape(-1, 3)
+        out = np.zeros(len(C), bool)
+        if not len(C):
+            return out
+        pin.updateGeometryPlacements(self.model, self.data, self.gm, self.gd, np.asarray(q, float))
+        vs = self.world.voxel_size
+        box = coal.Box(vs, vs, vs)
+        req = coal.CollisionRequest()
+        req.security_margin = self.world.margin
+        eye = np.eye(3)
+        for gid, group in self.group.items():
+            if group == "env":
+                continue
+            g = self.gm.geometryObjects[gid].geometry
+            M = self.gd.oMg[gid]
+            Tg = coal.Transform3s(np.asarray(M.rotation), np.asarray(M.translation))
+            for k in np.flatnonzero(~out):
+                if coal.collide(g, Tg, box, coal.Transform3s(eye, C[k]), req, coal.CollisionResult()):
+                    out[k] = True
+        return out
 
     def placements(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """T_base_geometry of every geometry at q (used by the independent checker)."""
