@@ -623,8 +623,10 @@ class Planner:
         return first
 
     # m of gap after which the held item has left a neighbour it started against (a touch after that is a new
-    # contact); finer than the grasp margin, coarser than the mesh noise of resting contacts
-    CONTACT_LEFT_GAP = 0.0005
+    # contact): none, as in the simulator and a real arm's contact detection, where any configuration at which the
+    # two no longer touch ends the contact (a bowl lifted along a tilted bowl's wall parts from it by a fraction of
+    # a millimetre and presses into it again a few millimetres higher: with a 0.5 mm allowance that was one contact)
+    CONTACT_LEFT_GAP = 0.0
 
     def _contact_comes_back(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]]) -> tuple[str, str] | None:
         """The first of `pairs` (the held item with a neighbour it touches at the start of the lift `Q`) that the
