@@ -28,6 +28,7 @@ from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
+from kitchenbot.planning.resting import clear_travel
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.settings import PlanningSettings
 from kitchenbot.planning.timing import time_parameterise
@@ -426,22 +427,11 @@ class Planner:
 
     def _vertical_clear_travel(self, a: ObjectPose, b: ObjectPose, height: float = 0.12, step: float = 0.005) -> float:
         """Metres `a` must be translated straight up to be clear of `b` for good (`height` + step if it never
-        is within `height`); 0 when they do not touch (perceived poses, no margin)."""
-        import coal
-
+        is within `height`); 0 when they do not touch (perceived poses, no margin): planning.resting.clear_travel."""
         ma, mb = self.inventory.models.get(a.obj_id), self.inventory.models.get(b.obj_id)
         if ma is None or mb is None:
             return 0.0
-        Ta, Tb = np.asarray(a.T_base_obj, float), np.asarray(b.T_base_obj, float)
-        ga, gb = self.world.bvh(ma), self.world.bvh(mb)
-        tb = coal.Transform3s(Tb[:3, :3].copy(), Tb[:3, 3].copy())
-        req = coal.CollisionRequest()
-        last = -1.0
-        for t in np.arange(0.0, height + 1e-9, step):
-            ta = coal.Transform3s(Ta[:3, :3].copy(), Ta[:3, 3] + np.array([0.0, 0.0, t]))
-            if coal.collide(ga, ta, gb, tb, req, coal.CollisionResult()):
-                last = t
-        return 0.0 if last < 0 else last + step
+        return clear_travel(self.world.bvh(ma), a.T_base_obj, self.world.bvh(mb), b.T_base_obj, height, step)
 
     def _lies_on(self, other: ObjectPose, target: ObjectPose) -> bool:
         """Whether `other` lies on (or over) `target` rather than under it: lifting `target` straight up runs

@@ -18,6 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.resting import lying_on
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.transforms import make_T, rot_x, rot_y, rot_z
 from kitchenbot.world.attitude import faces_down, is_level, is_upright
@@ -137,11 +138,16 @@ class Task:
         return sorted(todo, key=lambda p: (self._covered(p, poses), p.cls != "plate", -p.T_base_obj[2, 3]))
 
     def _covered(self, p: ObjectPose, poses: list[ObjectPose]) -> bool:
-        """Something rests on or over `p` (its centre within p's radius, higher up): take that first."""
+        """Something rests on or over `p` (its centre within p's radius, higher up; or, by the meshes at their
+        poses, it lies on p: planning.resting, what a pick names as blocking its lift): take that first. A glass
+        leaning on a plate's rim has its centre beside the plate: by the first test alone the plate came first
+        (plates before other items) and its pick failed with its lift blocked by the glass, one failed attempt."""
         r = max(self.inventory[p.obj_id].extents[:2]) / 2
         c = p.T_base_obj[:3, 3]
-        return any(o is not p and o.T_base_obj[2, 3] > c[2] + 0.01 and np.linalg.norm(o.T_base_obj[:2, 3] - c[:2]) < r
-                   for o in poses)
+        if any(o is not p and o.T_base_obj[2, 3] > c[2] + 0.01 and np.linalg.norm(o.T_base_obj[:2, 3] - c[:2]) < r
+               for o in poses):
+            return True
+        return bool(lying_on(p, [o for o in poses if o is not p and self.in_sink(o)], self.inventory))
 
     def pending_models(self, poses: list[ObjectPose]) -> list[ObjectModel]:
         """The models of what is still to do (the belief's `pending`: room is kept for them at the targets)."""
