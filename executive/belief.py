@@ -386,13 +386,9 @@ class Belief:
     def record_unseen(self, obj: ObjectPose, record: Placed, site: np.ndarray) -> None:
         """A placement was not seen at its target: kept there as an obstacle (`record`), counted as unverified,
         and looked for around `site` (it may have tipped or fallen off)."""
-        self.record_unverified(obj)
+        self.unverified.append(obj.cls)
         self.unseen_placement = record
         self.drop_site = np.array(site, float)
-
-    def record_unverified(self, obj: ObjectPose) -> None:
-        """A placement kept at its target that no view confirmed: the report counts it as unverified."""
-        self.unverified.append(obj.cls)
 
     def take_drop_site(self) -> tuple[np.ndarray | None, Placed | None]:
         """(where to look for a dropped item, the record of the unseen placement it may be), once."""
