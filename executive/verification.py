@@ -384,6 +384,23 @@ class Verification:
         self._log("result", "verify", still_in_sink=len(still), presence=presence.as_dict() if presence else None)
         seen_there = presence is not None and presence.decided and presence.present
         if still and not seen_there:
+            if presence is None or not presence.decided:
+                # Something was let go at the target and no view there can tell whether it stands there (no view;
+                # the model's pixels have no depth, as a plate on edge in a rack below the counter). The sink still
+                # showing its class is no proof it was not taken: a pinch into a stack lifts the top item of two
+                # the scan saw as one, and the sink still shows "it". Forgotten, the slot looked free and the next
+                # item was carried into the one standing there. Kept there as an obstacle (a slot of room lost if it
+                # was not taken), not counted done; not counted unverified either (an item gone from the sink and
+                # not seen at its target): the sink still shows its class, and the scans count what is left there.
+                # Not looked for around it as an item the view saw absent is: one found standing in its slot would
+                # be picked up again out of it.
+                if p.staged is not None:
+                    b.unplace(p.staged)
+                b.record_placed(self.task, p.obj, p.target, p.T_base_obj)
+                self._log("note", "let go at its target, where no view can tell: kept there as an obstacle",
+                          cls=p.obj.cls, xyz=p.T_base_obj[:3, 3])
+                raise StepFailed("verify_failed", f"the {p.obj.cls} is still seen in the sink and no view of its "
+                                 "target can tell whether it stands there: kept there as an obstacle")
             raise StepFailed("verify_failed", f"the {p.obj.cls} is still in the sink")
         if still:  # seen at its target: what is still counted at its old spot is the item under it or a duplicate
             self._log("note", "placed, though an item of its class is still seen where it was", cls=p.obj.cls)
