@@ -158,6 +158,18 @@ class Motions:
         dist = float(np.max(np.abs(q - q_now)))
         self._wait_motion(what, dist / self.opt.scan_speed + 1.0)
 
+    MARKS_BLOCKING_RADIUS = 0.12  # m around the arm's axis and tool: marks there may close the way out
+
+    def _arm_points(self, q: np.ndarray, step: float = 0.03) -> np.ndarray:
+        """Points every 3 cm along the arm's chain of joint origins to the TCP at `q` (base frame)."""
+        robot = self.planner.robot
+        P = [np.asarray(T)[:3, 3] for T in robot.joint_placements(q)] + [robot.fk_tcp(q)[:3, 3]]
+        out = [P[0]]
+        for a, c in zip(P[:-1], P[1:]):
+            n = max(1, int(np.ceil(np.linalg.norm(c - a) / step)))
+            out.extend(a + (c - a) * (k / n) for k in range(1, n + 1))
+        return np.asarray(out)
+
     def _move_joints_via(self, q: np.ndarray, what: str, via: np.ndarray) -> None:
         """_move_joints; when it finds no path, by way of `via` (home: a pose the planner connects easily to the
         rest). A place can leave the arm on another IK branch (elbow flipped, wrists turned by a full turn), from
@@ -215,8 +227,18 @@ class Motions:
         b = self.belief
         # the pads where they are (open at the last grasp's opening after a release), not fully open as plans assume
         opening = None if held is not None else self._opening()
-        plan = self.planner.plan_escape(self.arm.joint_positions(), b.scene_objects(), map_points=b.map_points,
-                                        held=held, opening=opening)
+        q_now = self.arm.joint_positions()
+        plan = self.planner.plan_escape(q_now, b.scene_objects(), map_points=b.map_points, held=held, opening=opening)
+        if not plan.ok and "voxels" in str(plan) and len(b.contact_points):
+            # the marks of the stop close every way out (those of the held item's volume where a lift stopped lie
+            # just over the pads once the arm has backed down and let go): the ones around the arm go, those
+            # farther away stay; a move blocked by the marks the arm stands in drops only those (_move_joints)
+            n = b.drop_contacts(self._arm_points(q_now), self.MARKS_BLOCKING_RADIUS)
+            if n:
+                self._log("note", "contact marks dropped: they close the way out", reason=str(plan), dropped=n,
+                          left=len(b.contact_points))
+                plan = self.planner.plan_escape(q_now, b.scene_objects(), map_points=b.map_points, held=held,
+                                                opening=opening)
         if not plan.ok:
             # Inside something as perceived (a pose error: the arm was stopped before real contact): back along
             # the motion that brought it here (not when looking for a fallen item: it may lie on that way now).
