@@ -16,7 +16,7 @@ The checks, each a share in [0, 1]:
   standing vessel's end is judged only where nothing past it reaches out across the axis (a plate over a rim, the
   support under a base): a standing bottle's body, shoulder and neck go on along it.
 
-- intruded (cups, mugs, glasses whose opening does not face up): other surfaces seen inside the model's cavity,
+- intruded (cups, mugs, glasses whose opening faces down): other surfaces seen inside the model's cavity,
   i.e. passing through where its wall would be (`intruded`): a glass fitted upside down or lying over a drink
   can shorter than it reaches past the can's end, through the items the can rests on.
 - overhang (cups, mugs, glasses not standing): measured points in the plane of the model's base just past its edge
@@ -92,11 +92,11 @@ OVERHANG_PLANE = 0.005
 # Inside the wall by this much (metres; the wall's thickness and the fit's error) counts as the vessel's cavity.
 CAVITY_MARGIN = 0.006
 # The intruded share (see `intruded`: the area of other surfaces inside the cavity over the opening's area) at
-# which a pose scores 0 (linear from 0 at none); with the threshold 0.85 a pose is rejected above 0.04 (for the
-# glass ~7 voxels of 5 mm). Right cups, mugs and glasses not facing up: 0-0.025 (the most: a lying mug with six
-# stray points of its own rim 4 mm off its surface); glasses and a cup fitted over drink cans and a bottle
-# 0.067-0.53 (development sink scenes with distractors, docs/perception.md "Through the wall").
-INTRUDED_FULL = 0.27
+# which a pose scores 0 (linear from 0 at none); with the threshold 0.85 a pose is rejected above 0.02 (for the
+# glass ~3 voxels of 5 mm). Right cups, mugs and glasses facing down: 0-0.004; glasses and a cup fitted over
+# drink cans and a bottle 0.03-0.53 (development sink and table scenes with distractors, docs/perception.md
+# "Through the wall").
+INTRUDED_FULL = 0.13
 # Inside the wall by this much (metres: the wall's own thickness, ~2 mm, and the fit's error) counts for
 # `intruded`; points are binned in voxels of this size (metres) so that the area, not the point density, counts.
 INTRUDE_MARGIN = 0.004
