@@ -34,8 +34,8 @@ from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.track import best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, overhang, patch_normals,
-                                          surface_noise, verify)
+from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, intruded, overhang,
+                                          patch_normals, surface_noise, verify, within_wall)
 from kitchenbot.transforms import inv
 
 log = logging.getLogger(__name__)
@@ -59,6 +59,13 @@ FINE_ON_TOL = 0.004
 # Tall vessels open at the top, judged by what fills their cavity (verify.filled: a can's lid is no opening; a
 # bowl is left out: what lies in one, a spoon or food scraps, is no evidence against it).
 CAVITY_CLASSES = ("cup", "mug", "glass")
+# Metres: an item nested in a vessel (verify.intruded) lies within its wall, up to this much outside it (the fits'
+# error and a nested cup's wall on the outer one's inner wall).
+NESTED_SLACK = 0.004
+# Degrees below the horizontal a vessel's opening must face for verify.intruded to judge it: a lying vessel's
+# mouth (within this of the horizontal) may have a neighbour's edge poking into it. Right poses facing up or
+# sideways read up to 0.04 on development scans (a tilted mug, a leaning cup), right ones facing down 0.004.
+INTRUDE_BELOW = 10.0
 # perceive(..., region=): an instance with this share of its points in the region is fitted (an item whose origin
 # lies in the region may reach well out of it: a plate across its border)
 REGION_SHARE = 0.2
@@ -448,6 +455,7 @@ class Perceiver:
             hyp.verification.filled = self._filled(near, hyp, own)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
             hyp.verification.overhang = self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
+            hyp.verification.intruded = self._intruded(m, tree, tol, hyp, found)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
@@ -526,6 +534,39 @@ class Perceiver:
         if hyp.T_base_obj[:3, 2] @ up >= np.cos(np.radians(45)) or len(P) == 0:
             return 0.0
         return overhang(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
+
+    def _intruded(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis,
+                  found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
+        """verify.intruded for a pose of a tall vessel whose opening faces down (its axis, base to rim, at least
+        `INTRUDE_BELOW` below the horizontal): the area of map points inside its cavity that neither it (within
+        `tol`) nor an item nested in it (a pose within its wall) puts on its surface. Nothing is put into a
+        vessel from below: what lies in its cavity there passes through its wall. One whose opening faces up or
+        sideways is left out: things are put into cups and glasses, lean or poke into a lying one's mouth, and
+        a can's lid across an upright opening is `filled`."""
+        up = self._up()
+        up = np.array([0.0, 0.0, 1.0]) if up is None else up
+        T = hyp.T_base_obj
+        if T[:3, 2] @ up > -np.sin(np.radians(INTRUDE_BELOW)):
+            return 0.0
+        model = self.inventory[hyp.obj_id]
+        P = m.points[np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)]
+        if len(P) == 0:
+            return 0.0
+        explained = on_surface(P, None, self.database[hyp.obj_id], T, tol)
+        Ti = inv(T)
+        for h, _, _ in found:
+            if h is hyp or np.linalg.norm(h.T_base_obj[:3, 3] - T[:3, 3]) > \
+                    model.diameter + self.inventory[h.obj_id].diameter:
+                continue
+            # Nested in it: of the other model's points between this one's base and rim, nearly all within its
+            # wall (a cup in a cup; an item whose surface crosses the wall is no such thing).
+            Q = self.inventory[h.obj_id].points[::4]
+            Th = Ti @ h.T_base_obj
+            q = Q @ Th[:3, :3].T + Th[:3, 3]
+            span = (q[:, 2] > model.points[:, 2].min()) & (q[:, 2] < model.points[:, 2].max())
+            if span.any() and within_wall(q[span], model.points, -NESTED_SLACK).mean() >= 0.9:
+                explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
+        return intruded(P, model.points, T, explained)
 
     def _up(self) -> np.ndarray | None:
         """The gravity prior for this scan: None with a cell (the base frame's z), the base frame's up with

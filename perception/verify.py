@@ -16,12 +16,15 @@ The checks, each a share in [0, 1]:
   standing vessel's end is judged only where nothing past it reaches out across the axis (a plate over a rim, the
   support under a base): a standing bottle's body, shoulder and neck go on along it.
 
+- intruded (cups, mugs, glasses whose opening faces down): other surfaces seen inside the model's cavity,
+  i.e. passing through where its wall would be (`intruded`): a glass fitted upside down or lying over a drink
+  can shorter than it reaches past the can's end, through the items the can rests on.
 - overhang (cups, mugs, glasses not standing): measured points in the plane of the model's base just past its edge
   that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base.
 
 verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
-1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL). Coverage both ways at one voxel (seen,
-explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
+1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - intruded / INTRUDED_FULL). Coverage both ways at one
+voxel (seen, explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
 query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
 evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
 
@@ -88,6 +91,16 @@ OVERHANG_BAND = (0.004, 0.02)
 OVERHANG_PLANE = 0.005
 # Inside the wall by this much (metres; the wall's thickness and the fit's error) counts as the vessel's cavity.
 CAVITY_MARGIN = 0.006
+# The intruded share (see `intruded`: the area of other surfaces inside the cavity over the opening's area) at
+# which a pose scores 0 (linear from 0 at none); with the threshold 0.85 a pose is rejected above 0.02 (for the
+# glass ~3 voxels of 5 mm). Right cups, mugs and glasses facing down: 0-0.004; glasses and a cup fitted over
+# drink cans and a bottle 0.03-0.53 (development sink and table scenes with distractors, docs/perception.md
+# "Through the wall").
+INTRUDED_FULL = 0.13
+# Inside the wall by this much (metres: the wall's own thickness, ~2 mm, and the fit's error) counts for
+# `intruded`; points are binned in voxels of this size (metres) so that the area, not the point density, counts.
+INTRUDE_MARGIN = 0.004
+INTRUDE_VOXEL = 0.005
 
 
 @dataclass
@@ -100,10 +113,12 @@ class Verification:
     continued: float = 0.0  # set by the pipeline on the final poses of tall vessels (continuation)
     filled: float = 0.0  # set by the pipeline on the final poses of open vessels (filled)
     overhang: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang)
+    intruded: float = 0.0  # set by the pipeline on the final poses of tall vessels not facing up (intruded)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
-                "fine": self.fine, "continued": self.continued, "filled": self.filled, "overhang": self.overhang}
+                "fine": self.fine, "continued": self.continued, "filled": self.filled, "overhang": self.overhang,
+                "intruded": self.intruded}
 
     @property
     def score(self) -> float:
@@ -111,7 +126,7 @@ class Verification:
         through = self.free_space / judged if judged > 0 else 1.0
         return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL,
                             1.0 - self.continued / CONTINUED_FULL, 1.0 - self.filled / FILLED_FULL,
-                            1.0 - self.overhang / OVERHANG_FULL))
+                            1.0 - self.overhang / OVERHANG_FULL, 1.0 - self.intruded / INTRUDED_FULL))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
@@ -321,3 +336,39 @@ def overhang(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarra
     r_q = np.linalg.norm(q[:, :2] - axis, axis=1)
     ring = (np.abs(q[:, 2] - z0) < plane) & (r_q > r0 + band[0]) & (r_q < r0 + band[1])
     return float(ring.sum() / n_own)
+
+
+def within_wall(q: np.ndarray, model_points: np.ndarray, margin: float) -> np.ndarray:
+    """Which points (`q`, object frame of a surface of revolution about z: `model_points`) lie between the model's
+    base and rim and more than `margin` inside its wall (the model's median radius at their height, 5 mm slices;
+    a negative margin reaches outside it)."""
+    axis = np.median(model_points[:, :2], axis=0)
+    r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
+    z0, z1 = model_points[:, 2].min(), model_points[:, 2].max()
+    edges = np.arange(z0, z1 + 0.005, 0.005)
+    b_model = np.clip(np.digitize(model_points[:, 2], edges) - 1, 0, len(edges) - 1)
+    wall = np.array([np.median(r_model[b_model == b]) if (b_model == b).any() else 0.0 for b in range(len(edges))])
+    b_q = np.clip(np.digitize(q[:, 2], edges) - 1, 0, len(edges) - 1)
+    return (q[:, 2] > z0) & (q[:, 2] < z1) & (np.linalg.norm(q[:, :2] - axis, axis=1) < wall[b_q] - margin)
+
+
+def intruded(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
+             margin: float = INTRUDE_MARGIN, voxel: float = INTRUDE_VOXEL) -> float:
+    """Of map points near a pose of a vessel (`model_points` object frame, its axis z, opening at the top;
+    `explained`: those on this pose's surface or on the surface of an item nested in it), the area those inside
+    its cavity cover (more than `margin` inside the wall, between the base's top and the rim; counted in
+    `voxel` cubes, so that the area counts and not how densely the views sampled it), over the opening's area.
+
+    A vessel's cavity holds its own inner wall and floor, or an item nested in it; nothing else passes through
+    its wall. A glass fitted upside down or lying over a drink can (a closed cylinder of about its width, but
+    shorter) reaches past the can's end, where the items the can rests on are seen: their surfaces pass through
+    the glass's wall and lie inside its cavity. (Upright, the can's lid across the opening is `filled`.)"""
+    if len(points) == 0:
+        return 0.0
+    q, axis, r_model, z0, z1 = _unexplained_along_axis(points, model_points, T_base_obj, explained)
+    inside = within_wall(q, model_points, margin) & (q[:, 2] > z0 + 0.005)  # above the base's own thickness
+    if not inside.any():
+        return 0.0
+    cells = len(np.unique(np.floor(q[inside] / voxel).astype(np.int64), axis=0))
+    r_rim = r_model[model_points[:, 2] > z1 - 0.005].max()
+    return float(cells * voxel ** 2 / (np.pi * r_rim ** 2))

@@ -271,3 +271,75 @@ def test_what_lies_on_one_side_of_a_standing_vessels_rim_is_not_continuation(per
     explained = on_surface(P, None, entry, T, 0.004)
     assert around_span(bottle[:, :2]) >= 150
     assert continuation(P, model.points, T, explained, len(own), only_along=True) > 0.15
+
+
+def _tilted_plane(centre: np.ndarray, normal: np.ndarray, radius: float, n: int = 8000, seed: int = 3) -> np.ndarray:
+    """Points on a flat disk (object frame) through `centre` with the given normal: a neighbour's surface."""
+    rng = np.random.default_rng(seed)
+    normal = normal / np.linalg.norm(normal)
+    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    r, a = radius * np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    return centre + np.outer(r * np.cos(a), u) + np.outer(r * np.sin(a), v)
+
+
+def test_a_surface_through_the_wall_of_a_vessel_facing_down_intrudes(perceiver, inventory):
+    """A glass fitted upside down (tilted) over a drink can: its own points (the can's side and lid, on the
+    glass's surface) end where the can ends, two thirds along it; past that the glass's wall would pass through
+    the surface the can rests on (a plate or a bowl seen there, crossing its axis at 50 deg). Those points lie
+    inside the glass's cavity: `intruded` well over the 0.02 at which the verification rejects it. The same
+    surface past the glass's rim (outside it), or a right glass whose own points go on to its rim with a
+    neighbour's surface beside it, leave nothing inside. (Development sink scenes: glasses kept on cans with
+    verification 0.91-0.99.)"""
+    from kitchenbot.perception.register import on_surface
+    from kitchenbot.perception.verify import INTRUDED_FULL, Verification, intruded
+
+    entry, model = perceiver.database[6], inventory[6]  # the glass
+    z0, z1 = model.points[:, 2].min(), model.points[:, 2].max()
+    T = make_T(rot_x(np.radians(130))[:3, :3], np.array([0.4, 0.0, 0.08]))  # opening down and to the side
+    own, _ = _cup_surface(entry, T, 0.0005)
+    Ti = np.linalg.inv(T)
+    q_own = own @ Ti[:3, :3].T + Ti[:3, 3]
+    can = own[q_own[:, 2] < z0 + 0.08]  # an 8 cm can covered by the 12 cm glass
+    tilt = np.array([0.0, np.sin(np.radians(50)), np.cos(np.radians(50))])
+    crossing = _tilted_plane(np.array([0.0, 0.0, z0 + 0.1]), tilt, 0.07)
+    beyond = crossing + np.array([0.0, 0.0, z1 - z0])  # the same surface past the rim, outside the glass
+    beside = _tilted_plane(np.array([0.07, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]), 0.03)  # a neighbour's side
+    for mine, extra, expect in ((can, crossing, True), (can, beyond, False), (own, beside, False), (can, None, False)):
+        P = mine if extra is None else np.vstack([mine, extra @ T[:3, :3].T + T[:3, 3]])
+        x = intruded(P, model.points, T, on_surface(P, None, entry, T, 0.003))
+        assert (x > 0.15 * INTRUDED_FULL) == expect, (expect, x)
+        v = Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0, intruded=x)
+        assert (v.score < perceiver.settings.verify_threshold) == expect
+
+
+def test_only_an_item_nested_in_a_vessel_explains_its_cavity(perceiver, inventory):
+    """A cup upside down with a copy nested in it (the copy's surface inside its cavity, within its wall): the
+    nested pose explains its points and the cup is not intruded on. A cup lying across the first one's axis
+    through its wall explains nothing there: its surface inside the cavity counts. An upright or a lying cup is
+    not judged (things are put into an open vessel facing up, or poke into a lying one's mouth)."""
+    from kitchenbot.perception.map import InstanceMap
+    from kitchenbot.perception.register import Hypothesis
+    from kitchenbot.perception.verify import INTRUDED_FULL, Verification
+
+    entry, model = perceiver.database[4], inventory[4]  # the cup
+
+    def hyp(T):
+        return Hypothesis(4, T, verification=Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0))
+
+    def dense(T):  # the posed model's surface all round
+        return entry.dense_points @ T[:3, :3].T + T[:3, 3]
+
+    for flip, judged in ((np.pi, True), (0.0, False), (np.pi / 2, False)):
+        T = make_T(rot_x(flip)[:3, :3], np.array([0.4, 0.0, 0.08]))
+        own, _ = _cup_surface(entry, T, 0.0005)
+        T_in = T @ make_T(np.eye(3), np.array([0.0, 0.0, model.nest_pitch]))
+        T_across = T @ make_T(rot_x(np.pi / 2)[:3, :3], np.array([0.0, 0.0, 0.04]))
+        for T2, counts in ((T_in, False), (T_across, True)):
+            pts = np.vstack([own, dense(T2)])
+            m = InstanceMap(pts, np.zeros(len(pts), int), np.zeros(len(pts), int), np.zeros((len(pts), 2), int),
+                            np.array([[0.8, 0.0, 0.6]]))
+            a, b = hyp(T), hyp(T2)
+            x = perceiver._intruded(m, cKDTree(pts), 0.003, a, [(a, 0, None), (b, 1, None)])
+            assert (x > 0.15 * INTRUDED_FULL) == (counts and judged), (flip, counts, x)
