@@ -912,6 +912,21 @@ class Scene:
                 ok[touching] = self._in_contact_zone(p[touching])
         return ok
 
+    def all_valid(self, Q: np.ndarray) -> bool:
+        """Whether every row of Q (N, 6) is valid: ``valid_batch(Q).all()``, but the batch checker stops at the
+        first colliding row (order Q with the likeliest collisions first). A motion check of RRT-Connect."""
+        Q = np.asarray(Q, float).reshape(-1, 6)
+        if self._zone is not None:
+            return bool(self.valid_batch(Q).all())
+        robot = self.world.robot
+        if not np.all((Q >= robot.lower - 1e-9) & (Q <= robot.upper + 1e-9)):
+            return False
+        p = tcp_positions(robot, Q)
+        if not np.all((p >= self._ws_lo) & (p <= self._ws_hi)):
+            return False
+        hit = pin.computeCollisionsInParallel(1, self._pool(), np.ascontiguousarray(Q.T), True, True)
+        return not bool(np.any(hit))
+
     def first_invalid(self, Q: np.ndarray, chunk: int = 128) -> int:
         """Index of the first invalid row of Q, or -1 when all are valid (checked in chunks, stops early)."""
         Q = np.asarray(Q, float).reshape(-1, 6)
