@@ -390,3 +390,5 @@ def test_all_valid_is_valid_batch_all(planner, wall_case):
         for _ in range(20):
             Q = qa + (qb - qa) * rng.random((rng.integers(1, 40), 1)) + rng.normal(0, 0.05, 6)
             assert sc.all_valid(Q) == bool(sc.valid_batch(Q).all())
+            v = sc.valid_batch(Q)  # first_invalid's batches stop at the first collision: the same first row
+            assert sc.first_invalid(Q, chunk=7) == (-1 if v.all() else int(np.argmin(v)))
