@@ -918,8 +918,10 @@ class Scene:
             self._pools[key] = pool
         return pool
 
-    def valid_batch(self, Q: np.ndarray) -> np.ndarray:
-        """Validity of each row of Q (N, 6): limits, workspace (vectorised DH FK) and collisions (batch)."""
+    def valid_batch(self, Q: np.ndarray, *, up_to_first: bool = False) -> np.ndarray:
+        """Validity of each row of Q (N, 6): limits, workspace (vectorised DH FK) and collisions (batch).
+        `up_to_first`: the batch checker stops at the first colliding row, so only the rows up to the first
+        invalid one are answered (those after it are undetermined): what :meth:`first_invalid` needs."""
         Q = np.asarray(Q, float).reshape(-1, 6)
         robot = self.world.robot
         ok = np.all((Q >= robot.lower - 1e-9) & (Q <= robot.upper + 1e-9), axis=1)
@@ -927,7 +929,8 @@ class Scene:
         ok &= np.all((p >= self._ws_lo) & (p <= self._ws_hi), axis=1)
         if ok.any():
             idx = np.flatnonzero(ok)
-            hit = np.asarray(pin.computeCollisionsInParallel(1, self._pool(), np.ascontiguousarray(Q[idx].T), True, False), bool)
+            hit = np.asarray(pin.computeCollisionsInParallel(1, self._pool(), np.ascontiguousarray(Q[idx].T), True,
+                                                             up_to_first), bool)
             ok[idx[hit]] = False
         if self._zone is not None and ok.any():
             idx = np.flatnonzero(ok)
@@ -936,11 +939,26 @@ class Scene:
                 ok[touching] = self._in_contact_zone(p[touching])
         return ok
 
+    def all_valid(self, Q: np.ndarray) -> bool:
+        """Whether every row of Q (N, 6) is valid: ``valid_batch(Q).all()``, but the batch checker stops at the
+        first colliding row (order Q with the likeliest collisions first). A motion check of RRT-Connect."""
+        Q = np.asarray(Q, float).reshape(-1, 6)
+        if self._zone is not None:
+            return bool(self.valid_batch(Q).all())
+        robot = self.world.robot
+        if not np.all((Q >= robot.lower - 1e-9) & (Q <= robot.upper + 1e-9)):
+            return False
+        p = tcp_positions(robot, Q)
+        if not np.all((p >= self._ws_lo) & (p <= self._ws_hi)):
+            return False
+        hit = pin.computeCollisionsInParallel(1, self._pool(), np.ascontiguousarray(Q.T), True, True)
+        return not bool(np.any(hit))
+
     def first_invalid(self, Q: np.ndarray, chunk: int = 128) -> int:
         """Index of the first invalid row of Q, or -1 when all are valid (checked in chunks, stops early)."""
         Q = np.asarray(Q, float).reshape(-1, 6)
         for s in range(0, len(Q), chunk):
-            v = self.valid_batch(Q[s : s + chunk])
+            v = self.valid_batch(Q[s : s + chunk], up_to_first=True)
             if not v.all():
                 return s + int(np.argmin(v))
         return -1

@@ -14,6 +14,8 @@ wrapped joint by joint to the 2*pi-equivalent closest to the current configurati
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +27,8 @@ from kitchenbot.drivers.ur_kinematics import URModel, ur_model
 from kitchenbot.planning.ur_ik import ik_flange, surely_unreachable
 
 _TURNS = np.array([0.0, -1.0, 1.0, -2.0, 2.0])  # the 2*pi turns wrap_near tries, nearest first
+_TURNS_LIST = _TURNS.tolist()
+_TWO_PI = 2 * np.pi  # as wrap_near_rows computes it: (2 * pi) * (k0 + turn)
 JOINT_NAMES = (
     "shoulder_pan_joint",
     "shoulder_lift_joint",
@@ -94,6 +98,9 @@ class RobotModel:
         self.data = self.model.createData()
         self.lower = np.asarray(limits.joint_lower, float).copy()
         self.upper = np.asarray(limits.joint_upper, float).copy()
+        # wrap_near's bounds as Python floats (the same values as the arrays' `lower - 1e-9` / `upper + 1e-9`)
+        self._lo_list, self._hi_list = self.lower.tolist(), self.upper.tolist()
+        self._lo_ok, self._hi_ok = (self.lower - 1e-9).tolist(), (self.upper + 1e-9).tolist()
         self.max_speed = np.asarray(limits.max_joint_speed, float).copy()
         self.max_accel = np.asarray(limits.max_joint_accel, float).copy()
         self.flange_id = self.model.getFrameId("flange")
@@ -144,8 +151,28 @@ class RobotModel:
 
     # ---- inverse kinematics ----------------------------------------------------------------------------------
     def wrap_near(self, q: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
-        """Each joint moved by multiples of 2*pi to the value closest to `ref` inside the limits (None if none)."""
-        return self.wrap_near_rows(np.asarray(q, float)[None, :], ref)[0]
+        """Each joint moved by multiples of 2*pi to the value closest to `ref` inside the limits (None if none).
+
+        wrap_near_rows's arithmetic on one row in Python floats (the same operations in the same order, the same
+        values bitwise: tests/planning/test_robot.py): numpy's per-call overhead on (5, 6) arrays was ~90 % of
+        its cost, and the straight lines' IK asks it at every step."""
+        qs, rs = np.asarray(q, float).tolist(), np.asarray(ref, float).tolist()
+        if len(qs) != 6 or len(rs) != 6 or not all(math.isfinite(x) for x in qs + rs):
+            return self.wrap_near_rows(np.asarray(q, float)[None, :], ref)[0]
+        out = []
+        for x, r, lo, hi, lo_ok, hi_ok in zip(qs, rs, self._lo_list, self._hi_list, self._lo_ok, self._hi_ok):
+            k0 = float(round((r - x) / _TWO_PI))  # half to even, as np.round
+            best, best_d = None, math.inf
+            for t in _TURNS_LIST:
+                c = x + _TWO_PI * (k0 + t)
+                if lo_ok <= c <= hi_ok:
+                    d = abs(c - r)
+                    if d < best_d:  # the first of equal distances, as argmin
+                        best, best_d = c, d
+            if best is None:
+                return None
+            out.append(lo if best < lo else hi if best > hi else best)  # np.clip
+        return np.array(out)
 
     def wrap_near_rows(self, Q: np.ndarray, ref: np.ndarray) -> list[np.ndarray | None]:
         """wrap_near for each row of Q (N, 6) at once: each joint moved by multiples of 2*pi to the value closest to

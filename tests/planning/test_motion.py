@@ -337,3 +337,58 @@ def test_the_tcp_limit_slows_a_motion_only_where_the_tcp_runs_fast(planner, home
     traj = time_parameterise(Q, lim, ur, mode="stop_at_vertices")
     np.testing.assert_array_equal(traj.q, q_raw)
     assert traj.duration == pytest.approx(t_w[-1])
+
+
+def test_the_batched_motion_check_answers_as_ompls_discrete_check(planner, wall_case):
+    """RRT-Connect's motion check in one batch (`_BatchMotionValidator`): the same answer as OMPL's own
+    DiscreteMotionValidator calling the per-state checker, on motions that cross the wall, graze it or stay
+    clear, and the same interpolated states (bitwise) as the state space's interpolate."""
+    from ompl import base as ob
+
+    from kitchenbot.planning.motion import _BatchMotionValidator, _bisection_order
+
+    qa, qb, wall, scene = wall_case
+    r = reach_bounds(scene)
+    space = ob.RealVectorStateSpace(6)
+    bounds = ob.RealVectorBounds(6)
+    for i in range(6):
+        bounds.setLow(i, float(planner.robot.lower[i]))
+        bounds.setHigh(i, float(planner.robot.upper[i]))
+    space.setBounds(bounds)
+    si = ob.SpaceInformation(space)
+    si.setStateValidityChecker(lambda s: scene.valid(np.array([s[i] for i in range(6)])))
+    si.setStateValidityCheckingResolution(planner.planning_resolution / float(np.linalg.norm(r)) / space.getMaximumExtent())
+    si.setup()
+    ours = _BatchMotionValidator(si, space, scene)
+    rng = np.random.default_rng(0)
+    s1, s2, out = space.allocState(), space.allocState(), space.allocState()
+    answers = []
+    for _ in range(60):
+        a = qa + rng.normal(0, 0.05, 6)
+        b = (qb if rng.random() < 0.5 else qa) + rng.normal(0, 0.3, 6)
+        if not scene.valid(a):
+            continue
+        for i in range(6):
+            s1[i], s2[i] = float(a[i]), float(b[i])
+        theirs = si.checkMotion(s1, s2)  # OMPL's DiscreteMotionValidator (the default)
+        assert ours.checkMotion(s1, s2) == theirs
+        answers.append(theirs)
+        nd = int(space.validSegmentCount(s1, s2))
+        t = _bisection_order(nd)
+        assert sorted(np.round(t * nd).astype(int).tolist()) == list(range(1, nd + 1))
+        for tk in t[1:4]:
+            space.interpolate(s1, s2, float(tk), out)
+            np.testing.assert_array_equal(np.array([out[i] for i in range(6)]), a + (b - a) * tk)
+    assert 10 <= sum(answers) <= len(answers) - 10  # both answers were asked
+
+
+def test_all_valid_is_valid_batch_all(planner, wall_case):
+    qa, qb, wall, scene = wall_case
+    rng = np.random.default_rng(1)
+    grasp = scene.for_grasp(None)
+    for sc in (scene, grasp):
+        for _ in range(20):
+            Q = qa + (qb - qa) * rng.random((rng.integers(1, 40), 1)) + rng.normal(0, 0.05, 6)
+            assert sc.all_valid(Q) == bool(sc.valid_batch(Q).all())
+            v = sc.valid_batch(Q)  # first_invalid's batches stop at the first collision: the same first row
+            assert sc.first_invalid(Q, chunk=7) == (-1 if v.all() else int(np.argmin(v)))

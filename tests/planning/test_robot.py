@@ -93,3 +93,36 @@ def test_wrap_near_rows_is_wrap_near_row_by_row(planner):
                     inside = (other >= robot.lower - 1e-9) & (other <= robot.upper + 1e-9)
                     assert np.all(np.abs(other - ref)[inside] >= np.abs(got - ref)[inside] - 1e-9)
         assert turned > 100
+
+
+def test_wrap_near_is_wrap_near_rows_bitwise_at_the_edges(planner):
+    """wrap_near (Python floats, one row) against wrap_near_rows (numpy): the same values bitwise or None on rows
+    built at the edges: half-turn ties (round half to even, the first of equal distances), values at the limits
+    and 1e-9 beyond them, references far outside them, tiny offsets."""
+    robot = planner.robot
+    rng = np.random.default_rng(7)
+    lo, hi = robot.lower, robot.upper
+    rows, refs = [], []
+    for _ in range(600):
+        ref = rng.choice([0.0, np.pi, -np.pi, 2 * np.pi, 5.0, -7.5, 20.0], 6) + rng.choice([0.0, 1e-12, -1e-12], 6)
+        kind = rng.integers(4)
+        if kind == 0:  # half-turn ties: q - ref an odd multiple of pi
+            q = ref + np.pi * rng.choice([-3.0, -1.0, 1.0, 3.0], 6)
+        elif kind == 1:  # at the limits and just beyond
+            q = np.where(rng.random(6) < 0.5, lo, hi) + rng.choice([0.0, 1e-9, -1e-9, 2e-9, -2e-9, 2 * np.pi], 6)
+        elif kind == 2:
+            q = rng.uniform(-12.0, 12.0, 6)
+        else:
+            q = ref + rng.normal(0, 1e-9, 6)
+        rows.append(q)
+        refs.append(ref)
+    nones = 0
+    for q, ref in zip(rows, refs):
+        want = robot.wrap_near_rows(q[None, :], ref)[0]
+        got = robot.wrap_near(q, ref)
+        assert (got is None) == (want is None), (q, ref)
+        if want is None:
+            nones += 1
+        else:
+            assert got.dtype == want.dtype and np.array_equal(got.view(np.int64), want.view(np.int64)), (q, ref)
+    assert 0 < nones < len(rows)
