@@ -747,36 +747,12 @@ class Scene:
         names = {tuple(p): k for k, p in enumerate(self.pair_names)}
         return names.get(tuple(pair), names.get((pair[1], pair[0])))
 
-    def penetration(self, q: np.ndarray, pair: tuple[str, str], limit: float = 0.03, tol: float = 1e-4) -> float:
-        """How deep (m, within `tol`) the pair's geometries overlap at q: 0 where they do not touch, `limit` where
-        they overlap by that much or more (bisection on a negative security margin)."""
+    def _within(self, q: np.ndarray, pair: tuple[str, str]):
+        """For the pair's geometries at q: a function margin (m) -> whether they come within it (a negative margin:
+        whether they overlap by more than its size); None where the scene has no such pair."""
         k = self._pair_index(pair)
         if k is None:
-            return 0.0
-        other = self._variant()
-        pin.updateGeometryPlacements(self.model, other.data, self.gm, other.gd, np.asarray(q, float))
-        req = other.gd.collisionRequests[k]
-
-        def overlaps(d: float) -> bool:
-            req.security_margin = -d
-            return bool(pin.computeCollision(self.gm, other.gd, k))
-
-        if not overlaps(0.0):
-            return 0.0
-        if overlaps(limit):
-            return float(limit)
-        lo, hi = 0.0, float(limit)
-        while hi - lo > tol:
-            mid = (lo + hi) / 2
-            lo, hi = (mid, hi) if overlaps(mid) else (lo, mid)
-        return hi
-
-    def clearance(self, q: np.ndarray, pair: tuple[str, str], limit: float, tol: float = 2.5e-4) -> float:
-        """How far apart (m, within `tol`) the pair's geometries are at q, up to `limit` (bisection on the pair's
-        security margin); 0 where they touch or the scene has no such pair."""
-        k = self._pair_index(pair)
-        if k is None:
-            return 0.0
+            return None
         other = self._variant()
         pin.updateGeometryPlacements(self.model, other.data, self.gm, other.gd, np.asarray(q, float))
         req = other.gd.collisionRequests[k]
@@ -785,15 +761,37 @@ class Scene:
             req.security_margin = m
             return bool(pin.computeCollision(self.gm, other.gd, k))
 
-        if not within(limit):
-            return float(limit)
-        lo, hi = 0.0, float(limit)
-        if within(lo):
-            return 0.0
+        return within
+
+    @staticmethod
+    def _switch(holds, lo: float, hi: float, tol: float) -> tuple[float, float]:
+        """Bisection on [lo, hi] where holds(lo) and not holds(hi): the bracket (within `tol`) where it switches."""
         while hi - lo > tol:
             mid = (lo + hi) / 2
-            lo, hi = (lo, mid) if within(mid) else (mid, hi)
-        return lo
+            lo, hi = (mid, hi) if holds(mid) else (lo, mid)
+        return lo, hi
+
+    def penetration(self, q: np.ndarray, pair: tuple[str, str], limit: float = 0.03, tol: float = 1e-4) -> float:
+        """How deep (m, within `tol`) the pair's geometries overlap at q: 0 where they do not touch, `limit` where
+        they overlap by that much or more (bisection on a negative security margin)."""
+        within = self._within(q, pair)
+        if within is None or not within(0.0):
+            return 0.0
+        if within(-limit):
+            return float(limit)
+        return self._switch(lambda d: within(-d), 0.0, float(limit), tol)[1]
+
+    def clearance(self, q: np.ndarray, pair: tuple[str, str], limit: float, tol: float = 2.5e-4) -> float:
+        """How far apart (m, within `tol`) the pair's geometries are at q, up to `limit` (bisection on the pair's
+        security margin); 0 where they touch or the scene has no such pair."""
+        within = self._within(q, pair)
+        if within is None:
+            return 0.0
+        if not within(limit):
+            return float(limit)
+        if within(0.0):
+            return 0.0
+        return self._switch(lambda m: not within(m), 0.0, float(limit), tol)[0]
 
     def touching(self, Q: np.ndarray, pair: tuple[str, str], margin: float = 0.0) -> np.ndarray:
         """Per configuration of `Q` (N, 6): whether the pair's geometries come within `margin` (m; 0: they touch
