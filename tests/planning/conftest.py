@@ -60,6 +60,42 @@ def resting(planner):
     return lambda *a, **k: _resting(planner, *a, **k)
 
 
+def _straight_up(planner: Planner, q_grasp: np.ndarray, step: float, top: float) -> np.ndarray:
+    """Configurations lifting the TCP straight up from `q_grasp` by `step` up to `top` (m), each the IK nearest
+    the one before (no seeds), the grasp first."""
+    T_grasp = planner.robot.fk_tcp(q_grasp)
+    Q = [np.asarray(q_grasp, float)]
+    for dz in np.arange(step, top, step):
+        T = T_grasp.copy()
+        T[2, 3] += dz
+        Q.append(planner.robot.ik(T, Q[-1], max_seeds=0).q)
+    return np.array(Q)
+
+
+@pytest.fixture(scope="session")
+def straight_up(planner):
+    """straight_up(q_grasp, step, top) -> (N, 6) configurations lifting the TCP straight up from the grasp."""
+    return lambda *a, **k: _straight_up(planner, *a, **k)
+
+
+def _sim_contact_along(world, Q: np.ndarray, uids: dict) -> str | None:
+    """The simulator's checker along the joint path `Q` (7 samples per segment) with what `world` holds: the
+    first contact as "part hits name" (`uids`: name -> the world's uid), None where there is none."""
+    from kitchenbot.fakes.collision import SimCollision
+
+    Q = np.asarray(Q, float)
+    dense = [Q[i] + (Q[i + 1] - Q[i]) * s for i in range(len(Q) - 1) for s in np.linspace(0.0, 1.0, 8)[:-1]]
+    contact = SimCollision(world).check_path(np.asarray(dense + [Q[-1]]), world.gripper_opening)
+    names = {f"obj:{u}": k for k, u in uids.items()}
+    return None if contact is None else f"{contact.part} hits {names.get(contact.other, contact.other)}"
+
+
+@pytest.fixture(scope="session")
+def sim_contact_along():
+    """sim_contact_along(world, Q, uids) -> the simulator's first contact along Q as "part hits name", or None."""
+    return _sim_contact_along
+
+
 def _sim_holds(inventory, model, specs, width_tol: float | None = None) -> None:
     """The simulator's Fin-Ray model (its own contact test) holds `model` with each grasp of `specs`, placed at
     the tool as the grasp says (closing within `width_tol` of the grasp's expected width, where given)."""

@@ -10,7 +10,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from kitchenbot.executive.config import CellConfig
-from kitchenbot.fakes.collision import SimCollision
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.grasps import _tf
@@ -38,7 +37,7 @@ def _objects(planner):
     return [ObjectPose(m.obj_id, m.cls, T, 1.0, instance_id=i) for i, T in enumerate((LEANING, LOWER_SEEN, UPPER))]
 
 
-def _lift_contact_in_the_world(planner, pick) -> str | None:
+def _lift_contact_in_the_world(planner, pick, sim_contact_along) -> str | None:
     """The simulator's verdict on the planned lift with the plates where they really are (None: no contact)."""
     lim = CellConfig().safety_limits()
     Q = np.asarray(pick.lift.q, float)
@@ -47,13 +46,10 @@ def _lift_contact_in_the_world(planner, pick) -> str | None:
     uids = {k: world.add_object(m, T) for k, T in (("leaning", LEANING), ("lower", LOWER_TRUE), ("upper", UPPER))}
     world.held_uid = uids["leaning"]
     world.T_tcp_held = inv(world.T_base_tcp()) @ LEANING
-    dense = [Q[i] + (Q[i + 1] - Q[i]) * s for i in range(len(Q) - 1) for s in np.linspace(0.0, 1.0, 8)[:-1]]
-    contact = SimCollision(world).check_path(np.asarray(dense + [Q[-1]]), world.gripper_opening)
-    names = {f"obj:{u}": k for k, u in uids.items()}
-    return None if contact is None else f"{contact.part} hits {names.get(contact.other, contact.other)}"
+    return sim_contact_along(world, Q, uids)
 
 
-def test_a_lift_keeps_the_full_margin_from_a_neighbour_clear_of_the_item_at_the_grasp(planner, home):
+def test_a_lift_keeps_the_full_margin_from_a_neighbour_clear_of_the_item_at_the_grasp(planner, home, sim_contact_along):
     import coal
 
     objs = _objects(planner)
@@ -77,4 +73,4 @@ def test_a_lift_keeps_the_full_margin_from_a_neighbour_clear_of_the_item_at_the_
     for o in (lower, upper):
         if gap(Q[0], o) >= margin:  # clear of it at the grasp: clear of it by the margin all the way up
             assert min(gap(q, o) for q in Q) >= margin - 1e-3, (g.spec.name, o.instance_id)
-    assert _lift_contact_in_the_world(planner, pick) is None
+    assert _lift_contact_in_the_world(planner, pick, sim_contact_along) is None

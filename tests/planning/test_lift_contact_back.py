@@ -57,7 +57,7 @@ def test_the_tilted_bowl_is_lifted_without_a_new_contact_with_the_bowl_below(pla
     assert contact is None, f"{pick.grasp.spec.name}: {contact}"
 
 
-def test_straight_up_the_bowl_leaves_the_rim_below_and_meets_it_again(planner, nest):
+def test_straight_up_the_bowl_leaves_the_rim_below_and_meets_it_again(planner, nest, straight_up):
     """The cause, on the planner's own geometry: the straight-up lift's exact contacts with A break and return."""
     world, p = nest
     q0 = np.array([2.198, -1.734, 2.006, -1.53, -1.13, 0.142])
@@ -67,13 +67,8 @@ def test_straight_up_the_bowl_leaves_the_rim_below_and_meets_it_again(planner, n
 
     objects = [p["A"], p["B"], p["glass"]]
     held = planner.scene(objects, None, exclude=p["B"], held=pick.grasp, own=[p["B"]]).for_release(None)
-    T_grasp = planner.robot.fk_tcp(pick.grasp.q)
-    Q = [pick.grasp.q]
-    for dz in np.arange(0.002, 0.05, 0.002):
-        T = T_grasp.copy()
-        T[2, 3] += dz
-        Q.append(planner.robot.ik(T, Q[-1], max_seeds=0).q)
-    touching = held.touching(np.array(Q), ("held", f"obj:{object_name(p['A'], 0)}"))
+    Q = straight_up(pick.grasp.q, 0.002, 0.05)
+    touching = held.touching(Q, ("held", f"obj:{object_name(p['A'], 0)}"))
     assert touching[0] and not touching.all()
     first_apart = int(np.argmin(touching))
     assert touching[first_apart:].any()  # made again: what the planner now refuses

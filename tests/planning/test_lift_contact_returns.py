@@ -11,7 +11,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from kitchenbot.executive.config import CellConfig
-from kitchenbot.fakes.collision import SimCollision
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.transforms import inv
@@ -43,7 +42,7 @@ def _objects(planner) -> list[ObjectPose]:
             for i, (n, T) in enumerate(SCENE.values())]
 
 
-def _lift_contact_in_the_world(planner, pick, held: str) -> str | None:
+def _lift_contact_in_the_world(planner, pick, held: str, sim_contact_along) -> str | None:
     """The simulator's verdict on the planned lift (None: no contact)."""
     cfg = CellConfig()
     lim = cfg.safety_limits()
@@ -52,13 +51,10 @@ def _lift_contact_in_the_world(planner, pick, held: str) -> str | None:
     uids = {k: world.add_object(planner.inventory.by_name(n), T) for k, (n, T) in SCENE.items()}
     world.held_uid = uids[held]
     world.T_tcp_held = inv(world.T_base_tcp()) @ SCENE[held][1]
-    dense = [Q[i] + (Q[i + 1] - Q[i]) * s for i in range(len(Q) - 1) for s in np.linspace(0.0, 1.0, 8)[:-1]]
-    contact = SimCollision(world).check_path(np.asarray(dense + [Q[-1]]), world.gripper_opening)
-    names = {f"obj:{u}": k for k, u in uids.items()}
-    return None if contact is None else f"{contact.part} hits {names.get(contact.other, contact.other)}"
+    return sim_contact_along(world, Q, uids)
 
 
-def test_a_lift_does_not_meet_again_what_the_held_item_left(planner, home):
+def test_a_lift_does_not_meet_again_what_the_held_item_left(planner, home, sim_contact_along):
     objs = _objects(planner)
     side, tilted = objs[4], objs[3]
     assert planner._lies_on(side, tilted)  # what it rests on: its contact is allowed while the lift leaves it
@@ -68,4 +64,4 @@ def test_a_lift_does_not_meet_again_what_the_held_item_left(planner, home):
         assert tilted.instance_id in [i for i, _ in pick.details.get("blocking_all", [])], pick.details
         return
     # before: the straight-up lift, the held bowl 1-5 cm up inside the tilted bowl's raised wall
-    assert _lift_contact_in_the_world(planner, pick, "bowl_side") is None
+    assert _lift_contact_in_the_world(planner, pick, "bowl_side", sim_contact_along) is None
