@@ -7,21 +7,18 @@ passed it at under 5 mm in the model."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from kitchenbot.executive.config import CellConfig
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.grasps import _tf
-from kitchenbot.transforms import inv
+from kitchenbot.transforms import from_rotvec, inv
 from kitchenbot.world.cell import Cell
 
 
 def _T(p, rotvec) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
-    T[:3, 3] = p
-    return T
+    """The pose at position `p` turned by the rotation vector `rotvec`."""
+    return from_rotvec(rotvec, p)
 
 
 # A side plate leaning 60 degrees against the left basin wall; two side plates lying flat on the floor beside its

@@ -8,20 +8,17 @@ on every try: the same poses plan the same lift)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from kitchenbot.executive.config import CellConfig
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.transforms import inv
+from kitchenbot.transforms import from_rotvec, inv
 from kitchenbot.world.cell import Cell
 
 
 def _T(p, rotvec) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
-    T[:3, 3] = p
-    return T
+    """The pose at position `p` turned by the rotation vector `rotvec`."""
+    return from_rotvec(rotvec, p)
 
 
 # A heap in the sink: two dinner plates, a bowl on them, a second bowl tilted about 48 degrees in the first, and a

@@ -5,21 +5,18 @@ protective stop the overlap at the start hid."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from kitchenbot.executive.config import CellConfig
 from kitchenbot.fakes.collision import SimCollision
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.transforms import inv
+from kitchenbot.transforms import from_rotvec, inv
 from kitchenbot.world.cell import Cell
 
 
 def _T(p, rotvec) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
-    T[:3, 3] = p
-    return T
+    """The pose at position `p` turned by the rotation vector `rotvec`."""
+    return from_rotvec(rotvec, p)
 
 
 # A side plate tilted 12 degrees on another, its low rim in the mouth of a glass lying beside it (the glass's lip
