@@ -146,6 +146,18 @@ def mesh_bvh(vertices: np.ndarray, triangles: np.ndarray) -> coal.BVHModelOBBRSS
     return bvh
 
 
+
+_MODEL_BVH: dict[int, tuple] = {}  # id(mesh) -> (mesh, BVH): every collision world and planning.resting share them
+
+
+def model_bvh(model: ObjectModel) -> coal.BVHModelOBBRSS:
+    """The model's mesh as a coal BVH, built once per mesh."""
+    key = id(model.mesh)
+    hit = _MODEL_BVH.get(key)
+    if hit is None or hit[0] is not model.mesh:  # the entry keeps the mesh alive: its id stays unique
+        hit = _MODEL_BVH[key] = (model.mesh, mesh_bvh(np.asarray(model.mesh.vertices), np.asarray(model.mesh.triangles)))
+    return hit[1]
+
 def tcp_positions(robot: RobotModel, Q: np.ndarray) -> np.ndarray:
     """TCP positions (N, 3) for joint rows Q (N, 6): the DH chain, vectorised over the rows."""
     ur = robot.ur
@@ -481,16 +493,10 @@ class CollisionWorld:
         # the capsules' coal geometry and placements, built once: every scene shares them (as the meshes' BVHs)
         self.capsule_geoms = [capsule_geometry(c) for c in self.capsules]
         self._pair_cache: dict[tuple, list[tuple[int, int]]] = {}  # scene layout -> its collision pairs
-        self._bvh_cache: dict[int, tuple] = {}  # id(mesh) -> (mesh, BVH)
         self._proxy_cache: dict[int, coal.Box] = {}
 
     def bvh(self, model: ObjectModel) -> coal.BVHModelOBBRSS:
-        key = id(model.mesh)
-        hit = self._bvh_cache.get(key)
-        if hit is None or hit[0] is not model.mesh:  # the entry keeps the mesh alive: its id stays unique
-            hit = self._bvh_cache[key] = (model.mesh, mesh_bvh(np.asarray(model.mesh.vertices),
-                                                               np.asarray(model.mesh.triangles)))
-        return hit[1]
+        return model_bvh(model)
 
     # ---- unexplained map points -> occupied voxels -----------------------------------------------------------
     def unexplained_voxels(

@@ -28,7 +28,7 @@ from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
-from kitchenbot.planning.resting import clear_travel
+from kitchenbot.planning.resting import clear_travel, lies_on
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.settings import PlanningSettings
 from kitchenbot.planning.timing import time_parameterise
@@ -437,8 +437,9 @@ class Planner:
         """Whether `other` lies on (or over) `target` rather than under it: lifting `target` straight up runs
         into `other` for longer than lifting `other` runs into `target` (a glass leaning into a cup lies on the
         cup; the cup does not lie on the glass, although each one's lift first touches the other)."""
-        up_target = self._vertical_clear_travel(target, other)
-        return up_target > 0 and up_target > self._vertical_clear_travel(other, target)
+        mo, mt = self.inventory.models.get(other.obj_id), self.inventory.models.get(target.obj_id)
+        return mo is not None and mt is not None and lies_on(self.world.bvh(mo), other.T_base_obj,
+                                                             self.world.bvh(mt), target.T_base_obj)
 
     def items_on(self, target: ObjectPose, objects: Sequence[ObjectPose]) -> list[ObjectPose]:
         """The perceived items lying on (or over) `target`, most in the way first: pick those before it (what
@@ -492,7 +493,7 @@ class Planner:
         # the full collision margin; the lift may pass it as close as it already is, not closer. Its pose is an
         # estimate (an item 11 % visible, 5 mm off): a lift tilted towards it, checked with 2 mm, drove the held
         # item into it.
-        near = {frozenset(p) for p in lift_scene.colliding_pairs(q_grasp)}
+        near = {frozenset(p) for p in at_grasp}
         clear = {}
         for p in lift_scene.pair_names:
             if "held" in p and any(x.startswith("obj:") or x == "voxels" for x in p) and frozenset(p) not in near:

@@ -14,7 +14,7 @@ import coal
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.collision import mesh_bvh
+from kitchenbot.planning.collision import model_bvh
 from kitchenbot.world.inventory import Inventory, ObjectModel
 
 CLEAR_HEIGHT = 0.12  # m: how far up an item is moved to see whether it clears another
@@ -31,17 +31,7 @@ LEAVES_WITHIN = 0.02
 # placed into each other at one height)
 ABOVE = 0.005
 
-_bvh_cache: dict = {}
 _travel_cache: dict = {}
-
-
-def model_bvh(model: ObjectModel) -> coal.BVHModelOBBRSS:
-    """The model's mesh as a coal BVH (kept per mesh)."""
-    key = id(model.mesh)
-    hit = _bvh_cache.get(key)
-    if hit is None or hit[0] is not model.mesh:  # the entry keeps the mesh alive: its id stays unique
-        hit = _bvh_cache[key] = (model.mesh, mesh_bvh(np.asarray(model.mesh.vertices), np.asarray(model.mesh.triangles)))
-    return hit[1]
 
 
 def clear_travel(bvh_a, T_a: np.ndarray, bvh_b, T_b: np.ndarray, height: float = CLEAR_HEIGHT,
