@@ -307,18 +307,18 @@ def filled(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray,
     if n_own == 0 or len(points) == 0:
         return 0.0
     q, axis, r_model, z0, z1 = _unexplained_along_axis(points, model_points, T_base_obj, explained)
-    # The wall's radius per 5 mm of height: the median radius of the model's points there (the wall's two
-    # sides; a mug's handle is a small share of a slice).
+    inside = (q[:, 2] > z0) & (q[:, 2] < z1 + 0.003)
+    inside &= np.linalg.norm(q[:, :2] - axis, axis=1) < _wall_at(model_points, r_model, z0, z1, q[:, 2]) - margin
+    return float(inside.sum() / n_own)
+
+
+def _wall_at(model_points: np.ndarray, r_model: np.ndarray, z0: float, z1: float, z: np.ndarray) -> np.ndarray:
+    """The wall's radius at heights `z` (object frame): per 5 mm of height from `z0` to `z1`, the median radius
+    `r_model` of the model's points there (the wall's two sides; a mug's handle is a small share of a slice)."""
     edges = np.arange(z0, z1 + 0.005, 0.005)
     b_model = np.clip(np.digitize(model_points[:, 2], edges) - 1, 0, len(edges) - 1)
-    wall = np.zeros(len(edges))
-    for b in range(len(edges)):
-        sel = b_model == b
-        wall[b] = np.median(r_model[sel]) if sel.any() else 0.0
-    inside = (q[:, 2] > z0) & (q[:, 2] < z1 + 0.003)
-    b_q = np.clip(np.digitize(q[:, 2], edges) - 1, 0, len(edges) - 1)
-    inside &= np.linalg.norm(q[:, :2] - axis, axis=1) < wall[b_q] - margin
-    return float(inside.sum() / n_own)
+    wall = np.array([np.median(r_model[b_model == b]) if (b_model == b).any() else 0.0 for b in range(len(edges))])
+    return wall[np.clip(np.digitize(z, edges) - 1, 0, len(edges) - 1)]
 
 
 def overhang(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
@@ -345,11 +345,8 @@ def within_wall(q: np.ndarray, model_points: np.ndarray, margin: float) -> np.nd
     axis = np.median(model_points[:, :2], axis=0)
     r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
     z0, z1 = model_points[:, 2].min(), model_points[:, 2].max()
-    edges = np.arange(z0, z1 + 0.005, 0.005)
-    b_model = np.clip(np.digitize(model_points[:, 2], edges) - 1, 0, len(edges) - 1)
-    wall = np.array([np.median(r_model[b_model == b]) if (b_model == b).any() else 0.0 for b in range(len(edges))])
-    b_q = np.clip(np.digitize(q[:, 2], edges) - 1, 0, len(edges) - 1)
-    return (q[:, 2] > z0) & (q[:, 2] < z1) & (np.linalg.norm(q[:, :2] - axis, axis=1) < wall[b_q] - margin)
+    wall = _wall_at(model_points, r_model, z0, z1, q[:, 2])
+    return (q[:, 2] > z0) & (q[:, 2] < z1) & (np.linalg.norm(q[:, :2] - axis, axis=1) < wall - margin)
 
 
 def intruded(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
