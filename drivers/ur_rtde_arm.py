@@ -36,6 +36,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -303,6 +304,49 @@ def _close_quietly(iface: Any, *calls: str) -> None:
             pass
 
 
+@dataclass(frozen=True)
+class URArmSettings:
+    """How the driver talks to the controller (``drivers.arm`` in the config); fixed for the driver's life."""
+
+    frequency: float = 500.0  # Hz, RTDE
+    receive_timeout: float = 0.1  # s: data older than this (controller time behind the host clock) is stale
+    connect_timeout: float = 2.0
+    payload_kg: float = 0.0
+    cog: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    reconnect_attempts: int = 3
+    reconnect_backoff: float = 0.2  # s, doubled per attempt
+    servo_lookahead: float = 0.1
+    servo_gain: float = 300.0
+    servo_settle_tolerance: float = 1e-3  # rad: a streamed waypoint is held until the arm is this close
+    servo_settle_time: float = 1.0
+    motion_start_timeout: float = 2.0
+    motion_slack: float = 2.0  # s a motion may run past twice its planned duration before it counts as stuck
+    upper_range_registers: bool = False
+    use_watchdog: bool = True
+    use_preflight: bool = True
+    rebuild_window: float = 10.0  # s: more than `reconnect_attempts` rebuilds in this window = link lost
+
+
+@dataclass
+class _LinkWatch:
+    """The receive stream's health, read and written under the arm's `_rx_lock` / rebuild lock."""
+
+    lag_base: float | None = None  # host time minus controller time when the data was freshest
+    last_check: tuple[float, float] | None = None  # (host time, controller time) of the last check
+    rebuild_times: list[float] = field(default_factory=list)  # clock() of recent rebuilds (bounded per window)
+    lost: str | None = None  # why the link counts as lost, once it does
+
+
+@dataclass
+class _MoveWatch:
+    """The motion this driver started, until it is seen finished."""
+
+    kind: str | None = None  # "J", "L", "servo" while a motion we started may run
+    op_before: int | None = None  # async operation id before our move was sent
+    started: bool = False  # the async move was seen running (or finished) in the control script
+    start_deadline: float = 0.0
+
+
 class URArm(Arm):
     """UR e-Series over RTDE. Units: radians, metres, seconds."""
 
@@ -335,28 +379,20 @@ class URArm(Arm):
     ):
         super().__init__(model, limits)
         self.host = host
-        self.frequency = float(frequency)
-        self.receive_timeout = float(receive_timeout)
-        self.connect_timeout = float(connect_timeout)
-        self.payload_kg = float(payload_kg)
-        self.cog = tuple(float(c) for c in cog)
-        self.reconnect_attempts = max(1, int(reconnect_attempts))
-        self.reconnect_backoff = float(reconnect_backoff)
-        self.servo_lookahead = float(servo_lookahead)
-        self.servo_gain = float(servo_gain)
-        self.servo_settle_tolerance = float(servo_settle_tolerance)
-        self.servo_settle_time = float(servo_settle_time)
-        self.motion_start_timeout = float(motion_start_timeout)
-        # s a synchronous motion may run past twice its planned duration before it is stopped as stuck
-        self.motion_slack = float(motion_slack)
-        self.upper_range_registers = bool(upper_range_registers)
-        self.use_watchdog = watchdog
-        self.use_preflight = preflight
+        self.settings = URArmSettings(
+            frequency=float(frequency), receive_timeout=float(receive_timeout), connect_timeout=float(connect_timeout),
+            payload_kg=float(payload_kg), cog=tuple(float(c) for c in cog),
+            reconnect_attempts=max(1, int(reconnect_attempts)), reconnect_backoff=float(reconnect_backoff),
+            servo_lookahead=float(servo_lookahead), servo_gain=float(servo_gain),
+            servo_settle_tolerance=float(servo_settle_tolerance), servo_settle_time=float(servo_settle_time),
+            motion_start_timeout=float(motion_start_timeout), motion_slack=float(motion_slack),
+            upper_range_registers=bool(upper_range_registers), use_watchdog=bool(watchdog),
+            use_preflight=bool(preflight))
         self._clock = clock  # host clock for the data age and the rebuild window (tests inject one)
         self._receive_factory = receive_factory or (
-            lambda h, f: _default_receive(h, f, self.upper_range_registers))
+            lambda h, f: _default_receive(h, f, self.settings.upper_range_registers))
         self._control_factory = control_factory or (
-            lambda h, f: _default_control(h, f, self.upper_range_registers))
+            lambda h, f: _default_control(h, f, self.settings.upper_range_registers))
         self._dashboard_factory = dashboard_factory
 
         # Locks: the control interface takes one command at a time (`_ctrl_lock`, the only lock stop() takes);
@@ -368,19 +404,12 @@ class URArm(Arm):
         self._rtde_c: Any = None
         self._dashboard: Any = None
         self._graveyard: list[Any] = []  # replaced interfaces, released in disconnect()
-        self._lag_base: float | None = None  # host time minus controller time when the data was freshest
-        self._last_check: tuple[float, float] | None = None  # (host time, controller time) of the last check
-        self._rebuild_times: list[float] = []  # clock() of recent rebuilds (bounded per window)
-        self.rebuild_window = 10.0  # s: more than `reconnect_attempts` rebuilds in this window = link lost
-        self._link_lost: str | None = None
+        self._link = _LinkWatch()  # the receive stream's health: data age, recent rebuilds, why the link was lost
         self.receive_rebuilds = 0  # how often the receive interface was rebuilt
         self.tool_reapplied = 0  # how often TCP/payload were re-sent because a new control script had started
         self._watchdog: threading.Thread | None = None
         self._stop_watchdog = threading.Event()
-        self._motion: str | None = None  # "J", "L", "servo" while a motion we started may run
-        self._op_before: int | None = None  # async operation id before our move was sent
-        self._started = False  # the async move was seen running (or finished) in the control script
-        self._start_deadline = 0.0
+        self._move = _MoveWatch()  # the motion we started, until it is seen finished
         self._servo_thread: threading.Thread | None = None
         self._servo_stop = threading.Event()
         self._servo_error: BaseException | None = None
@@ -402,10 +431,10 @@ class URArm(Arm):
         )
 
     def _make_receive(self) -> Any:
-        if self.use_preflight:
-            preflight_rtde(self.host, self.connect_timeout)
+        if self.settings.use_preflight:
+            preflight_rtde(self.host, self.settings.connect_timeout)
         try:
-            r = self._receive_factory(self.host, self.frequency)
+            r = self._receive_factory(self.host, self.settings.frequency)
         except RuntimeError as e:
             raise self._unreachable("receive", RTDE_PORT, e) from None
         if not r.isConnected():  # handshake done but no data: the vendor constructor returns a dead interface
@@ -414,12 +443,12 @@ class URArm(Arm):
         return r
 
     def _make_control(self) -> Any:
-        if self.use_preflight:
-            preflight_rtde(self.host, self.connect_timeout)
-            preflight_dashboard(self.host, self.connect_timeout)
-            _connect(self.host, SCRIPT_PORT, "script port", self.connect_timeout).close()
+        if self.settings.use_preflight:
+            preflight_rtde(self.host, self.settings.connect_timeout)
+            preflight_dashboard(self.host, self.settings.connect_timeout)
+            _connect(self.host, SCRIPT_PORT, "script port", self.settings.connect_timeout).close()
         try:
-            return self._control_factory(self.host, self.frequency)
+            return self._control_factory(self.host, self.settings.frequency)
         except RuntimeError as e:
             raise self._unreachable("control", RTDE_PORT, e) from None
 
@@ -428,7 +457,7 @@ class URArm(Arm):
             return
         if self._rtde_r is not None or self._rtde_c is not None or self._watchdog is not None:
             self.disconnect()  # after a lost link: drop the dead interfaces and the old watchdog first
-        self._link_lost = None
+        self._link.lost = None
         r = self._make_receive()
         try:
             c = self._make_control()
@@ -437,17 +466,17 @@ class URArm(Arm):
             raise
         with self._rx_lock:
             self._rtde_r = r
-            self._lag_base = self._last_check = None
+            self._link.lag_base = self._link.last_check = None
         self._prime(r)
         with self._ctrl_lock:
             self._rtde_c = c
-        self._rebuild_times = []
+        self._link.rebuild_times = []
         try:
             self._apply_tool()
         except (DriverError, RuntimeError):
             self.disconnect()
             raise
-        if self.use_watchdog:
+        if self.settings.use_watchdog:
             self._stop_watchdog.clear()
             self._watchdog = threading.Thread(target=self._watchdog_loop, name="ur-rtde-watchdog", daemon=True)
             self._watchdog.start()
@@ -461,8 +490,9 @@ class URArm(Arm):
         c = self._rtde_c
         if not self._call("setTcp", c.setTcp, tcp):
             raise DriverError(f"UR arm at {self.host}: the controller refused setTcp({tcp})")
-        if not self._call("setPayload", c.setPayload, self.payload_kg, list(self.cog)):
-            raise DriverError(f"UR arm at {self.host}: the controller refused setPayload({self.payload_kg} kg)")
+        if not self._call("setPayload", c.setPayload, self.settings.payload_kg, list(self.settings.cog)):
+            raise DriverError(
+                f"UR arm at {self.host}: the controller refused setPayload({self.settings.payload_kg} kg)")
 
     def _ensure_program(self) -> Any:
         """Before a motion: the control script runs and uses our TCP and payload. A script restarted by
@@ -481,7 +511,7 @@ class URArm(Arm):
             stale = tcp.shape != (6,) or not np.allclose(tcp, self._tcp_pose(), atol=1e-6)
             r = self._recv()
             if hasattr(r, "getPayload"):
-                stale |= abs(float(r.getPayload()) - self.payload_kg) > 1e-6
+                stale |= abs(float(r.getPayload()) - self.settings.payload_kg) > 1e-6
             if stale:  # a control script we did not start (reuploadScript, ur_rtde's reconnect)
                 log.warning("UR arm at %s: a new control script runs with the installation's TCP/payload; "
                             "sending ours again", self.host)
@@ -516,17 +546,17 @@ class URArm(Arm):
             r, self._rtde_r = self._rtde_r, None
         _close_quietly(r)
         self._graveyard.clear()  # the vendor destructors sleep 0.5 s each; nothing moves now
-        self._motion = None
+        self._move.kind = None
 
     @property
     def is_connected(self) -> bool:
-        return self._rtde_r is not None and self._rtde_c is not None and self._link_lost is None
+        return self._rtde_r is not None and self._rtde_c is not None and self._link.lost is None
 
     # ---- the receive watchdog ------------------------------------------------------------------------
     def _watchdog_loop(self) -> None:
-        period = max(0.005, self.receive_timeout / 2)
+        period = max(0.005, self.settings.receive_timeout / 2)
         while not self._stop_watchdog.wait(period):
-            if self._rtde_r is None or self._link_lost:
+            if self._rtde_r is None or self._link.lost:
                 continue
             try:
                 self._recv()
@@ -539,12 +569,12 @@ class URArm(Arm):
         smallest value, which may creep up by CLOCK_DRIFT_ALLOWANCE to absorb clock drift."""
         with self._rx_lock:
             lag = now - ts
-            last = self._last_check
-            if self._lag_base is None or last is None or ts < last[1]:  # new interface or controller restarted
+            last = self._link.last_check
+            if self._link.lag_base is None or last is None or ts < last[1]:  # new interface or controller restarted
                 base = lag
             else:
-                base = min(lag, self._lag_base + CLOCK_DRIFT_ALLOWANCE * max(0.0, now - last[0]))
-            self._lag_base, self._last_check = base, (now, ts)
+                base = min(lag, self._link.lag_base + CLOCK_DRIFT_ALLOWANCE * max(0.0, now - last[0]))
+            self._link.lag_base, self._link.last_check = base, (now, ts)
             return lag - base
 
     def _prime(self, r: Any) -> None:
@@ -560,7 +590,7 @@ class URArm(Arm):
         r = self._recv()
         ts0 = float(r.getTimestamp())
         deadline = time.monotonic() + 0.5
-        while float(r.getTimestamp()) <= ts0 + 2.0 / self.frequency and time.monotonic() < deadline:
+        while float(r.getTimestamp()) <= ts0 + 2.0 / self.settings.frequency and time.monotonic() < deadline:
             time.sleep(0.002)
         self._raise_for_safety()
 
@@ -576,7 +606,7 @@ class URArm(Arm):
         if not connected:
             return self._rebuild_receive(r, "the RTDE receive interface lost its connection")
         age = self._data_age(ts, now)
-        if age > self.receive_timeout:
+        if age > self.settings.receive_timeout:
             return self._rebuild_receive(
                 r, f"the RTDE data is {age:.2f} s old (controller time stopped at {ts:.3f} s)"
             )
@@ -586,46 +616,46 @@ class URArm(Arm):
         """Replace a stalled/dead receive interface; bounded attempts with exponential backoff. Runs without
         the control lock, so stop() keeps working meanwhile."""
         with self._rebuild_lock:
-            if self._link_lost:
-                return self._lose_link(self._link_lost)
+            if self._link.lost:
+                return self._lose_link(self._link.lost)
             if self._rtde_r is not old:  # another thread rebuilt it while we waited
                 return self._rtde_r
             now = self._clock()
-            self._rebuild_times = [t for t in self._rebuild_times if now - t < self.rebuild_window]
-            if len(self._rebuild_times) >= self.reconnect_attempts:
+            self._link.rebuild_times = [t for t in self._link.rebuild_times if now - t < self.settings.rebuild_window]
+            if len(self._link.rebuild_times) >= self.settings.reconnect_attempts:
                 return self._lose_link(
-                    f"receive link keeps stalling ({reason}) after {len(self._rebuild_times)} rebuilds "
-                    f"in {self.rebuild_window:.0f} s"
+                    f"receive link keeps stalling ({reason}) after {len(self._link.rebuild_times)} rebuilds "
+                    f"in {self.settings.rebuild_window:.0f} s"
                 )
-            self._rebuild_times.append(now)
+            self._link.rebuild_times.append(now)
             log.warning("UR arm at %s: %s; rebuilding the RTDE receive interface", self.host, reason)
             new, last = None, None
-            for attempt in range(self.reconnect_attempts):
+            for attempt in range(self.settings.reconnect_attempts):
                 try:
                     new = self._make_receive()
                     break
                 except DeviceNotConnectedError as e:
                     last = e
-                    time.sleep(self.reconnect_backoff * 2**attempt)
+                    time.sleep(self.settings.reconnect_backoff * 2**attempt)
             if new is None:
                 return self._lose_link(f"{reason}; rebuilding the receive interface failed "
-                                       f"{self.reconnect_attempts} times ({last})")
+                                       f"{self.settings.reconnect_attempts} times ({last})")
             with self._rx_lock:
                 self._rtde_r = new
-                self._lag_base = self._last_check = None
+                self._link.lag_base = self._link.last_check = None
             self._prime(new)
             _retire(old, self._graveyard)
             self.receive_rebuilds += 1
             return new
 
     def _lose_link(self, why: str) -> Any:
-        self._link_lost = why
+        self._link.lost = why
         self._emergency_stop_motion()
         raise DeviceNotConnectedError(f"UR arm at {self.host}: link lost: {why}. Call connect() again.")
 
     def _recv(self) -> Any:
-        if self._link_lost:
-            raise DeviceNotConnectedError(f"UR arm at {self.host}: link lost: {self._link_lost}. Call connect() again.")
+        if self._link.lost:
+            raise DeviceNotConnectedError(f"UR arm at {self.host}: link lost: {self._link.lost}. Call connect() again.")
         with self._rx_lock:
             r = self._rtde_r
         if r is None:
@@ -639,14 +669,14 @@ class URArm(Arm):
         flag: it reconnects and uploads a new script every cycle and can crash the process; the emulator
         reproduces it. Nothing in-process recovers from that: see docs/hardware.md.)"""
         with self._ctrl_lock:
-            if self._rtde_c is None or self._link_lost:
+            if self._rtde_c is None or self._link.lost:
                 raise DeviceNotConnectedError(
-                    f"UR arm at {self.host}: not connected{': ' + self._link_lost if self._link_lost else ''}"
+                    f"UR arm at {self.host}: not connected{': ' + self._link.lost if self._link.lost else ''}"
                 )
             c = self._rtde_c
             if c.isConnected():
                 return c
-            for attempt in range(self.reconnect_attempts):
+            for attempt in range(self.settings.reconnect_attempts):
                 log.warning("UR arm at %s: control link down, reconnect attempt %d", self.host, attempt + 1)
                 try:
                     if c.reconnect() and c.isConnected():
@@ -655,8 +685,8 @@ class URArm(Arm):
                         return c
                 except RuntimeError:
                     pass
-                time.sleep(self.reconnect_backoff * 2**attempt)
-        return self._lose_link(f"control link dropped and {self.reconnect_attempts} reconnects failed")
+                time.sleep(self.settings.reconnect_backoff * 2**attempt)
+        return self._lose_link(f"control link dropped and {self.settings.reconnect_attempts} reconnects failed")
 
     def _call(self, what: str, fn: Callable, *args) -> Any:
         """One control call under the control lock, mapping ur_rtde's errors to ours: ValueError (a range
@@ -711,9 +741,9 @@ class URArm(Arm):
         if not ok:
             self._raise_for_safety()
             raise DriverError(f"UR arm at {self.host}: the controller refused {what}")
-        self._op_before, self._started = op_before, False
-        self._start_deadline = time.monotonic() + self.motion_start_timeout
-        self._motion = kind
+        self._move.op_before, self._move.started = op_before, False
+        self._move.start_deadline = time.monotonic() + self.settings.motion_start_timeout
+        self._move.kind = kind
 
     def _move_joints(self, q: np.ndarray, speed: float, accel: float, asynchronous: bool) -> None:
         q0 = self.joint_positions()
@@ -721,7 +751,7 @@ class URArm(Arm):
         self._start("J", "moveJ", c, c.moveJ, q.tolist(), float(speed), float(accel), True)
         if not asynchronous:
             dist = float(np.max(np.abs(q - q0)))
-            self.wait(timeout=2.0 * (dist / speed + speed / accel) + self.motion_slack)
+            self.wait(timeout=2.0 * (dist / speed + speed / accel) + self.settings.motion_slack)
 
     def _move_linear(self, T_base_tcp: np.ndarray, speed: float, accel: float, asynchronous: bool) -> None:
         # The workspace is a box (convex) and the base class checked the target, so the straight line stays
@@ -742,7 +772,7 @@ class URArm(Arm):
         self._start("L", "moveL", c, c.moveL, to_rotvec(T_base_tcp).tolist(), float(speed), float(accel), True)
         if not asynchronous:
             dist = float(np.linalg.norm(p1 - p0))
-            self.wait(timeout=2.0 * (dist / speed + speed / accel) + self.motion_slack)
+            self.wait(timeout=2.0 * (dist / speed + speed / accel) + self.settings.motion_slack)
 
     def _execute_trajectory(self, times: np.ndarray, q: np.ndarray, asynchronous: bool, guarded: bool = False) -> None:
         """Stream servoJ at the RTDE frequency (initPeriod/waitPeriod keep the period), in a thread. Guarded: the
@@ -751,18 +781,18 @@ class URArm(Arm):
         waypoint is held until the arm is within `servo_settle_tolerance` of it (servoJ lags by about the
         lookahead time), then servoStop."""
         c = self._ensure_program()
-        dt = 1.0 / self.frequency
+        dt = 1.0 / self.settings.frequency
         samples = resample_trajectory(times, q, dt)
         self._end_servo_thread()
         self._servo_stop.clear()
         self._servo_error = None
-        self._motion = "servo"
+        self._move.kind = "servo"
         self._servo_thread = threading.Thread(
             target=self._servo_loop, args=(c, samples, dt, guarded), name="ur-rtde-servoj", daemon=True
         )
         self._servo_thread.start()
         if not asynchronous:
-            self.wait(timeout=float(times[-1]) * 2.0 + self.servo_settle_time + self.motion_slack)
+            self.wait(timeout=float(times[-1]) * 2.0 + self.settings.servo_settle_time + self.settings.motion_slack)
 
     def _servo_loop(self, c: Any, samples: np.ndarray, dt: float, guarded: bool = False) -> None:
         try:
@@ -778,14 +808,15 @@ class URArm(Arm):
                         break
                 if k >= len(samples) - 1:  # holding the last waypoint: done once the arm is there
                     err = float(np.max(np.abs(self.joint_positions() - samples[-1])))
-                    if err <= self.servo_settle_tolerance:
+                    if err <= self.settings.servo_settle_tolerance:
                         break
-                    settle_until = settle_until or time.monotonic() + self.servo_settle_time
+                    settle_until = settle_until or time.monotonic() + self.settings.servo_settle_time
                     if time.monotonic() > settle_until:
                         log.warning("UR arm at %s: servoJ ended %.4f rad from the last waypoint", self.host, err)
                         break
                 t0 = c.initPeriod()
-                if not self._call("servoJ", c.servoJ, qk.tolist(), 0.0, 0.0, dt, self.servo_lookahead, self.servo_gain):
+                st = self.settings
+                if not self._call("servoJ", c.servoJ, qk.tolist(), 0.0, 0.0, dt, st.servo_lookahead, st.servo_gain):
                     self._raise_for_safety()
                     raise DriverError(f"UR arm at {self.host}: servoJ refused at sample {k}")
                 if k % 25 == 0:  # a safety check every 50 ms at 500 Hz
@@ -811,19 +842,19 @@ class URArm(Arm):
     def is_moving(self) -> bool:
         if self._servo_thread is not None and self._servo_thread.is_alive():
             return True
-        if self._motion in ("J", "L"):
+        if self._move.kind in ("J", "L"):
             running, op = self._async_op(self._ctrl())
             if running:
-                self._started = True
+                self._move.started = True
                 return True
-            if not self._started and op == self._op_before:  # sent, but the script has not begun it yet
-                if time.monotonic() > self._start_deadline:
-                    self._motion = None
+            if not self._move.started and op == self._move.op_before:  # sent, but the script has not begun it yet
+                if time.monotonic() > self._move.start_deadline:
+                    self._move.kind = None
                     self._raise_for_safety()
                     raise DriverError(f"UR arm at {self.host}: the controller accepted the move but did not start it "
-                                      f"within {self.motion_start_timeout:.1f} s")
+                                      f"within {self.settings.motion_start_timeout:.1f} s")
                 return True
-            self._motion = None
+            self._move.kind = None
         return False
 
     def wait(self, timeout: float | None = None) -> None:
@@ -848,7 +879,7 @@ class URArm(Arm):
         """Stop now: stopL for a linear move (decel in m/s^2), else stopJ (rad/s^2); a streamed trajectory ends
         with servoStop first. Allowed at any time; needs only the control link (not the receive link, nor a
         receive rebuild in progress)."""
-        kind = self._motion
+        kind = self._move.kind
         self._servo_stop.set()
         self._end_servo_thread()
         c = self._rtde_c
@@ -871,13 +902,13 @@ class URArm(Arm):
                 raise
             raise DriverError(f"UR arm at {self.host}: stop failed: {e}") from None
         finally:
-            self._motion = None
+            self._move.kind = None
 
     def _emergency_stop_motion(self) -> None:
         """Called when the link is declared lost: stop whatever we started, best effort."""
         self._servo_stop.set()
         c = self._rtde_c
-        if c is None or not self._motion:
+        if c is None or not self._move.kind:
             return
         try:
             with self._ctrl_lock:
@@ -889,8 +920,8 @@ class URArm(Arm):
     def dashboard(self) -> Any:
         """The dashboard client (connected on first use, in bounded time)."""
         if self._dashboard is None:
-            if self.use_preflight:
-                preflight_dashboard(self.host, self.connect_timeout)
+            if self.settings.use_preflight:
+                preflight_dashboard(self.host, self.settings.connect_timeout)
             try:
                 self._dashboard = self._dashboard_factory(self.host)
             except RuntimeError as e:

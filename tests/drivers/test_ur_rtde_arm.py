@@ -4,6 +4,8 @@ injected clock the tests advance; waits are for events (emulator state, thread e
 
 from __future__ import annotations
 
+import dataclasses
+
 import threading
 import time
 
@@ -220,12 +222,12 @@ def test_a_range_error_from_ur_rtde_is_a_limit_violation(emu):
 
 
 def test_trajectory_is_streamed_with_servoj_and_ends_on_the_last_waypoint(emu, arm):
-    arm.servo_settle_time = 30.0  # an upper bound only: the stream ends as soon as the arm is there
+    arm.settings = dataclasses.replace(arm.settings, servo_settle_time=30.0)  # an upper bound only: the stream ends as soon as the arm is there
     times = np.array([0.0, 0.3, 0.6])
     q = np.stack([HOME, HOME + 0.05, HOME + 0.1])
     arm.execute_trajectory(times, q)
     # servoJ lags by about the lookahead time; stopping the stream at the last sample stopped short of it
-    np.testing.assert_allclose(arm.joint_positions(), q[-1], atol=arm.servo_settle_tolerance)
+    np.testing.assert_allclose(arm.joint_positions(), q[-1], atol=arm.settings.servo_settle_tolerance)
     assert logged(emu, "servoStop") == 1
 
 
@@ -287,7 +289,7 @@ def _connected_with_short_rebuilds(emu):
     whose later rebuilds against a stalled controller give up after 0.3 s each."""
     arm = make_arm(emu)
     arm.connect()
-    arm.connect_timeout = 0.3
+    arm.settings = dataclasses.replace(arm.settings, connect_timeout=0.3)
     return arm
 
 
@@ -312,7 +314,7 @@ def test_receive_that_keeps_stalling_is_given_up_after_bounded_rebuilds(emu, arm
             emu.stall()
             arm._clock.advance(0.5)
             arm.joint_positions()
-    assert arm.receive_rebuilds == arm.reconnect_attempts
+    assert arm.receive_rebuilds == arm.settings.reconnect_attempts
 
 
 def test_connect_again_after_a_lost_link(emu):
