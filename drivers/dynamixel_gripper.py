@@ -151,6 +151,18 @@ class _Present:
     alert: bool
 
 
+@dataclass(frozen=True)
+class ServoFacts:
+    """What the servo reports about itself at connect (defaults: an XM430's factory values, until then)."""
+
+    model_number: int | None = None
+    firmware_version: int | None = None
+    temperature_limit_c: float = 80.0
+    shutdown_mask: int = 0x34  # overheating, electrical shock, overload
+    voltage_range: tuple[float, float] = (9.5, 16.0)
+    p_gain_per_tick: float = 800 / 128.0  # Position P Gain (@84) / 128
+
+
 class DynamixelGripper(Gripper):
     """Fin-Ray gripper on one XM430. All units SI (m, A, V, degC) at this interface."""
 
@@ -220,18 +232,13 @@ class DynamixelGripper(Gripper):
         self.poll_interval = float(poll_interval)
         self.temperature_warn_c = float(temperature_warn_c)
         self.min_packet_timeout_ms = float(min_packet_timeout_ms)
-        self.model_number: int | None = None
-        self.firmware_version: int | None = None
+        self.servo = ServoFacts()  # what the servo reported at connect
         self._port: PortHandler | None = None
         self._ph = PacketHandler(2.0)
         self._goal_current_units = self.current_limit_units
         self._grasping = False
         self._hold_units = 0  # present current (units, + closing) when the last grasp settled on its hold
         self._needs_configure = False  # EEPROM settings differ, deferred because the servo held an object
-        self._p_gain_per_tick = 800 / 128.0  # Position P Gain (@84) / 128, read at connect
-        self._temperature_limit_c = 80.0
-        self._shutdown_mask = 0x34  # XM430 default: overheating, electrical shock, overload
-        self._voltage_range = (9.5, 16.0)
 
     # ---- calibration ------------------------------------------------------------------------------
     @property
@@ -256,12 +263,13 @@ class DynamixelGripper(Gripper):
                     f"Dynamixel gripper on {where}: model number {model} is not an XM430 "
                     f"(expected one of {XM430_MODELS})"
                 )
-            self.model_number = model
-            self.firmware_version = self._read(ADDR_FIRMWARE_VERSION, 1)
-            self._temperature_limit_c = float(self._read(ADDR_TEMPERATURE_LIMIT, 1))
-            self._shutdown_mask = self._read(ADDR_SHUTDOWN, 1)
-            self._voltage_range = (self._read(ADDR_MIN_VOLTAGE_LIMIT, 2) / 10.0, self._read(ADDR_MAX_VOLTAGE_LIMIT, 2) / 10.0)
-            self._p_gain_per_tick = max(1, self._read(ADDR_POSITION_P_GAIN, 2)) / 128.0
+            self.servo = ServoFacts(
+                model_number=model, firmware_version=self._read(ADDR_FIRMWARE_VERSION, 1),
+                temperature_limit_c=float(self._read(ADDR_TEMPERATURE_LIMIT, 1)),
+                shutdown_mask=self._read(ADDR_SHUTDOWN, 1),
+                voltage_range=(self._read(ADDR_MIN_VOLTAGE_LIMIT, 2) / 10.0,
+                               self._read(ADDR_MAX_VOLTAGE_LIMIT, 2) / 10.0),
+                p_gain_per_tick=max(1, self._read(ADDR_POSITION_P_GAIN, 2)) / 128.0)
             hw = self._read(ADDR_HARDWARE_ERROR, 1)
             if hw:
                 log.warning("gripper servo reports a hardware error at connect: %s", decode_hardware_error(hw))
@@ -377,9 +385,9 @@ class DynamixelGripper(Gripper):
     def describe(self) -> dict:
         """Model, firmware and port (for `kitchenbot doctor`)."""
         return {
-            "model": XM430_MODELS.get(self.model_number or 0, str(self.model_number)),
-            "model_number": self.model_number,
-            "firmware": self.firmware_version,
+            "model": XM430_MODELS.get(self.servo.model_number or 0, str(self.servo.model_number)),
+            "model_number": self.servo.model_number,
+            "firmware": self.servo.firmware_version,
             "port": self.port_name,
             "baudrate": self.baudrate,
             "servo_id": self.servo_id,
@@ -470,7 +478,7 @@ class DynamixelGripper(Gripper):
         p = p or self._present()
         if p.alert:
             hw = self._read(ADDR_HARDWARE_ERROR, 1)
-            if hw & self._shutdown_mask:
+            if hw & self.servo.shutdown_mask:
                 raise HardwareError(
                     f"Dynamixel gripper: {decode_hardware_error(hw)} (Hardware Error Status 0x{hw:02x}); "
                     "the servo shut down, call reboot() to clear it"
@@ -479,10 +487,10 @@ class DynamixelGripper(Gripper):
                 log.warning("gripper servo alarm: %s", decode_hardware_error(hw))
         if p.temperature_c >= self.temperature_warn_c:
             raise HardwareError(
-                f"Dynamixel gripper: servo at {p.temperature_c:.0f} degC, near its {self._temperature_limit_c:.0f} "
-                "degC shutdown limit; let it cool before grasping"
+                f"Dynamixel gripper: servo at {p.temperature_c:.0f} degC, near its "
+                f"{self.servo.temperature_limit_c:.0f} degC shutdown limit; let it cool before grasping"
             )
-        lo, hi = self._voltage_range
+        lo, hi = self.servo.voltage_range
         if not (lo <= p.voltage_v <= hi):
             log.warning("gripper servo input voltage %.1f V outside %.1f..%.1f V", p.voltage_v, lo, hi)
         return p
@@ -578,7 +586,7 @@ class DynamixelGripper(Gripper):
         # Hold just past the stalled position: the position loop asks for hold_current_fraction of the goal
         # current instead of saturating at it. Where the servo's loop is stiffer than Kp/128 per tick, the
         # offset is halved until the current falls below the clamp.
-        offset = max(1, int(round(self.hold_current_fraction * goal_units / self._p_gain_per_tick)))
+        offset = max(1, int(round(self.hold_current_fraction * goal_units / self.servo.p_gain_per_tick)))
         for _ in range(4):
             hold_goal = p.position + self._closing_sign * offset
             self._write(ADDR_GOAL_POSITION, 4, hold_goal)
@@ -596,7 +604,7 @@ class DynamixelGripper(Gripper):
     def status(self) -> GripperStatus:
         p = self._present()
         hw = self._read(ADDR_HARDWARE_ERROR, 1) if p.alert else 0
-        shut_down = bool(hw & self._shutdown_mask)
+        shut_down = bool(hw & self.servo.shutdown_mask)
         return GripperStatus(
             opening=self.ticks_to_opening(p.position),
             current=self._amps(p),
