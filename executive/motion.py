@@ -299,46 +299,31 @@ class Motions:
     # ones where the arm does not reach that high over the far end of a rack.
     LOOK_DOWN_HEIGHTS = (0.50, 0.40, 0.30)
 
-    # Turns of the look-down camera about its (vertical) optical axis that are tried: the view is the same spot from
-    # the same point, only turned in the image; which one the arm reaches fastest depends on where it stands.
-    LOOK_DOWN_YAWS = np.radians([0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0])
-
-    def _look_down_poses(self, site: np.ndarray, height: float, q_now: np.ndarray, scene) -> list[np.ndarray]:
-        """Collision-free configurations that put the camera `height` m above `site` (its x, y), looking straight
-        down, over every turn (LOOK_DOWN_YAWS) and IK branch, the one the arm reaches soonest from `q_now` first
-        (rest to rest, the slowest joint at its speed limit). Before, the turns were taken in a fixed order and the
-        first that planned was used: a look-down from a rack often turned the last wrist joints by 3-4 rad where
-        another turn of the same view needed under 1."""
+    def _look_down_at(self, site: np.ndarray) -> str:
+        """Put the camera straight above `site`, looking down, by a planned collision-free motion. Returns "" when
+        there, else why not."""
         planner = self.planner
         home = np.asarray(self.robot.config.robot.home, float)
         R_down = planner.robot.fk_tcp(home)[:3, :3]  # home points the tool down
         d_cam = (np.linalg.inv(planner.robot.T_flange_tcp) @ self.robot.T_flange_cam)[:3, 3]  # camera in tcp frame
-        p_cam = np.array([site[0], site[1], height])
-        vmax = np.asarray(planner.limits.max_joint_speed, float)
-        found = []
-        for yaw in self.LOOK_DOWN_YAWS:
-            R = rot_z(yaw)[:3, :3] @ R_down
-            for q in planner.robot.ik_all(make_T(R, p_cam - R @ d_cam), q_now):
-                found.append((float(np.max(np.abs(q - q_now) / vmax)), q))
-        found.sort(key=lambda c: c[0])
-        return [q for _, q in found if scene.valid(q)]
-
-    def _look_down_at(self, site: np.ndarray) -> str:
-        """Put the camera straight above `site`, looking down, by a planned collision-free motion (to the camera
-        pose nearest in joint time first: _look_down_poses). Returns "" when there, else why not."""
-        scene = self.planner.scene(self.belief.scene_objects(), self.belief.map_points)
+        scene = planner.scene(self.belief.scene_objects(), self.belief.map_points)
         why = "no collision-free camera pose above it"
         tries = 0
         for height in self.LOOK_DOWN_HEIGHTS:
-            for q in self._look_down_poses(site, height, self.arm.joint_positions(), scene):
-                try:
-                    self._move_joints(q, "look down")
-                    return ""
-                except StepFailed as e:
-                    why = str(e)
-                    tries += 1
-                    if tries >= 3:  # each is up to three RRT-Connect queries
-                        return why
+            p_cam = np.array([site[0], site[1], height])
+            for yaw in np.radians([0.0, 90.0, -90.0, 180.0]):
+                R = rot_z(yaw)[:3, :3] @ R_down
+                for q in planner.robot.ik_all(make_T(R, p_cam - R @ d_cam), self.arm.joint_positions()):
+                    if not scene.valid(q):
+                        continue
+                    try:
+                        self._move_joints(q, "look down")
+                        return ""
+                    except StepFailed as e:
+                        why = str(e)
+                        tries += 1
+                        if tries >= 3:  # each is up to three RRT-Connect queries
+                            return why
         return why
 
     def _target_view(self, where: np.ndarray) -> View | None:
