@@ -6,6 +6,11 @@ believed pose of its class (perceived, or a record of what the robot put down: `
 error, visible fraction, verification, own points; "perceived": false where the belief has none within 10 cm: an
 item nothing in the belief stands for). `log`: the runner's notes and results in order (what it selected,
 planned, recovered, where it looked for a dropped item and what it found), the collisions among them.
+`hidden` (per item hit): how it stood in what the planner checked at the stop: the share of its true surface the
+map holds a point near, its map points the scene leaves unexplained and which belief items explain the rest
+(`explained_by`, `in_instances`), and the share of its surface near neither an obstacle voxel nor a model
+(`surface_in_neither`: real geometry the planner did not see). `--dump PREFIX` pickles what the planner knew at
+each collision (belief objects, map, grasp, trajectory, simulator poses) to PREFIX_k.pkl for replay.
 
     KITCHENBOT_PLANNER_MAX_ITERATIONS=200 KITCHENBOT_PLANNER_SEED=0 \\
         python scripts/collision_forensics.py sink-to-dishwasher 800 > f.json
