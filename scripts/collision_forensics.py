@@ -6,6 +6,11 @@ believed pose of its class (perceived, or a record of what the robot put down: `
 error, visible fraction, verification, own points; "perceived": false where the belief has none within 10 cm: an
 item nothing in the belief stands for). `log`: the runner's notes and results in order (what it selected,
 planned, recovered, where it looked for a dropped item and what it found), the collisions among them.
+`hidden` (per item hit): how it stood in what the planner checked at the stop: the share of its true surface the
+map holds a point near, its map points the scene leaves unexplained and which belief items explain the rest
+(`explained_by`, `in_instances`), and the share of its surface near neither an obstacle voxel nor a model
+(`surface_in_neither`: real geometry the planner did not see). `--dump PREFIX` pickles what the planner knew at
+each collision (belief objects, map, grasp, trajectory, simulator poses) to PREFIX_k.pkl for replay.
 
     KITCHENBOT_PLANNER_MAX_ITERATIONS=200 KITCHENBOT_PLANNER_SEED=0 \\
         python scripts/collision_forensics.py sink-to-dishwasher 800 > f.json
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 
 import numpy as np
 
@@ -28,7 +34,8 @@ from kitchenbot.executive.runner import run_task
 from kitchenbot.transforms import rotation_angle
 
 
-def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, oracle: bool = False) -> dict:
+def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, oracle: bool = False,
+         dump: str | None = None) -> dict:
     cfg = load_config(None).model_copy(update={"drivers": DriversConfig()})
     cfg.sim.slip_probability = slip
     if objects is not None:  # as `kitchenbot bench tasks --objects`
@@ -43,6 +50,7 @@ def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, o
 
         def _run_trajectory(self, traj, carrying=False, guarded=False):
             moving["name"] = getattr(traj, "name", "?")
+            moving["traj"] = traj
             return run_traj(self, traj, carrying, guarded)
 
         def _move_joints(self, q, what):
@@ -52,6 +60,11 @@ def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, o
         def _event(kind, detail="", t=None):
             if kind == "motion" and "collision:" in detail:
                 events.append(describe(runner, moving["name"], detail))
+                if dump:
+                    try:
+                        _dump(runner, moving.get("traj"), f"{dump}_{len(events)}.pkl")
+                    except Exception as ex:  # noqa: BLE001
+                        log.append(f"dump failed: {ex}")
                 log.append(f"COLLISION {moving['name']}: {detail}")
             return event(kind, detail, t)
 
@@ -67,6 +80,24 @@ def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, o
     rep = run_task(cfg, task, seed, progress=False, oracle_perception=oracle, journal_path=False, runner_hook=hook)
     return {"task": task, "seed": seed, "delivered": rep.truth["end"]["delivered"],
             "wanted": rep.truth["start"]["in_sink"], "collisions": rep.collisions, "events": events, "log": log}
+
+
+def _dump(runner, traj, path: str) -> None:
+    """What the planner knew and what was there at a collision, pickled for replay: the belief's objects, the map
+    (with its marks count), the item in hand, the trajectory and the simulator's objects."""
+    import pickle
+
+    from kitchenbot.planning.types import marks_of
+
+    w, b = runner.robot.arm.world, runner.belief
+    M = b.map_points
+    with open(path, "wb") as f:
+        pickle.dump({"objects": b.scene_objects(), "map": None if M is None else np.asarray(M), "marks": marks_of(M),
+                     "target": runner.item.obj if runner.item is not None else None,
+                     "grasp": runner.item.pick.grasp if runner.item is not None and runner.item.pick is not None else None,
+                     "traj": None if traj is None else np.asarray(traj.q),
+                     "sim": {u: (so.model.obj_id, so.T_base_obj) for u, so in w.objects.items()},
+                     "held_uid": w.held_uid, "T_tcp_held": w.T_tcp_held, "q": np.asarray(w.q)}, f)
 
 
 def describe(runner, motion: str | None, detail: str) -> dict:
@@ -98,7 +129,63 @@ def describe(runner, motion: str | None, detail: str) -> dict:
         else:
             e["perceived"] = False
         rec["objects"].append(e)
+    try:
+        rec["hidden"] = [hidden(runner, int(u)) for u in re.findall(r"obj:(\d+)", detail) if int(u) in w.objects]
+    except Exception as ex:  # the trace matters more than this summary
+        rec["hidden"] = f"{type(ex).__name__}: {ex}"
     return rec
+
+
+def hidden(runner, uid: int) -> dict:
+    """How the item `uid` (truth) stood in what the planner checks when it was hit: the share of its true surface
+    the fused map holds a point near (5 mm), and of its map points (within 5 mm of its true surface) how many the
+    lift's scene leaves unexplained, which belief items explain the rest, and the share of its surface within a
+    voxel's reach of an obstacle voxel or a believed item's model."""
+    from kitchenbot.planning.collision import SceneObject, _surface_distance
+    from kitchenbot.planning.types import marks_of
+
+    w, pl, b = runner.robot.arm.world, runner.planner, runner.belief
+    so = w.objects[uid]
+    S = np.asarray(so.model.mesh.sample_points_uniformly(1500).points)
+    S = S @ so.T_base_obj[:3, :3].T + so.T_base_obj[:3, 3]
+    M = b.map_points
+    if M is None or len(M) == 0:
+        return {"uid": uid, "map_points": 0}
+    n = len(M) - marks_of(M)
+    P = np.asarray(M)[:n]
+    from scipy.spatial import cKDTree
+
+    seen = cKDTree(P).query(S, distance_upper_bound=0.005)[0] < 0.005
+    dl = _surface_distance(so.model, (P - so.T_base_obj[:3, 3]) @ so.T_base_obj[:3, :3])
+    mine = P[dl < 0.005]
+    known = [o for o in b.scene_objects() if o.obj_id in pl.inventory.models]
+    target = runner.item.obj if runner.item is not None else None
+    own = [o for o in known if o is target]
+    sobj = [SceneObject(str(o.instance_id), pl.inventory[o.obj_id], o.T_base_obj) for o in known]
+    ex = pl.world.explained(mine, sobj, instance_points=[o.points for o in known],
+                            self_explaining=[any(o is x for x in own) for o in known]) if len(mine) else np.zeros(0, bool)
+    by = {}
+    for o, s in zip(known, sobj):
+        if len(mine) and ex.any():
+            d = _surface_distance(s.model, (mine[ex] - s.T_base_obj[:3, 3]) @ s.T_base_obj[:3, :3])
+            k = int((d < 0.015).sum())
+            if k:
+                by[f"{o.cls}#{o.instance_id}{'(target)' if o is target else ''}"] = k
+    inst = {}
+    for o in known:
+        if o.points is not None and len(o.points) and len(mine):
+            k = int((cKDTree(np.asarray(o.points)).query(mine, distance_upper_bound=1e-4)[0] < 1e-4).sum())
+            if k:
+                inst[f"{o.cls}#{o.instance_id}"] = k
+    vox = pl._voxels(M, known, own=own)
+    covered = (cKDTree(vox).query(S, distance_upper_bound=0.02)[0] < 0.02) if len(vox) else np.zeros(len(S), bool)
+    modeled = np.zeros(len(S), bool)
+    for s in sobj:
+        modeled |= _surface_distance(s.model, (S - s.T_base_obj[:3, 3]) @ s.T_base_obj[:3, :3]) < 0.01
+    return {"uid": uid, "cls": so.model.cls, "surface_seen": round(float(seen.mean()), 3), "map_points": int(len(mine)),
+            "unexplained": int((~ex).sum()), "explained_by": by, "in_instances": inst,
+            "surface_near_voxel": round(float(covered.mean()), 3), "surface_near_a_model": round(float(modeled.mean()), 3),
+            "surface_in_neither": round(float((~covered & ~modeled).mean()), 3)}
 
 
 if __name__ == "__main__":
@@ -108,5 +195,6 @@ if __name__ == "__main__":
     ap.add_argument("--slip", type=float, default=0.05, help="as `kitchenbot bench tasks --slip`")
     ap.add_argument("--objects", type=int, default=None, help="as `kitchenbot bench tasks --objects`")
     ap.add_argument("--oracle-perception", action="store_true", help="as `kitchenbot bench tasks`")
+    ap.add_argument("--dump", default=None, help="pickle what the planner knew at each collision to DUMP_k.pkl")
     a = ap.parse_args()
-    print(json.dumps(main(a.task, a.seed, a.slip, a.objects, a.oracle_perception), indent=1))
+    print(json.dumps(main(a.task, a.seed, a.slip, a.objects, a.oracle_perception, a.dump), indent=1))
