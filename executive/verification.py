@@ -148,9 +148,10 @@ class Verification:
 
     def _verified_from_target_view(self) -> bool:
         """The released item is seen at its target in its retreat view, it was picked from the latest
-        perception alone (no copy of its class within gone_radius: not off a stack), nothing else perceived
-        touched it, and the task has items left: recorded as placed without a re-scan. False (nothing changed)
-        when a re-scan must decide."""
+        perception alone (no copy of its class within gone_radius: not off a stack), off the sink floor (not off
+        another item), nothing else perceived touched it, and the task has items left: recorded as placed without
+        a re-scan. Off a stack or another item, or touching one, one view of the pick region may settle it. False
+        (nothing changed) when a re-scan must decide."""
         b, p = self.belief, self.belief.released
         if (not self.opt.verify_without_rescan or p is None or p.target_view is None
                 or p.staged is not None or not any(q is p.obj for q in b.poses)):
@@ -159,6 +160,7 @@ class Verification:
         if not (presence.decided and presence.present):
             return False  # not seen there (or the view cannot tell): the re-scan looks at the sink too
         others = [q for q in b.poses if q is not p.obj]
+        off_floor = self._above_floor(p.obj) is not None
         held_up = self._held_up_by_unseen(p.obj, others)
         if held_up is not None:  # what it lay on has no pose: it hid it, and the map of before the pick lacks it
             self._log("note", "re-scan: it lay on something no pose describes", cls=p.obj.cls,
@@ -170,7 +172,10 @@ class Verification:
                       why=why)
         if not self.task.remaining(others) and not p.staging:
             return False  # nothing left as perceived: scans confirm the sink is empty
-        if moved or p.near_before > 1:  # (off a stack: what is left of it is counted again)
+        # Off a stack (what is left of it is counted again) or off any other item: what the picked item hid under
+        # it (an item nested in the one it lay on, seen by no view before) is in no map of before the pick, and the
+        # next lift may meet it; one view of the pick region looks first.
+        if moved or p.near_before > 1 or off_floor:
             if not (self.opt.verify_region_view and self._perceive_pick_region(p.obj, others, moved)):
                 return False
             self._log("note", "verified with one view of the pick region, no re-scan", cls=p.obj.cls)
@@ -273,20 +278,27 @@ class Verification:
                 out.append((q, "seen in part"))
         return out
 
+    def _above_floor(self, obj: ObjectPose) -> float | None:
+        """How high (m) above the sink floor `obj`'s lowest point lay, when it lay in the sink higher than
+        SAME_SUPPORT (on something); None when on the floor or not in the sink."""
+        lo, hi = self.robot.cell.sink_interior
+        T = obj.T_base_obj
+        if not (lo[0] <= T[0, 3] <= hi[0] and lo[1] <= T[1, 3] <= hi[1]):
+            return None  # not picked from the sink
+        above = _lowest(self.robot.inventory[obj.obj_id], T) - float(lo[2])
+        return above if above > self.SAME_SUPPORT else None
+
     def _held_up_by_unseen(self, obj: ObjectPose, others: list[ObjectPose]) -> float | None:
         """How high (m) above the sink floor `obj` lay when no perceived item was under it to hold it up (its lowest
         point more than SAME_SUPPORT above the floor, and no item of `others` touching it lower down), else None.
         What held it up was hidden by it: a pick from such a pile is verified by a re-scan, or the next plan would
         run on a map that does not show what the pick uncovered (a plate lifted into the plate under the one
         picked, which no pose described)."""
-        lo, hi = self.robot.cell.sink_interior
+        above = self._above_floor(obj)
+        if above is None:
+            return None
         T = obj.T_base_obj
-        if not (lo[0] <= T[0, 3] <= hi[0] and lo[1] <= T[1, 3] <= hi[1]):
-            return None  # not picked from the sink
         m = self.robot.inventory[obj.obj_id]
-        above = _lowest(m, T) - float(lo[2])
-        if above <= self.SAME_SUPPORT:
-            return None  # on the sink floor
         P = _surface(m, T)
         tree = cKDTree(P)
         for q in others:

@@ -203,3 +203,32 @@ def test_an_item_held_up_by_nothing_perceived_is_left_to_a_rescan(make_runner):
     counter = ObjectPose(plate.obj_id, "plate", np.eye(4), 1.0, instance_id=4)
     counter.T_base_obj[:3, 3] = (hi[0] + 0.3, hi[1] + 0.3, 0.05)
     assert runner._held_up_by_unseen(counter, []) is None  # not in the sink
+
+
+def test_a_pick_off_another_item_is_verified_with_one_view_of_its_region(make_runner, safe_end):
+    """A cup resting on a plate (both perceived): what the cup hid on the plate (a bowl nested under a bowl lay hidden
+    so, and the next lift met it) is in no map of before the pick, so its placement is verified with one view of the
+    pick region, not from the placement view alone. A cup on the sink floor keeps the placement view (above)."""
+    runner, world = make_runner(task="sink-pick", cups=1, options=REGION_VIEW)
+    plate = next(m for m in runner.robot.inventory.models.values() if m.cls == "plate")
+    cup = next(u for u, o in world.objects.items() if o.model.cls == "cup")
+    T_cup = world.objects[cup].T_base_obj.copy()
+    lo, _ = world.cell.sink_interior
+    away = T_cup.copy()
+    away[2, 3] += 5.0
+    world.set_pose(cup, away)
+    T_plate = np.eye(4)
+    T_plate[:3, 3] = (T_cup[0, 3], T_cup[1, 3], lo[2] - plate.points[:, 2].min() + 0.05)
+    p = world.add_object(plate, T_plate)
+    world.set_pose(p, drop_onto(world, p, T_plate))
+    T_on = T_cup.copy()
+    T_on[0, 3] += 0.3 * plate.diameter  # on the plate's sloping rim, well above the sink floor
+    T_on[2, 3] += 0.06
+    world.set_pose(cup, drop_onto(world, cup, T_on))
+    assert world.objects[cup].T_base_obj[2, 3] > T_cup[2, 3] + runner.SAME_SUPPORT  # it rests on the plate
+
+    report = runner.run()
+    safe_end(runner, world)
+    assert report.objects_done == 2 and report.collisions == 0
+    assert _notes(runner, "verified from the placement view, no re-scan") == 0
+    assert _notes(runner, "verified with one view of the pick region, no re-scan") == 1
