@@ -22,7 +22,10 @@ process. Both together make a plan a function of its inputs alone (tests; reprod
 
 from __future__ import annotations
 
+import copy
 import time
+import weakref
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -296,6 +299,80 @@ def _line_collides(scene: Scene, q: np.ndarray, at: float | None) -> CartesianPa
 
 
 # ---- straight Cartesian segments ----------------------------------------------------------------------------------
+class _LinePath(np.ndarray):
+    """A straight line's joint polyline (rows), with the line's start TCP position `p0`."""
+
+    p0: np.ndarray
+
+
+# Straight lines whose IK is kept per robot model (one entry: the polyline of one line, ~100 rows of 6 floats).
+LINE_IK_ENTRIES = 512
+_line_ik_kept: "weakref.WeakKeyDictionary[RobotModel, OrderedDict]" = weakref.WeakKeyDictionary()
+
+
+def line_ik(robot: RobotModel, q_start: np.ndarray, T_goal: np.ndarray,
+            step: float) -> _LinePath | PlanningFailure:
+    """The joint polyline of :func:`cartesian_line` before any collision check: IK at every `step` metres along
+    the line, seeded with the previous solution; a failure where a step has no IK or the solution jumps.
+
+    It depends on the robot, `q_start`, `T_goal` and `step` alone (the numerical IK is deterministic), not on the
+    scene, so it is kept (least recently used dropped): the planner asks for the same line in several scenes
+    (a retreat per gripper opening at release, a line re-planned after a scene changed only elsewhere), and
+    each repeat costs only its collision check. Callers must not modify the returned array."""
+    q_start = np.asarray(q_start, float)
+    T_goal = np.asarray(T_goal, float)
+    key = (q_start.tobytes(), T_goal.tobytes(), float(step))
+    kept = _line_ik_kept.get(robot)
+    if kept is None:
+        kept = _line_ik_kept[robot] = OrderedDict()
+    hit = kept.get(key)
+    if hit is not None:
+        kept.move_to_end(key)
+        return hit if not isinstance(hit, PlanningFailure) else copy.deepcopy(hit)
+    out = _solve_line_ik(robot, q_start, T_goal, step)
+    kept[key] = out
+    if len(kept) > LINE_IK_ENTRIES:
+        kept.popitem(last=False)
+    return out if not isinstance(out, PlanningFailure) else copy.deepcopy(out)
+
+
+def _solve_line_ik(robot: RobotModel, q_start: np.ndarray, T_goal: np.ndarray,
+                   step: float) -> _LinePath | PlanningFailure:
+    from scipy.spatial.transform import Rotation, Slerp
+
+    T0 = robot.fk_tcp(q_start)
+    p0, p1 = T0[:3, 3], np.asarray(T_goal, float)[:3, 3]
+    rots = Rotation.from_matrix(np.stack([T0[:3, :3], np.asarray(T_goal)[:3, :3]]))
+    ang = float(np.linalg.norm((rots[0].inv() * rots[1]).as_rotvec()))
+    dist = float(np.linalg.norm(p1 - p0))
+    n = max(1, int(np.ceil(max(dist / step, ang * 0.2 / step))))
+    slerp = Slerp([0.0, 1.0], rots)
+    R_line = slerp(np.arange(1, n + 1) / n).as_matrix()  # every step's orientation at once (the same values)
+    Q = [q_start]
+    q = q_start
+    for k in range(1, n + 1):
+        s = k / n
+        T = np.eye(4)
+        T[:3, :3] = R_line[k - 1]
+        T[:3, 3] = p0 + s * (p1 - p0)
+        res = robot.ik(T, q, max_seeds=0)
+        if res.q is None:
+            return NoIK(f"straight line: no IK at {s * 100:.0f} % of the segment", {"T": T.tolist()})
+        # No branch flip: the joint-space chord between consecutive solutions must keep the TCP on the line
+        # (its midpoint within 2 mm of the line's), and no joint may turn by more than 0.5 rad in one step.
+        mid = robot.fk_tcp((q + res.q) / 2)[:3, 3]
+        ideal = p0 + (s - 0.5 / n) * (p1 - p0)
+        if np.linalg.norm(mid - ideal) > max(0.002, 0.5 * step) or np.max(np.abs(res.q - q)) > 0.5:
+            return CartesianPathFailed("straight line: the IK solution jumps (singularity or branch change)",
+                                       {"at": s})
+        q = res.q
+        Q.append(q)
+    out = np.asarray(Q).view(_LinePath)
+    out.p0 = p0.copy()
+    out.flags.writeable = False
+    return out
+
+
 def cartesian_line(
     robot: RobotModel,
     scene: Scene,
@@ -324,38 +401,13 @@ def cartesian_line(
     `clear_scene` (default `start_scene`: which start contacts may last longer). `info` (a dict) receives
     ``contact_travel``: the metres of travel in which start contacts were allowed.
     """
-    from scipy.spatial.transform import Rotation, Slerp
-
     q_start = np.asarray(q_start, float)
-    T0 = robot.fk_tcp(q_start)
-    p0, p1 = T0[:3, 3], np.asarray(T_goal, float)[:3, 3]
-    rots = Rotation.from_matrix(np.stack([T0[:3, :3], np.asarray(T_goal)[:3, :3]]))
-    ang = float(np.linalg.norm((rots[0].inv() * rots[1]).as_rotvec()))
-    dist = float(np.linalg.norm(p1 - p0))
-    n = max(1, int(np.ceil(max(dist / step, ang * 0.2 / step))))
-    slerp = Slerp([0.0, 1.0], rots)
+    Q = line_ik(robot, q_start, T_goal, step)
+    if isinstance(Q, PlanningFailure):
+        return Q
+    p0 = Q.p0
+    Q = np.array(Q)  # a plain copy: the kept IK polyline is never handed out
     r = reach_bounds(scene)
-    R_line = slerp(np.arange(1, n + 1) / n).as_matrix()  # every step's orientation at once (the same values)
-    Q = [q_start]
-    q = q_start
-    for k in range(1, n + 1):
-        s = k / n
-        T = np.eye(4)
-        T[:3, :3] = R_line[k - 1]
-        T[:3, 3] = p0 + s * (p1 - p0)
-        res = robot.ik(T, q, max_seeds=0)
-        if res.q is None:
-            return NoIK(f"straight line: no IK at {s * 100:.0f} % of the segment", {"T": T.tolist()})
-        # No branch flip: the joint-space chord between consecutive solutions must keep the TCP on the line
-        # (its midpoint within 2 mm of the line's), and no joint may turn by more than 0.5 rad in one step.
-        mid = robot.fk_tcp((q + res.q) / 2)[:3, 3]
-        ideal = p0 + (s - 0.5 / n) * (p1 - p0)
-        if np.linalg.norm(mid - ideal) > max(0.002, 0.5 * step) or np.max(np.abs(res.q - q)) > 0.5:
-            return CartesianPathFailed("straight line: the IK solution jumps (singularity or branch change)",
-                                       {"at": s})
-        q = res.q
-        Q.append(q)
-    Q = np.asarray(Q)
     if info is not None:
         info["contact_travel"] = start_travel if start_scene is not None else 0.0
     if start_scene is not None and start_travel > 0:

@@ -392,3 +392,32 @@ def test_all_valid_is_valid_batch_all(planner, wall_case):
             assert sc.all_valid(Q) == bool(sc.valid_batch(Q).all())
             v = sc.valid_batch(Q)  # first_invalid's batches stop at the first collision: the same first row
             assert sc.first_invalid(Q, chunk=7) == (-1 if v.all() else int(np.argmin(v)))
+
+
+def test_a_straight_lines_ik_is_kept_and_each_scene_still_checks_it(planner, wall_case, monkeypatch):
+    """The IK polyline of a straight line is solved once and reused in another scene (a retreat asked once per
+    gripper opening): each scene's answer is the one a fresh solve gives, and a failure handed out can be
+    renamed by its caller without changing the kept one."""
+    import kitchenbot.planning.motion as motion
+
+    qa, qb, wall, scene = wall_case
+    free = planner.world.scene()
+    T_b = planner.robot.fk_tcp(qb)
+    calls = []
+    solve = motion._solve_line_ik
+    monkeypatch.setattr(motion, "_solve_line_ik", lambda *a: calls.append(1) or solve(*a))
+    motion._line_ik_kept.clear()
+    Q_free = cartesian_line(planner.robot, free, qa, T_b, step=0.004)
+    assert isinstance(Q_free, np.ndarray) and len(Q_free) > 10
+    Q_free[0, 0] += 1.0  # the caller's copy: the kept polyline is not touched
+    hit = cartesian_line(planner.robot, scene, qa, T_b, step=0.004)  # the same line through the wall
+    assert calls == [1]  # solved once
+    assert getattr(hit, "kind", None) == "cartesian_path_failed" and "thin_wall" in hit.message
+    again = cartesian_line(planner.robot, free, qa, T_b, step=0.004)
+    np.testing.assert_array_equal(again, solve(planner.robot, qa, T_b, 0.004))
+    # an IK failure is kept too, and each caller gets its own copy
+    far = trans(2.0, 0.0, 0.0) @ T_b
+    f1 = cartesian_line(planner.robot, free, qa, far, step=0.004)
+    f1.message = "renamed"
+    f2 = cartesian_line(planner.robot, free, qa, far, step=0.004)
+    assert calls == [1, 1] and f2.kind == f1.kind and f2.message != "renamed"
