@@ -19,6 +19,8 @@ The checks, each a share in [0, 1]:
 - intruded (cups, mugs, glasses whose opening faces down): other surfaces seen inside the model's cavity,
   i.e. passing through where its wall would be (`intruded`): a glass fitted upside down or lying over a drink
   can shorter than it reaches past the can's end, through the items the can rests on.
+  Read at the pose `fine_fit` nudged onto the vessel's own points: one resting on its rim, fitted a few
+  millimetres off, would otherwise put the surface it rests on inside its wall near the rim.
 - overhang (cups, mugs, glasses not standing): measured points in the plane of the model's base just past its edge
   that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base.
 
