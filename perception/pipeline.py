@@ -34,7 +34,7 @@ from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.track import best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import (continuation, filled, fine_share, fine_tolerance, intruded, overhang,
+from kitchenbot.perception.verify import (continuation, filled, fine_fit, fine_tolerance, intruded, overhang,
                                           patch_normals, surface_noise, verify, within_wall)
 from kitchenbot.transforms import inv
 
@@ -445,8 +445,8 @@ class Perceiver:
                   np.linalg.norm(h.T_base_obj[:3, 3] - hyp.T_base_obj[:3, 3]) <
                   0.5 * (reach + self.inventory[h.obj_id].diameter)]
         normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
-        hyp.verification.fine = fine_share(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol, others,
-                                           self.inventory[hyp.obj_id].is_rotationally_symmetric)
+        hyp.verification.fine, T_fine = fine_fit(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol,
+                                                 others, self.inventory[hyp.obj_id].is_rotationally_symmetric)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
             hyp.verification.continued = self._continued(m, tree, hyp, own, found)
         near = None  # map points near the pose and which of them a pose explains (for filled and overhang)
@@ -455,7 +455,7 @@ class Perceiver:
             hyp.verification.filled = self._filled(near, hyp, own)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
             hyp.verification.overhang = self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
-            hyp.verification.intruded = self._intruded(m, tree, tol, hyp, found)
+            hyp.verification.intruded = self._intruded(m, tree, tol, hyp, found, T_fine)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
@@ -536,18 +536,25 @@ class Perceiver:
         return overhang(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
 
     def _intruded(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis,
-                  found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
+                  found: list[tuple[Hypothesis, int, np.ndarray]], T_fine: np.ndarray | None = None) -> float:
         """verify.intruded for a pose of a tall vessel whose opening faces down (its axis, base to rim, at least
         `INTRUDE_BELOW` below the horizontal): the area of map points inside its cavity that neither it (within
         `tol`) nor an item nested in it (a pose within its wall) puts on its surface. Nothing is put into a
         vessel from below: what lies in its cavity there passes through its wall. One whose opening faces up or
         sideways is left out: things are put into cups and glasses, lean or poke into a lying one's mouth, and
-        a can's lid across an upright opening is `filled`."""
+        a can's lid across an upright opening is `filled`.
+
+        The cavity is read at `T_fine`, the pose the fine check judged (`verify.fine_fit`: nudged onto its own
+        points at the sensor's precision), where given. A vessel facing down rests on its rim: the surface it
+        rests on comes up to the rim all round, and its own wall runs down to it, so a fit a few millimetres or
+        degrees off (within 0.1 diameter) puts that surface, or its own wall, inside the model's wall near the
+        rim. Nudged onto its own points it no longer does; a surface that passes through where the wall of a
+        vessel fitted over something shorter would be stays inside wherever the fit is slid."""
         up = self._up()
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
-        T = hyp.T_base_obj
-        if T[:3, 2] @ up > -np.sin(np.radians(INTRUDE_BELOW)):
+        if hyp.T_base_obj[:3, 2] @ up > -np.sin(np.radians(INTRUDE_BELOW)):
             return 0.0
+        T = hyp.T_base_obj if T_fine is None else T_fine
         model = self.inventory[hyp.obj_id]
         P = m.points[np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)]
         if len(P) == 0:
@@ -878,6 +885,12 @@ class Perceiver:
             return None
         # Verification (perception/verify.py), judged on the final poses in perceive(): poses that fail it may
         # still lead the splitting of a blob to the right fits of its pieces.
+        if not self.inventory[best.obj_id].is_rotationally_symmetric:
+            turned = turn_clear(scorer, best.T_base_obj, self.inventory[best.obj_id].points)
+            if turned is not None:
+                best.T_base_obj = turned
+                best.score, best.or_query, best.or_model, best.free_space, best.visible_fraction = scorer(turned)
+                best.score *= self._colour_weight(query, best, 1.0)
         seen, free = free_space_within(scorer, best.T_base_obj, FREE_SPACE_SHIFT)
         best.verification = verify(query.points, query.normals, self.database[best.obj_id], best.T_base_obj, seen,
                                    free, st.voxel_size)
@@ -938,6 +951,42 @@ def free_space_within(scorer: Scorer, T_base_obj: np.ndarray, shift: float) -> t
     if ok.any() and free_s[ok].min() <= FREE_SPACE_CLEARED * free:
         free = float(free_s[ok].min())
     return seen, free
+
+
+# Turns about a body's axis tried for a part off it where the cameras saw through it (degrees apart).
+TURN_STEP = 30
+
+
+def turn_clear(scorer: Scorer, T_base_obj: np.ndarray, model_points: np.ndarray) -> np.ndarray | None:
+    """The pose turned about its body's axis (the object z axis through the median of the model's points across
+    it: a mug's body, not its bounding box) by a multiple of TURN_STEP that fits at least as well (overlap score),
+    keeps at least as much of the model seen and leaves at most FREE_SPACE_CLEARED of the pose's free space, the
+    one that fits best (the handle where the depth confirms it, not merely hidden); None if there is none (or no
+    free space).
+
+    A mug's body fixes its pose but for the turn about the body's axis; its handle, a small share of its points,
+    decides that turn. Fitted with the handle a few tens of degrees off (the handle seen from one view only, a
+    neighbour lying over the body), the overlap score barely notices, but the handle's model points hang where
+    the cameras see through: free space rejects a pose whose body is right. Turned to where the handle is seen,
+    it is cleared; a body with no handle seen anywhere (a can fitted as a mug) is not cleared by any turn."""
+    score, _, seen, free, _ = scorer(T_base_obj)
+    if free <= 0:
+        return None
+    c = np.median(model_points[:, :2], axis=0)
+    turns = []
+    for a in np.radians(np.arange(TURN_STEP, 360, TURN_STEP)):
+        R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        turn = np.eye(4)
+        turn[:3, :3] = R
+        turn[:2, 3] = c - R[:2, :2] @ c  # about the axis through c
+        turns.append(T_base_obj @ turn)
+    Ts = np.array(turns)
+    score_t, _, seen_t, free_t, _ = scorer.batch(Ts)
+    ok = (seen_t >= seen) & (score_t >= score) & (free_t <= FREE_SPACE_CLEARED * free)
+    if not ok.any():
+        return None
+    k = np.flatnonzero(ok)[np.argmax(score_t[ok])]
+    return Ts[k]
 
 
 def _partition(points: np.ndarray, spacing: float) -> list[np.ndarray]:

@@ -19,6 +19,8 @@ The checks, each a share in [0, 1]:
 - intruded (cups, mugs, glasses whose opening faces down): other surfaces seen inside the model's cavity,
   i.e. passing through where its wall would be (`intruded`): a glass fitted upside down or lying over a drink
   can shorter than it reaches past the can's end, through the items the can rests on.
+  Read at the pose `fine_fit` nudged onto the vessel's own points: one resting on its rim, fitted a few
+  millimetres off, would otherwise put the surface it rests on inside its wall near the rim.
 - overhang (cups, mugs, glasses not standing): measured points in the plane of the model's base just past its edge
   that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base.
 
@@ -202,22 +204,30 @@ def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_bas
                others: list[tuple[ModelEntry, np.ndarray]] = (), symmetric: bool = False) -> float:
     """Of the segment's points (camera-facing normals, NaN rows where there is no surface direction:
     `patch_normals`) that no other pose (`others`: (entry, T_base_obj)) has on its surface within `tol`, the
-    share on this pose's surface within `tol`, facing the same way. A neighbour's points in the segment
-    (touching items) thus do not count against a pose.
+    share on this pose's surface within `tol`, facing the same way (`fine_fit`, which also gives the pose it
+    was judged at)."""
+    return fine_fit(points, normals, entry, T_base_obj, tol, others, symmetric)[0]
+
+
+def fine_fit(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray, tol: float,
+             others: list[tuple[ModelEntry, np.ndarray]] = (), symmetric: bool = False) -> tuple[float, np.ndarray]:
+    """`fine_share` and the pose it is read at. A neighbour's points in the segment (touching items) do not count
+    against a pose.
 
     The pose is judged as the segment's best fit near it: refined first by a short point-to-plane ICP on those
     points (correspondences within 6 mm, then 3 mm; `symmetric`: a surface of revolution, no turn about its
     axis). An item seen as a sliver (a nested cup's rim) is registered a few millimetres off, which is right
     for grasping and within 0.1 diameter, but at 3 mm would read as a shape that does not fit; a can taken
-    for a tapered cup stays off wherever it is slid."""
+    for a tapered cup stays off wherever it is slid. The refined pose is returned (the given one where there
+    was nothing to refine on, or the refinement moved it by more than a centimetre)."""
     if len(points) == 0:
-        return 0.0
+        return 0.0, T_base_obj
     claimed = np.zeros(len(points), bool)
     for e, T in others:
         claimed |= _on(points, normals, e, T, tol)
     mine = ~claimed | _on(points, normals, entry, T_base_obj, tol)
     if not mine.any():
-        return 0.0
+        return 0.0, T_base_obj
     P, N = points[mine], normals[mine]
     T = T_base_obj
     has = np.isfinite(N).all(axis=1)
@@ -227,7 +237,7 @@ def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_bas
         # a refinement is a nudge: one that moves the pose by more than a centimetre is no judgement of it
         if np.linalg.norm(T[:3, 3] - T_base_obj[:3, 3]) > 0.01:
             T = T_base_obj
-    return float(_on(P, N, entry, T, tol).mean())
+    return float(_on(P, N, entry, T, tol).mean()), T
 
 
 def _unexplained_along_axis(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray,

@@ -343,3 +343,40 @@ def test_only_an_item_nested_in_a_vessel_explains_its_cavity(perceiver, inventor
             a, b = hyp(T), hyp(T2)
             x = perceiver._intruded(m, cKDTree(pts), 0.003, a, [(a, 0, None), (b, 1, None)])
             assert (x > 0.15 * INTRUDED_FULL) == (counts and judged), (flip, counts, x)
+
+
+def test_a_vessel_facing_down_fitted_a_little_off_is_judged_where_its_own_points_put_it(perceiver, inventory):
+    """A glass standing upside down on a floor, seen from above (its base and outer wall, the floor up to its rim):
+    fitted 6 deg tilted (a right pose, within 0.1 diameter), the floor beside the rim lies inside the model's wall
+    near the rim, and `intruded` read 0.10 there on the pose as given (rejected above 0.02). The cavity is read at the pose the fine
+    check nudged onto the glass's own points: nothing inside. A glass fitted over a drink can (its own points end
+    two thirds along it) with a surface crossing its cavity past the can's end, fitted as given or tilted alike,
+    is still intruded on: that surface stays inside wherever the fit is slid."""
+    from kitchenbot.perception.map import InstanceMap
+    from kitchenbot.perception.register import Hypothesis
+    from kitchenbot.perception.verify import INTRUDED_FULL, Verification
+
+    entry, model = perceiver.database[6], inventory[6]  # the glass
+    z0, z1 = model.points[:, 2].min(), model.points[:, 2].max()
+    T = make_T(rot_x(np.pi)[:3, :3], np.array([0.4, 0.0, z1]))  # upside down, its rim on the floor z = 0
+    keep = entry.dense_normals @ np.array([0.3, 0.0, -0.95]) > 0.2  # the outside seen from above
+    glass = entry.dense_points[keep] @ T[:3, :3].T + T[:3, 3]
+    rng = np.random.default_rng(1)
+    floor = np.column_stack([rng.uniform(0.25, 0.55, 30000), rng.uniform(-0.15, 0.15, 30000), np.zeros(30000)])
+    r_rim = np.linalg.norm(model.points[:, :2] - np.median(model.points[:, :2], axis=0), axis=1).max()
+    floor = floor[np.linalg.norm(floor[:, :2] - [0.4, 0.0], axis=1) > r_rim + 0.002]
+    q = glass @ T[:3, :3] - T[:3, 3] @ T[:3, :3]  # object frame
+    can = glass[q[:, 2] < z0 + 0.08]  # an 8 cm can under the 12 cm glass
+    tilt = np.array([0.0, np.sin(np.radians(50)), np.cos(np.radians(50))])
+    crossing = _tilted_plane(np.array([0.0, 0.0, z0 + 0.1]), tilt, 0.07) @ T[:3, :3].T + T[:3, 3]
+    centre = np.array([0.4, 0.0, z1 / 2])
+    tilted = make_T(np.eye(3), centre) @ make_T(rot_x(np.radians(6))[:3, :3], np.zeros(3)) @ \
+        make_T(np.eye(3), -centre) @ T
+    for own_pts, extra, expect in ((glass, floor, False), (can, crossing, True)):
+        pts = np.vstack([own_pts, extra])
+        m = InstanceMap(pts, np.zeros(len(pts), int), np.zeros(len(pts), int), np.zeros((len(pts), 2), int),
+                        np.array([[0.6, 0.0, 0.8]]))
+        for T_fit in (T, tilted):
+            h = Hypothesis(6, T_fit, verification=Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0))
+            perceiver._fine_parts(m, cKDTree(pts), 0.003, h, np.arange(len(own_pts)), [(h, 0, None)])
+            assert (h.verification.intruded > 0.15 * INTRUDED_FULL) == expect, (expect, h.verification.intruded)
