@@ -47,7 +47,7 @@ def synthesis_key(model: ObjectModel) -> str:
                    APPROACHES, CONTACT_DEPTHS, OPEN_SLACKS, WIDTH_TOLERANCE, CONTACT_TOLERANCE, MIN_CONTACT,
                    CENTRE_WEIGHT, MAX_GRASPS, PINCH_MAX_WIDTH, WRAP_CONE_DEG, ROUND_COPIES, PINCH_TILTS,
                    PINCH_TILT_AZIMUTHS, SLANTED_PINCH_CLASSES, model.cls in SLANTED_PINCH_CLASSES, MAX_RIM_SLANT,
-                   MAX_RIM_LEVEL)).encode())
+                   MAX_RIM_LEVEL, MAX_LEVEL_ACROSS, LEVEL_ACROSS_MIN_TILT)).encode())
     return h.hexdigest()[:20]
 
 
@@ -384,7 +384,14 @@ RIM_SLANT = "rimslant"  # name prefix of a vessel's slanted pinches (fallbacks)
 MAX_RIM_SLANT = MAX_GRASPS // 2  # a vessel's slanted pinches kept, on top of its MAX_GRASPS straight ones
 RIM_LEVEL = "rimlevel"  # name prefix of a vessel's level pinches (fallbacks)
 MAX_RIM_LEVEL = 36  # a vessel's level pinches kept, on top of the others
-SYNTHESIS_VERSION = 13  # part of the cache key: bump when the method changes
+# A vessel's grips across its body closing level from a sloped wall (_level_across_pairs): fallbacks (named
+# LEVEL_ACROSS, planning.grasps.FALLBACK_GRASPS), up to MAX_LEVEL_ACROSS kept on top of the others, from near normals
+# tilted more than LEVEL_ACROSS_MIN_TILT degrees off level; as wide as the straight grips may be (1 cm under the
+# pads' full opening).
+LEVEL_ACROSS = "acrosslevel"
+MAX_LEVEL_ACROSS = 36
+LEVEL_ACROSS_MIN_TILT = 5.0
+SYNTHESIS_VERSION = 14  # part of the cache key: bump when the method changes
 
 
 def _cast(scene: o3d.t.geometry.RaycastingScene, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -401,15 +408,18 @@ def _local_rays(R: np.ndarray, t: np.ndarray, grid: np.ndarray, y_shift: np.ndar
     return O.reshape(-1, 3), D.reshape(-1, 3)
 
 
-def _antipodal_pairs(scene, P: np.ndarray, N: np.ndarray, max_width: float) -> tuple[np.ndarray, np.ndarray]:
+def _antipodal_pairs(scene, P: np.ndarray, N: np.ndarray, max_width: float, D: np.ndarray | None = None,
+                     min_width: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
     """(centres, closing axes) of pairs (sample, a point where the inward line leaves the material) whose far
-    normal lies within the friction cone: the closing axis runs from the sample inwards."""
+    normal lies within the friction cone: the closing axis runs from the sample inwards, along the inward normal
+    or along `D` (unit rows; directions within the friction cone of each sample's inward normal)."""
     cos_cone, cos_wrap = np.cos(np.arctan(FRICTION_COEFF)), np.cos(np.radians(WRAP_CONE_DEG))
+    D = -N if D is None else D
     centres, axes = [], []
     origin, travelled = P - N * 1e-4, np.zeros(len(P))
     alive = np.ones(len(P), bool)
     for hit in range(4):  # exits are the 1st and 3rd hits (wall, then across a cavity and the far wall)
-        t, n_hit = _cast(scene, origin[alive], -N[alive])
+        t, n_hit = _cast(scene, origin[alive], D[alive])
         idx = np.flatnonzero(alive)
         ok = np.isfinite(t)
         travelled[idx[ok]] += t[ok]
@@ -417,11 +427,11 @@ def _antipodal_pairs(scene, P: np.ndarray, N: np.ndarray, max_width: float) -> t
         idx, t, n_hit = idx[ok], t[ok], n_hit[ok]
         if hit % 2 == 0:
             w = travelled[idx]
-            cos_far = np.einsum("ij,ij->i", n_hit, -N[idx])
-            good = (w <= max_width) & (w > 0.001) & ((cos_far >= cos_cone) | ((w < PINCH_MAX_WIDTH) & (cos_far >= cos_wrap)))
-            centres.append(P[idx[good]] - N[idx[good]] * (w[good] / 2)[:, None])
-            axes.append(-N[idx[good]] * w[good][:, None])  # closing axis scaled by the width
-        origin[idx] = origin[idx] - N[idx] * (t + 1e-4)[:, None]
+            cos_far = np.einsum("ij,ij->i", n_hit, D[idx])
+            good = (w <= max_width) & (w > min_width) & ((cos_far >= cos_cone) | ((w < PINCH_MAX_WIDTH) & (cos_far >= cos_wrap)))
+            centres.append(P[idx[good]] + D[idx[good]] * (w[good] / 2)[:, None])
+            axes.append(D[idx[good]] * w[good][:, None])  # closing axis scaled by the width
+        origin[idx] = origin[idx] + D[idx] * (t + 1e-4)[:, None]
         travelled[idx] += 1e-4
         alive[idx[travelled[idx] > max_width]] = False
         if not alive.any():
@@ -475,6 +485,24 @@ def _level_pinch_pairs(scene, P: np.ndarray, N: np.ndarray) -> tuple[np.ndarray,
     return P[good] + d[good] * (w[good] / 2)[:, None], d[good] * w[good][:, None]
 
 
+def _level_across_pairs(scene, P: np.ndarray, N: np.ndarray, max_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """(centres, closing axes) of grips across the body closing level (square to the item's z axis) from samples on
+    a sloped wall: the inward normal with its z part taken out, where that level line lies within the friction cone
+    of the sample's normal (and is more than LEVEL_ACROSS_MIN_TILT off it: closer, the pairs along the normal are
+    the same grips), to where it leaves the far wall, wider than PINCH_MAX_WIDTH, the far normal within the cone.
+    The straight pairs run along the near normal, so on a wall sloped by a angle a they cross the body at a, and
+    meet the far wall (its mirror) 2 a off its normal: outside the cone from a = 14 degrees on, though the level
+    line between the two walls is within it up to 27 degrees (an upside-down bowl's or tumbler's flared sides)."""
+    d = -N.copy()
+    d[:, 2] = 0.0
+    level = np.linalg.norm(d, axis=1)
+    keep = (level >= np.cos(np.arctan(FRICTION_COEFF))) & (level < np.cos(np.radians(LEVEL_ACROSS_MIN_TILT)))
+    if not keep.any():
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    P, N, d = P[keep], N[keep], d[keep] / level[keep, None]
+    return _antipodal_pairs(scene, P, N, max_width, D=d, min_width=PINCH_MAX_WIDTH)
+
+
 def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
     """Fin-Ray grasps for any closed mesh: antipodal pairs within the opening, the open pads and the palm clear of
     the item along the approach, the pads closing on that pair first, each pad face touching over at least
@@ -502,6 +530,12 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
         centres, axes = np.vstack([centres, more[0]]), np.vstack([axes, more[1]])
         slant = np.concatenate([slant, np.ones(len(more[0]), bool)])  # checked as slanted pinches are
         level = np.concatenate([level, np.ones(len(more[0]), bool)])
+    across = np.zeros(len(centres), bool)
+    if model.cls not in SLANTED_PINCH_CLASSES:
+        more = _level_across_pairs(scene, P, N, max_width)
+        centres, axes = np.vstack([centres, more[0]]), np.vstack([axes, more[1]])
+        slant, level = np.concatenate([slant, np.zeros(len(more[0]), bool)]), np.concatenate([level, np.zeros(len(more[0]), bool)])
+        across = np.concatenate([across, np.ones(len(more[0]), bool)])
     if not len(centres):
         return []
     widths = np.linalg.norm(axes, axis=1)
@@ -520,6 +554,7 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
     c = np.repeat(centres, APPROACHES * k, axis=0)
     slant = np.repeat(slant, APPROACHES * k)
     level = np.repeat(level, APPROACHES * k)
+    across = np.repeat(across, APPROACHES * k)
     R = np.stack([np.cross(y, z), y, z], axis=2)
     t = c + z * np.tile(CONTACT_DEPTHS, len(z) // k)[:, None]
     centroid, diameter = P.mean(axis=0), max(model.diameter, 1e-3)
@@ -605,17 +640,18 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
     per = ROUND_COPIES if round_ else 1
     if model.cls in SLANTED_PINCH_CLASSES:
         kept = _spread(best, t, y, z, w, MAX_GRASPS // per)
-        fallback, rim_level = set(), set()
+        fallback, rim_level, level_across = set(), set(), set()
     else:  # a vessel: its straight grasps as if there were no slanted ones, then its slanted ones as fallbacks
-        kept = _spread({i: v for i, v in best.items() if not slant[i]}, t, y, z, w, MAX_GRASPS // per)
+        kept = _spread({i: v for i, v in best.items() if not slant[i] and not across[i]}, t, y, z, w, MAX_GRASPS // per)
         more = _spread({i: v for i, v in best.items() if slant[i] and not level[i]}, t, y, z, w, MAX_RIM_SLANT // per)
         rim = _spread({i: v for i, v in best.items() if level[i]}, t, y, z, w, MAX_RIM_LEVEL // per)
-        kept, fallback, rim_level = kept + more + rim, set(more), set(rim)
+        wide = _spread({i: v for i, v in best.items() if across[i]}, t, y, z, w, MAX_LEVEL_ACROSS // per)
+        kept, fallback, rim_level, level_across = kept + more + rim + wide, set(more), set(rim), set(wide)
     out = []
     for rank, i in enumerate(kept):
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R[i], t[i]
-        prefix = RIM_LEVEL if i in rim_level else RIM_SLANT if i in fallback else SLANTED_PINCH if slant[i] else "ap"
+        prefix = LEVEL_ACROSS if i in level_across else RIM_LEVEL if i in rim_level else RIM_SLANT if i in fallback else SLANTED_PINCH if slant[i] else "ap"
         if not round_:
             out.append(GraspSpec(f"{prefix}{rank:03d}", T, opening=best[i][1], width=best[i][2]))
             continue

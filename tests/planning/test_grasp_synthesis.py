@@ -241,3 +241,39 @@ def test_a_third_set_of_unseen_shapes_is_classed_and_held(own_dishware_c, tmp_pa
         assert len(m.grasps) >= 40, name
         assert any(g.T_obj_tcp[2, 2] < -0.7 for g in m.grasps), name
         sim_holds(inventory, m, m.grasps[::15])
+
+
+def test_an_upside_down_flared_bowl_is_gripped_level_across_its_sloped_wall(sim_holds):
+    """A bowl whose straight wall flares by 20 degrees, upside down (rim on the floor): the only grips from above are
+    across its body. Pairs along a sample's normal cross the body at 20 degrees and meet the far wall 40 degrees
+    off its normal (outside the 27-degree friction cone), so none was found; the level line between the two walls is
+    within the cone of both. Grips across the body from the base end (from above the upside-down bowl) now exist:
+    fallbacks, closing level, each pad's wall normal within the friction cone of the closing line, narrower than
+    the open gripper less 1 cm, and the simulated Fin-Ray holds the bowl with them."""
+    from kitchenbot.planning.grasp_synthesis import (FRICTION_COEFF, LEVEL_ACROSS, PINCH_MAX_WIDTH, _cast,
+                                                     synthesise_grasps)
+    from kitchenbot.world.dishware import _profile_closed, lathe
+    from kitchenbot.world.inventory import Inventory, ObjectModel
+
+    slope = np.tan(np.radians(20.0))
+    outer = [(0, 0), (0.028, 0), (0.030, 0.002)] + [(0.030 + slope * (z - 0.002), z) for z in np.linspace(0.01, 0.062, 6)]
+    mesh = lathe(_profile_closed(np.array(outer, float), 0.004))
+    mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
+    mesh.compute_vertex_normals()
+    mesh.compute_triangle_normals()
+    bowl = ObjectModel(1, "flared_bowl", "bowl", mesh, 0.13, symmetries_continuous=[{"axis": [0, 0, 1], "offset": [0, 0, 0]}])
+    bowl.grasps = synthesise_grasps(bowl)
+    from_base = [g for g in bowl.grasps if g.T_obj_tcp[2, 2] > 0.7 and g.width > PINCH_MAX_WIDTH]
+    assert len(from_base) >= 12
+    assert all(g.name.startswith(LEVEL_ACROSS) for g in from_base)  # fallbacks: ranked after the straight grasps
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    cos_cone = np.cos(np.arctan(FRICTION_COEFF))
+    for g in from_base:
+        y, p = g.T_obj_tcp[:3, 1], g.T_obj_tcp[:3, 3]
+        assert abs(y[2]) < 1e-6  # level
+        assert g.width <= MAX_OPENING - 0.01 + 0.003 and g.opening <= MAX_OPENING
+        for s in (1.0, -1.0):  # each wall where the closing line through the TCP meets it: within the cone
+            t, n = _cast(scene, (p + s * y * 0.1)[None], (-s * y)[None])
+            assert np.isfinite(t[0]) and n[0] @ (s * y) >= cos_cone
+    sim_holds(Inventory([bowl]), bowl, from_base[::4])
