@@ -542,6 +542,12 @@ class Planner:
         # Every lift may leave those start contacts with other items, none may meet one again once left (see
         # _contact_comes_back): the margins above see one unbroken contact where the items part and meet again.
         held_item_pairs = [p for p in start_contacts if any(x in by_name for x in p)]
+        # An item lying on the held one is checked from the lift's first state (above): where the held item is
+        # already within the margin of it at the grasp, every lift (each direction, each sidestep) fails at that
+        # first state, and so does every other grasp of the item (the held item's pose is the same). Said once.
+        pinned = self._pinned_by(vertical_start_scene, start_scene, q_grasp, on_it)
+        if pinned is not None:
+            return pinned
         # Straight up first; an item resting tilted in a stack comes off along its own axis (as it was
         # stacked); an item leaning on a basin wall (or in a corner) would slide up along it, so then up and
         # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
@@ -619,6 +625,25 @@ class Planner:
                 first.details["lift_objects"] = sorted(lift_objects)
             first.details["held_blocked"] = held_only
         return first
+
+    @staticmethod
+    def _pinned_by(vertical_start_scene: Scene, start_scene: Scene, q_grasp: np.ndarray,
+                   on_it: set[str]) -> CartesianPathFailed | None:
+        """The lift's failure when the held item, at the grasp, is within the margin of an item lying on it (names
+        in `on_it`, ``obj:...``), else None. Every lift line starts at the grasp and checks that pair from its first
+        state on, in either start scene, so each direction and sidestep would fail there: the failure the first
+        (straight up) line gives, with what the others would add (``lift_objects``), and ``held_blocked`` (no other
+        grasp of the item changes it; the item lying on it goes first)."""
+        if not on_it:
+            return None
+        pairs = vertical_start_scene.colliding_pairs(q_grasp)
+        if not any("held" in p and on_it.intersection(p) for p in pairs):
+            return None
+        names = {n[4:] for p in pairs + start_scene.colliding_pairs(q_grasp) for n in p if n.startswith("obj:")}
+        what = ", ".join(f"{a}/{b}" for a, b in pairs[:4])
+        return CartesianPathFailed(f"lift: straight line collides ({what})",
+                                   {"pairs": pairs, "q": np.asarray(q_grasp).tolist(), "segment": "lift",
+                                    "lift_objects": sorted(names), "held_blocked": True})
 
     # m of gap after which the held item has left a neighbour it started against (a touch after that is a new
     # contact): none, as in the simulator and a real arm's contact detection, where any configuration at which the
