@@ -46,7 +46,6 @@ from kitchenbot.planning.types import (
     Trajectory,
     marks_of,
 )
-from kitchenbot.planning.unseen_parts import unsettled_part_points
 from kitchenbot.transforms import check_rigid, inv, rot_z, trans
 from kitchenbot.world.attitude import is_lying
 from kitchenbot.world.cell import Cell
@@ -159,12 +158,6 @@ class Planner:
         h = None
         if held is not None:
             h = Held(self.inventory[held.obj.obj_id], held.T_tcp_obj, held.spec.width)
-            # the held item keeps clear of where a neighbour's part its fit does not settle may be (a mug's handle
-            # turned about its axis: planning/unseen_parts.py)
-            swept = unsettled_part_points([o for o in known if o is not exclude], self.inventory,
-                                          [held.obj] + ([] if exclude is None else [exclude]))
-            if len(swept):
-                voxels = np.unique(np.vstack([voxels, self.world.occupied_voxels(swept)]).round(9), axis=0)
         kw = {} if opening is None else {"opening": opening}
         return self.world.scene(objs, voxels, h, **kw)
 
