@@ -347,6 +347,11 @@ class Perceiver:
                     found[k] = (hyp, iid, sel[self._explained(hyp, m.points[sel])])
             if retry:
                 self._fine_check(m, found)
+            # A cup, mug or glass rejected may be fitted right but for its way up (thin-walled, nearly as wide
+            # at the rim as at the base: the search cannot always tell, ADI cannot either), and the wrong way up
+            # its cavity holds what it rests on or its own wall: it gets one more fit, turned over.
+            if self._retry_turned_over(m, views, found):
+                self._fine_check(m, found)
             verified = []
             for f in found:
                 ver = f[0].verification
@@ -427,6 +432,61 @@ class Perceiver:
             failed |= newly
             todo = {k for k, (h, _, _) in enumerate(found) if k not in failed and h.verification is not None and
                     any(self._near_each_other(h, found[j][0]) for j in newly)}
+
+    def _retry_turned_over(self, m: InstanceMap, views: list[View],
+                           found: list[tuple[Hypothesis, int, np.ndarray]]) -> bool:
+        """Each cup, mug or glass pose the verification rejects is turned over (`_turned_over`), refined and
+        verified again, with the poses that pass as its neighbours; the turned pose replaces it where it passes.
+        Whether any did (the fine check is then repeated: its neighbours are judged with it)."""
+        thr = self.settings.verify_threshold
+
+        def failed(h: Hypothesis) -> bool:
+            return h.verification is not None and h.verification.score < thr
+
+        todo = [k for k, (h, _, _) in enumerate(found) if failed(h) and self.inventory[h.obj_id].cls in FLIP_CLASSES]
+        if not todo:
+            return False
+        tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
+        tree = cKDTree(m.points)
+        changed = False
+        for k in todo:
+            h, iid, own = found[k]
+            turned = self._turned_over(m, views, h, own)
+            if turned is None:
+                continue
+            alive = [f for j, f in enumerate(found) if j != k and not failed(f[0])] + [(turned, iid, own)]
+            self._fine_parts(m, tree, tol, turned, own, alive)
+            if not failed(turned):
+                log.debug("perception: %s kept turned over (%.3f -> %.3f)", self.inventory[h.obj_id].name,
+                          h.verification.score, turned.verification.score)
+                found[k] = (turned, iid, own)
+                changed = True
+        return changed
+
+    def _turned_over(self, m: InstanceMap, views: list[View], h: Hypothesis, own: np.ndarray) -> Hypothesis | None:
+        """The pose turned half round about a horizontal axis through the middle of the model (its x axis there),
+        refined on the points the pose explained (`own`), with the checks every pose must pass (`_accepted`);
+        None where it fails them or the ICP slid off (its axis more than 45 deg from the turned one, or its
+        centre more than 0.2 diameter away: a fit onto another item is no turn)."""
+        model, entry = self.inventory[h.obj_id], self.database[h.obj_id]
+        query = self._query(m.select(own), views, point_features=False)  # registered and scored only
+        if len(query.points) < 8:
+            return None
+        scorer = Scorer(entry, query.points, views, self.settings.voxel_size,
+                        inside_solid=self._inside_solid(self._up()), depths=self._depths)
+        c = 0.5 * (model.points.min(axis=0) + model.points.max(axis=0))
+        R = np.diag([1.0, -1.0, -1.0])
+        T_over = np.eye(4)
+        T_over[:3, :3], T_over[:3, 3] = R, c - R @ c
+        Tf = h.T_base_obj @ T_over
+        t = refine(query, entry, scorer, Tf, self.reg_cfg, h.source + "-over",
+                   symmetric=model.is_rotationally_symmetric)
+        if t.T_base_obj[:3, 2] @ Tf[:3, 2] < np.cos(np.radians(45)) or \
+                np.linalg.norm(t.T_base_obj[:3, :3] @ c + t.T_base_obj[:3, 3] - Tf[:3, :3] @ c - Tf[:3, 3]) > \
+                0.2 * model.diameter:
+            return None
+        t.score *= self._colour_weight(query, t, 1.0)
+        return self._accepted(query, t, scorer)
 
     def _near_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Whether one pose can explain points the checks of the other look at (within their two diameters)."""

@@ -263,3 +263,73 @@ def test_a_mug_fitted_with_its_handle_turned_off_is_turned_to_where_the_handle_i
     T_fit = T_cup @ make_T(np.eye(3), [-c[0], -c[1], 0.0])  # the mug's body axis on the cup's
     assert scorer(T_fit)[3] > 0.05
     assert turn_clear(scorer, T_fit, mug.points) is None
+
+
+def _instance_map(views, labels, k=0):
+    """The map points of rendered object k (all views), as one instance."""
+    from kitchenbot.perception.map import InstanceMap
+    from kitchenbot.perception.rgbd import backproject
+
+    pts, vw, px = [], [], []
+    for j, (v, lab) in enumerate(zip(views, labels)):
+        p, rc = backproject(v, lab == k)
+        pts.append(p)
+        vw.append(np.full(len(p), j))
+        px.append(rc)
+    pts = np.concatenate(pts)
+    return InstanceMap(pts, np.zeros(len(pts), int), np.concatenate(vw), np.concatenate(px),
+                       np.array([v.T_base_cam[:3, 3] for v in views]))
+
+
+def test_a_vessel_fitted_the_wrong_way_up_and_rejected_is_turned_over_and_kept(inventory, cell, perceiver):
+    """A glass and a cup standing upright, and upside down, on the sink floor, fitted turned half round about a
+    horizontal axis through their middle (within 0.1 diameter by ADI: the search cannot always tell the way up
+    of a partly hidden vessel). The wrong way up, the verification rejects the fit; retried turned over
+    (`_retry_turned_over`), the pose is replaced by one within 5 deg and 5 mm of the truth that passes. A glass
+    fitted onto a side plate's points, rejected, stays rejected turned over (nothing replaces it)."""
+    from scipy.spatial import cKDTree
+
+    from kitchenbot.perception.register import Hypothesis, Scorer, clean_depths
+    from kitchenbot.perception.verify import fine_tolerance, surface_noise, verify
+    from kitchenbot.perception.pipeline import FREE_SPACE_SHIFT, free_space_within
+    from kitchenbot.transforms import make_T
+
+    thr = perceiver.settings.verify_threshold
+    over = make_T(np.diag([1.0, -1.0, -1.0]), np.zeros(3))  # the models' origins are their middles
+
+    def fitted(oid, T_fit, views, m):
+        """`found` with the pose T_fit of model oid on instance m, verified as perceive() does."""
+        perceiver._active_cell, perceiver._surfaces, perceiver._depths = cell, None, clean_depths(views)
+        query = perceiver._query(m, views, point_features=False)
+        scorer = Scorer(perceiver.database[oid], query.points, views, perceiver.settings.voxel_size,
+                        inside_solid=perceiver._inside_solid(None), depths=perceiver._depths)
+        h = Hypothesis(oid, T_fit, *scorer(T_fit), source="test")
+        seen, free = free_space_within(scorer, T_fit, FREE_SPACE_SHIFT)
+        h.verification = verify(query.points, query.normals, perceiver.database[oid], T_fit, seen, free,
+                                perceiver.settings.voxel_size)
+        found = [(h, 0, np.arange(len(m.points)))]
+        tol = fine_tolerance(surface_noise(m.points))
+        perceiver._fine_parts(m, cKDTree(m.points), tol, h, found[0][2], found)
+        return found
+
+    for oid in (6, 4):  # glass, cup
+        for down in (False, True):
+            T = resting_pose(inventory, oid, 0.45, 0.0, 0.4, cell)
+            if down:
+                T = T @ over
+            views, labels = render(inventory, [(oid, T)], scan_poses(cell), cell, noise=0.002)
+            m = _instance_map(views, labels)
+            found = fitted(oid, T @ over, views, m)
+            assert found[0][0].verification.score < thr, (oid, down)  # the wrong way up: rejected
+            assert perceiver._retry_turned_over(m, views, found), (oid, down)
+            h = found[0][0]
+            assert h.verification.score >= thr
+            assert np.degrees(np.arccos(np.clip(h.T_base_obj[:3, 2] @ T[:3, 2], -1, 1))) < 5.0, (oid, down)
+            assert np.linalg.norm(h.T_base_obj[:3, 3] - T[:3, 3]) < 0.005, (oid, down)
+    # a glass fitted onto a side plate (its middle on the plate's): rejected either way up
+    T_plate = resting_pose(inventory, 2, 0.45, 0.0, 0.0, cell)
+    views, labels = render(inventory, [(2, T_plate)], scan_poses(cell), cell, noise=0.002)
+    m = _instance_map(views, labels)
+    found = fitted(6, make_T(np.eye(3), T_plate[:3, 3] + [0.0, 0.0, 0.05]), views, m)
+    assert found[0][0].verification.score < thr
+    assert not perceiver._retry_turned_over(m, views, found)
