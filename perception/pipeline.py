@@ -456,9 +456,16 @@ class Perceiver:
                 continue
             alive = [f for j, f in enumerate(found) if j != k and not failed(f[0])] + [(turned, iid, own)]
             self._fine_parts(m, tree, tol, turned, own, alive)
-            if not failed(turned):
-                log.debug("perception: %s kept turned over (%.3f -> %.3f)", self.inventory[h.obj_id].name,
-                          h.verification.score, turned.verification.score)
+            a, b = h.verification, turned.verification
+            # The turn is to set the way up right, not to fit other points: the turned fit must explain the points
+            # at least as well (a glass over a drink can, rejected because the can's lid is in its cavity, turned
+            # over takes less of the can, further off its surface, and claims free space).
+            if not failed(turned) and b.fine >= a.fine - TURNED_MARGIN and b.explained >= a.explained - TURNED_MARGIN \
+                    and b.normals >= a.normals - TURNED_MARGIN and b.free_space <= a.free_space + TURNED_MARGIN:
+                log.debug("perception: %s kept turned over (%.3f -> %.3f; %s -> %s)", self.inventory[h.obj_id].name,
+                          h.verification.score, turned.verification.score,
+                          {a: round(b, 3) for a, b in h.verification.parts().items()},
+                          {a: round(b, 3) for a, b in turned.verification.parts().items()})
                 found[k] = (turned, iid, own)
                 changed = True
         return changed
@@ -982,6 +989,9 @@ class Perceiver:
         return (h, k) if h is not None else (None, None)
 
 
+# By how much a vessel's pose turned over after a rejection may explain its points less well (`fine`, `explained`,
+# `normals`, `free_space`; verification parts are shares) and replace it (Perceiver._retry_turned_over).
+TURNED_MARGIN = 0.02
 # How far (metres) a pose may be off and still count as right (the fits' error on partly hidden items lying or
 # leaning: about a centimetre): the free-space check judges the best rigid shift within it (see free_space_within).
 FREE_SPACE_SHIFT = 0.01
