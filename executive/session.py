@@ -78,7 +78,6 @@ def build_runner(config, task_name: str, seed: int | None = None, *, record_path
                  journal_path=None, dataset_dir=None, listeners=None, robot=None, options: RunOptions | None = None,
                  journal: Journal | None = None, planner=None) -> TaskRunner:
     from kitchenbot.executive.assembly import assemble
-    from kitchenbot.executive.threads import limit_blas_threads
     from kitchenbot.planning.pick_place import Planner
     from kitchenbot.tasks import make_task
 
@@ -87,7 +86,6 @@ def build_runner(config, task_name: str, seed: int | None = None, *, record_path
     if task_name not in TASKS:
         raise ValueError(f"unknown task {task_name!r}; expected one of {sorted(TASKS)}")
     seed = config.sim.seed if seed is None else seed
-    limit_blas_threads()  # small arrays: OpenBLAS's extra threads only cost CPU (executive/threads.py)
     owns = robot is None
     robot = robot or assemble(config, seed)
     task = make_task(task_name, robot.inventory, robot.cell)
