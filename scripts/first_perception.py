@@ -3,11 +3,14 @@
 
     python scripts/first_perception.py sink-to-dishwasher 681 [--save views.pkl]
     python scripts/first_perception.py sink-to-dishwasher 681 --views views.pkl   # perceive saved views only
+    python scripts/first_perception.py sink-to-dishwasher 681 --views views.pkl --profile OUT   # ... under cProfile
 
 Assembles the cell as `kitchenbot run --sim` does (shipped simulation config, fake drivers), runs the task up to its
 first `perceive`, and prints one line per pipeline stage: the stage, a short hash of its output (floats bit for bit)
 and, for the poses, each pose's class and position. Run it in two processes and compare: the first stage whose
-hash differs is where the runs part. Exits right after the first perception.
+hash differs is where the runs part. Exits right after the first perception. `--profile OUT` (with --views): the
+perception under cProfile with a process-CPU timer instead of the hashes: OUT.pstats, OUT.txt (top functions by
+cumulative CPU time), and the call's CPU time and stage split printed (docs/executive.md, "Cycle time").
 """
 
 from __future__ import annotations
@@ -92,12 +95,35 @@ def report(res, out: list[str]) -> None:
     print("\n".join(out), flush=True)
 
 
+def profile(perceiver, views, out: str) -> None:
+    """One perception of `views` under cProfile (process CPU): OUT.pstats, OUT.txt; prints its CPU and stages."""
+    import cProfile
+    import io
+    import pstats
+    import time
+
+    pr = cProfile.Profile(time.process_time)
+    c0 = time.process_time()
+    pr.enable()
+    res = perceiver.perceive(views)
+    pr.disable()
+    cpu = time.process_time() - c0
+    pr.dump_stats(out + ".pstats")
+    s = io.StringIO()
+    pstats.Stats(pr, stream=s).sort_stats("cumulative").print_stats(120)
+    with open(out + ".txt", "w") as f:
+        f.write(s.getvalue())
+    print(f"perceive: {cpu:.2f} s CPU (under the profiler), {len(res.poses)} poses; stages (CPU ms): "
+          + ", ".join(f"{k} {v:.0f}" for k, v in res.timings_cpu_ms.items()), flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("task", nargs="?")
     ap.add_argument("seed", nargs="?", type=int)
     ap.add_argument("--save", help="pickle the first scan's views here")
     ap.add_argument("--views", help="perceive the views pickled by --save (with the cell of TASK SEED), nothing else")
+    ap.add_argument("--profile", help="with --views: profile the perception into PROFILE.pstats / PROFILE.txt")
     a = ap.parse_args()
     out: list[str] = []
     from kitchenbot.executive.config import DriversConfig, load_config
@@ -110,6 +136,9 @@ def main() -> None:
         with open(a.views, "rb") as f:
             views = pickle.load(f)
         perceiver, _ = make_perceiver(cfg, assemble(cfg, a.seed), False)
+        if a.profile:
+            profile(perceiver, views, a.profile)
+            return
         out.append(f"views: {digest(views)}")
         instrument(perceiver, out)
         report(perceiver.perceive(views), out)
