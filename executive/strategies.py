@@ -35,6 +35,10 @@ class PlanFailure:
     stage: str  # pick | place
     strategy: str
     blocking: int | None = None  # the instance the planner named as lying on the item or in its lift's way
+    # every instance so named, and whether the item is pinned by them (its lift fails at the grasp, whatever the
+    # grasp: planning.pick_place, Planner._pinned_by), so it fails so until one of them moves
+    blocking_all: tuple = ()
+    pinned: bool = False
 
 
 @dataclass
@@ -91,7 +95,9 @@ def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) ->
         if not pick.ok:
             # the first place failure says more than "no other grasp" after it
             return first or PlanFailure(pick.kind, f"no pick plan for the {obj.cls}: {pick}", "pick", name,
-                                        pick.details.get("blocking"))
+                                        pick.details.get("blocking"),
+                                        tuple(i for i, _ in pick.details.get("blocking_all", ())),
+                                        bool(pick.details.get("pinned")))
         req.note("command", "plan_place", grasp=pick.grasp.spec.name, staging=staging)
         place = req.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=b.map_points)
         req.check_deadline()
@@ -481,7 +487,8 @@ def plan_item(req: PlanRequest, strategies: list[Strategy], counts: dict) -> Ite
             c["tried"] += 1
             c["planned"] += 1
             blocking = f.blocking
-    raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking)
+    pinned = {"pinned_by": f.blocking_all} if blocking is not None and f.pinned and f.blocking_all else {}
+    raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking, **pinned)
 
 
 def harder_settings(s):
