@@ -74,6 +74,7 @@ class RecoveryActions:
         on_it = [p for i in ids for p in b.scene_objects() if i >= 0 and p.instance_id == i]
         if ids and len(on_it) == len(ids) and self.item.staged is None:  # it waits until one of them moves
             b.record_pinned(obj, on_it)
+            self._log("note", "waits until what pins it moves", cls=obj.cls, by=[p.cls for p in on_it])
 
     def _act_record_failure(self, f: Failure, ctx: dict) -> None:
         obj = self.item.obj
