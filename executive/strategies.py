@@ -431,12 +431,15 @@ class PickHiddenBlocker(Strategy):
 
 class BlockerFirst(Strategy):
     """The planner named the item lying on this one or in the way of its lift: that one is selected next (an
-    item the task does not want is moved out of the way by the task's targets for it); this one waits."""
+    item the task does not want is moved out of the way by the task's targets for it); this one waits. One pinned
+    by what lies on it (its lift fails at the grasp, whatever the grasp) is not planned again until that moves;
+    where it would be tried, the deepest item of its chain is (executive/waiting.py)."""
 
     name = "blocker_first"
     when = "the newest failure names an item lying on this one or in its lift's way (`details.blocking`)"
     does = "no motion: that item is selected next (moved out of the way by the task's targets for it, even one " \
-           "the task does not want); this one waits"
+           "the task does not want), or the deepest item of its chain where it is pinned too; this one waits " \
+           "(pinned: not planned again until an item pinning it, or it, moves, or the map around it gains points)"
 
     def applies(self, failure, obj, belief, req):
         return failure is not None and failure.blocking is not None and failure.blocking >= 0
