@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from kitchenbot.executive import machine as M
+from kitchenbot.executive.waiting import Waits
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import MapPoints
 from kitchenbot.tasks.base import Placed
@@ -128,6 +129,7 @@ class Belief:
     unplannable: list[ObjectPose] = field(default_factory=list)  # failed to plan with the current poses
     blocked_by: dict = field(default_factory=dict)  # instance id -> the instance id the planner said blocks it
     prefer_instance: int | None = None  # the item to try next (it blocks the last one tried)
+    waits: Waits = field(default_factory=Waits)  # items pinned by what lies on them: not planned until that moves
     drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
     unseen_placement: Placed | None = None  # the record of a placement its check did not see
     dropped: int = 0  # items that left the gripper on the way
@@ -331,6 +333,15 @@ class Belief:
         if blocker is not None:
             self.blocked_by[obj.instance_id] = blocker
         self.prefer_instance = blocker
+
+    def record_pinned(self, obj: ObjectPose, on_it: list[ObjectPose]) -> None:
+        """`obj` cannot be lifted while `on_it` lie on it as they do (its pick failed pinned by them): it is not
+        planned again until one of them (or it) moves, or the map around it gains points (executive/waiting.py)."""
+        self.waits.record(obj, on_it, self.map_points)
+        t = self.attempts_for(obj, create=True)
+        why = self.waits.reason(obj)
+        if why not in t.reasons:
+            t.reasons.append(why)
 
     def take_preferred(self) -> int | None:
         """The item to try next (once)."""

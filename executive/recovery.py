@@ -66,8 +66,15 @@ class RecoveryActions:
             self.belief.record_unplannable(obj)
 
     def _act_prefer_blocker(self, f: Failure, ctx: dict) -> None:
-        if self.item.obj is not None:
-            self.belief.record_blocked(self.item.obj, f.details.get("blocking"))
+        b, obj = self.belief, self.item.obj
+        if obj is None:
+            return
+        b.record_blocked(obj, f.details.get("blocking"))
+        ids = f.details.get("pinned_by") or ()
+        on_it = [p for i in ids for p in b.scene_objects() if i >= 0 and p.instance_id == i]
+        if ids and len(on_it) == len(ids) and self.item.staged is None:  # it waits until one of them moves
+            b.record_pinned(obj, on_it)
+            self._log("note", "waits until what pins it moves", cls=obj.cls, by=[p.cls for p in on_it])
 
     def _act_record_failure(self, f: Failure, ctx: dict) -> None:
         obj = self.item.obj

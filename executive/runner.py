@@ -34,6 +34,7 @@ from kitchenbot.executive.report import RunReport
 from kitchenbot.executive.stage_times import StageTimes
 from kitchenbot.executive.strategies import aside_targets, strategies_for
 from kitchenbot.executive.verification import Verification
+from kitchenbot.executive.waiting import Chains
 from kitchenbot.perception.pipeline import Perceiver
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import NoFreeSlot, Trajectory  # noqa: F401
@@ -387,11 +388,20 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         return "perceived"
 
     def _candidates(self, this_scan: bool = False) -> list[ObjectPose]:
-        """Objects with attempts left; `this_scan`: also not yet failed to plan with the current perception
-        (the same poses give the same answer: try the others first, this one again after the next scan)."""
+        return self._ordered(this_scan, None)[0]
+
+    def _ordered(self, this_scan: bool, prefer: int | None) -> tuple[list[ObjectPose], list[ObjectPose]]:
+        """(objects with attempts left, those tried for another's sake). `this_scan`: not yet failed to plan with the
+        current perception (the same poses give the same answer); one that waits for what pins it: the deepest item
+        of its chain instead (executive/waiting.py); `prefer` (an instance id) first: an item the task does not want
+        lying on one it does (a glass on a mug on a cup) is moved out of the way if it is in the sink."""
         b = self.belief
-        return [p for p in self.task.remaining(b.poses) if not b.exhausted(p)
-                and not (this_scan and any(p is q for q in b.unplannable))]
+        fresh = lambda p: not (this_scan and any(p is q for q in b.unplannable))  # noqa: E731
+        cands = [p for p in self.task.remaining(b.poses) if not b.exhausted(p) and fresh(p)]
+        first = next((p for p in b.poses if prefer is not None and prefer >= 0 and p.instance_id == prefer), None)
+        usable = lambda p: any(p is q for q in cands) or (self.task.in_sink(p) and (fresh(p) or p is first) and (  # noqa: E731
+            not b.exhausted(p) or aside_targets(self.task, b, p) is not None))
+        return Chains(b.waits, b.scene_objects(), b.map_points, usable).order(cands, first)
 
     def _do_select_grasp(self) -> str:
         b = self.belief
@@ -408,20 +418,11 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
             self.item = Item(obj, targets, st)
             self._log("note", "selected", obj_id=obj.obj_id, cls=obj.cls, xyz=obj.T_base_obj[:3, 3], staged=True)
             return "selected"
-        cands = self._candidates(this_scan=True)
-        prefer = b.take_preferred()
-        if prefer is not None and prefer >= 0:
-            if not any(p.instance_id == prefer for p in cands):
-                # an item the task does not want lies on the one it does (a glass on a mug on a cup): it is
-                # moved out of the way (the task's targets for it) if it is in the sink and not tried out
-                extra = [p for p in b.poses if p.instance_id == prefer and self.task.in_sink(p)]
-                if extra and (not b.exhausted(extra[0]) or aside_targets(self.task, b, extra[0]) is not None):
-                    cands.insert(0, extra[0])
-            cands.sort(key=lambda p: p.instance_id != prefer)  # stable: otherwise the task's order
+        cands, for_others = self._ordered(True, b.take_preferred())
         for obj in cands:
             targets = self.task.targets(obj, b)
             if isinstance(targets, NoFreeSlot):
-                aside = aside_targets(self.task, b, obj) if prefer is not None and obj.instance_id == prefer else None
+                aside = aside_targets(self.task, b, obj) if any(obj is q for q in for_others) else None
                 if aside is not None:
                     b.record_set_aside(obj)
                     self.item = Item(obj, aside)

@@ -35,6 +35,10 @@ class PlanFailure:
     stage: str  # pick | place
     strategy: str
     blocking: int | None = None  # the instance the planner named as lying on the item or in its lift's way
+    # every instance so named, and whether the item is pinned by them (its lift fails at the grasp, whatever the
+    # grasp: planning.pick_place, Planner._pinned_by), so it fails so until one of them moves
+    blocking_all: tuple = ()
+    pinned: bool = False
 
 
 @dataclass
@@ -91,7 +95,9 @@ def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) ->
         if not pick.ok:
             # the first place failure says more than "no other grasp" after it
             return first or PlanFailure(pick.kind, f"no pick plan for the {obj.cls}: {pick}", "pick", name,
-                                        pick.details.get("blocking"))
+                                        pick.details.get("blocking"),
+                                        tuple(i for i, _ in pick.details.get("blocking_all", ())),
+                                        bool(pick.details.get("pinned")))
         req.note("command", "plan_place", grasp=pick.grasp.spec.name, staging=staging)
         place = req.planner.plan_place(pick.end, pick.grasp, targets, objects=others, map_points=b.map_points)
         req.check_deadline()
@@ -425,12 +431,15 @@ class PickHiddenBlocker(Strategy):
 
 class BlockerFirst(Strategy):
     """The planner named the item lying on this one or in the way of its lift: that one is selected next (an
-    item the task does not want is moved out of the way by the task's targets for it); this one waits."""
+    item the task does not want is moved out of the way by the task's targets for it); this one waits. One pinned
+    by what lies on it (its lift fails at the grasp, whatever the grasp) is not planned again until that moves;
+    where it would be tried, the deepest item of its chain is (executive/waiting.py)."""
 
     name = "blocker_first"
     when = "the newest failure names an item lying on this one or in its lift's way (`details.blocking`)"
     does = "no motion: that item is selected next (moved out of the way by the task's targets for it, even one " \
-           "the task does not want); this one waits"
+           "the task does not want), or the deepest item of its chain where it is pinned too; this one waits " \
+           "(pinned: not planned again until an item pinning it, or it, moves, or the map around it gains points)"
 
     def applies(self, failure, obj, belief, req):
         return failure is not None and failure.blocking is not None and failure.blocking >= 0
@@ -481,7 +490,8 @@ def plan_item(req: PlanRequest, strategies: list[Strategy], counts: dict) -> Ite
             c["tried"] += 1
             c["planned"] += 1
             blocking = f.blocking
-    raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking)
+    pinned = {"pinned_by": f.blocking_all} if blocking is not None and f.pinned and f.blocking_all else {}
+    raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking, **pinned)
 
 
 def harder_settings(s):

@@ -397,6 +397,8 @@ class Planner:
             if res.details.pop("held_blocked", False):
                 break  # the held item itself cannot be lifted out in any direction: no other grasp changes that
         assert last is not None
+        # ``pinned``: at its grasp the item is within the margin of what lies on it (_pinned_by): every grasp fails
+        # so while it and those items lie as they do (the executive does not plan it again until then)
         last.details["candidates_tried"] = tried
         last.details["candidates"] = why
         if hit and target is not None:
@@ -636,7 +638,7 @@ class Planner:
         what = ", ".join(f"{a}/{b}" for a, b in pairs[:4])
         return CartesianPathFailed(f"lift: straight line collides ({what})",
                                    {"pairs": pairs, "q": np.asarray(q_grasp).tolist(), "segment": "lift",
-                                    "lift_objects": sorted(names), "held_blocked": True})
+                                    "lift_objects": sorted(names), "held_blocked": True, "pinned": True})
 
     # m of gap after which the held item has left a neighbour it started against (a touch after that is a new
     # contact): none, as in the simulator and a real arm's contact detection, where any configuration at which the

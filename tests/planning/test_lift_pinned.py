@@ -65,3 +65,15 @@ def test_the_same_answer_as_trying_every_lift(monkeypatch, planner, home, cup_on
     assert (every.kind, every.message, every.details.get("blocking")) == (once.kind, once.message, once.details.get("blocking"))
     assert every.details.get("candidates_tried") == once.details.get("candidates_tried")
     assert planner.plan_pick(home, [plate, cup], target=cup).ok  # the cup comes out first
+
+
+def test_the_pinned_failure_says_so(monkeypatch, planner, home, cup_on_plate):
+    """The executive keeps a pinned item waiting until what pins it moves (executive/waiting.py): the failure says
+    it is pinned, and by what; a lift that failed line by line does not."""
+    plate, cup = cup_on_plate
+    once = planner.plan_pick(home, [plate, cup], target=plate)
+    assert once.details.get("pinned") is True
+    assert [i for i, _ in once.details["blocking_all"]] == [cup.instance_id]
+    monkeypatch.setattr(Planner, "_pinned_by", staticmethod(lambda *a: None))
+    every = planner.plan_pick(home, [plate, cup], target=plate)
+    assert not every.details.get("pinned")
