@@ -317,7 +317,7 @@ def _underside_pinches(model: ObjectModel, scene, axis: np.ndarray, r_rim: float
         q = axis + radial * (r_rim - 0.004)
         rays = np.array([[q[0], q[1], 1.0, 0.0, 0.0, -1.0], [q[0], q[1], -1.0, 0.0, 0.0, 1.0]], np.float32)
         ans = scene.cast_rays(o3d.core.Tensor(rays))
-        t, n = ans["t_hit"].numpy(), ans["primitive_normals"].numpy()
+        t, n = ans["t_hit"].numpy().astype(float), ans["primitive_normals"].numpy().astype(float)
         if not np.all(np.isfinite(t)):
             continue
         c = np.array([q[0], q[1], ((1.0 - t[0]) + (-1.0 + t[1])) / 2])
