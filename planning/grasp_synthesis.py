@@ -250,11 +250,17 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
     out = []
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(model.mesh))
+    if model.cls == "plate":
+        grasps += _underside_pinches(model, scene, axis, r_rim, grasps)
     surface = None
     if model.cls != "plate":
         o3d.utility.random.seed(2)
         # ~2 mm apart: a wall crossing a 16 x 26 mm pad leaves dozens of points inside it
         surface = np.vstack([np.asarray(model.mesh.sample_points_uniformly(30000).points), V]).astype(np.float32)
+    under_surface = None
+    if model.cls == "plate":
+        o3d.utility.random.seed(2)
+        under_surface = np.vstack([np.asarray(model.mesh.sample_points_uniformly(30000).points), V]).astype(np.float32)
     for kind, k, Ts in grasps:
         # (a pitched foot pinch comes as its backed-off alternatives, nearest first: the first that fits is kept)
         for T in (Ts if isinstance(Ts, list) else [Ts]):
@@ -273,6 +279,8 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
             opening = min(MAX_OPENING, w + slack)
             if surface is not None and not _pads_clear(surface, T, opening):
                 continue
+            if kind.startswith(UNDERSIDE) and not _pads_clear(under_surface, T, opening):
+                continue  # mirrored, a pad would cut into the plate's well (checked on the mesh, not assumed)
             out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=opening, width=w))
             break
     # A rim pinch that also takes in something else (the root of a mug's handle) is not a rim pinch.
@@ -280,6 +288,46 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
     if rim_w:
         limit = 2.0 * float(np.median(rim_w))
         out = [g for g in out if not (g.name.startswith(("rim_", "rimroll")) and g.width > limit)]
+    return out
+
+
+# A plate lying upside down (tipped over from leaning on a wall, a stack of them face down) offers its lip from
+# its underside only: every rim pinch above approaches along -z of the plate, so upside down they all come from
+# below and the plate had no grasp at all. A plate is a thin sloped band at its lip, pinched the same from either
+# face, so the lip pinches that lean in from outside (`rimtilt`, `rimlean`) are mirrored through the lip's
+# mid-surface: the gripper outside the rim, one pad on the underside, the other under the (now lower) edge. Each
+# is kept only where its pads close across the lip (`pad_span`) and the open pads keep out of the plate's mesh
+# (`_pads_clear`: the reflected band slopes the other way, so that is checked, not assumed). Fallbacks
+# (planning.grasps.FALLBACK_GRASPS): an upright plate's grasps are unchanged, and these come from below for it.
+UNDERSIDE = "rimunder"
+UNDERSIDE_FROM = ("rimtilt", "rimlean")
+
+
+def _underside_pinches(model: ObjectModel, scene, axis: np.ndarray, r_rim: float, grasps: list) -> list:
+    """The plate's lip pinches from its underside: `UNDERSIDE_FROM` grasps reflected through the lip's
+    mid-surface (the plane half-way between its top and its underside 4 mm in from the edge, along the top's
+    normal there: the band maps onto itself), as (kind, k, T) rows like `grasps`'."""
+    out = []
+    for kind, k, T in grasps:
+        if not kind.startswith(UNDERSIDE_FROM) or isinstance(T, list):
+            continue
+        radial = np.asarray(T[:3, 3], float) - axis
+        radial[2] = 0.0
+        radial /= np.linalg.norm(radial)
+        q = axis + radial * (r_rim - 0.004)
+        rays = np.array([[q[0], q[1], 1.0, 0.0, 0.0, -1.0], [q[0], q[1], -1.0, 0.0, 0.0, 1.0]], np.float32)
+        ans = scene.cast_rays(o3d.core.Tensor(rays))
+        t, n = ans["t_hit"].numpy().astype(float), ans["primitive_normals"].numpy().astype(float)
+        if not np.all(np.isfinite(t)):
+            continue
+        c = np.array([q[0], q[1], ((1.0 - t[0]) + (-1.0 + t[1])) / 2])
+        nz = n[0] / np.linalg.norm(n[0])
+        H = np.eye(3) - 2.0 * np.outer(nz, nz)
+        M = np.eye(4)
+        # reflect the frame (approach and closing axes), then flip its pad-width axis so it stays right-handed
+        M[:3, :3] = H @ T[:3, :3] @ np.diag([-1.0, 1.0, 1.0])
+        M[:3, 3] = T[:3, 3] - 2.0 * ((T[:3, 3] - c) @ nz) * nz
+        out.append((f"{UNDERSIDE}{kind[len('rim'):]}", k, M))
     return out
 
 

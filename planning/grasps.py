@@ -133,7 +133,7 @@ def observed_in_grip(P_tcp: np.ndarray, opening: float, gripper, pad_depth: floa
 # neighbour along its body; and the grasps that straddle a handle on its roots (held by the handle, the body's
 # weight turns about the closing line), for a mug lying with its handle part-way up. They rank after every feasible
 # standard grasp.
-FALLBACK_GRASPS = ("rimnarrow", "footpitch", "side10", "rimslant", "rimlevel", "acrosslevel", "handle")
+FALLBACK_GRASPS = ("rimnarrow", "footpitch", "side10", "rimslant", "rimlevel", "acrosslevel", "handle", "rimunder")
 FALLBACK_PENALTY = 1.0
 # A grasp whose pads brush a neighbour (planning/pad_give.py) ranks after the standard grasps that keep clear.
 PAD_GIVE_PENALTY = 1.0
