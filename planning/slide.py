@@ -9,7 +9,8 @@ surface; the closed gripper comes down on it pointing straight down (the Fin-Ray
 their compliance gives the normal force), moves ``distance`` sideways level, and goes back up. The direction is
 the first of eight (most free room first) in which the moved item stays inside the sink, touches nothing new,
 and (if asked) can then be picked. The item is modelled as held during the slide; its contacts with what it
-rests on are allowed for the whole slide (it slides on them).
+rests on are allowed for the whole slide (it slides on them), and NearItems keeps it off every item that may not
+carry it (within a millimetre, which one carries it is below what a fitted pose resolves).
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ from kitchenbot.world.gripper import FINGERS
 FLOOR = "cell:sink_floor"  # a slid item that slides off what it rested on comes down onto it (_slide_path)
 CLIMB_START, CLIMB_SLOPE = 0.004, 0.4  # m, m/m: the most a slid item may rise over the way slid (_slide_path)
 PRESS_DEPTH = 0.003  # m the finger tips go into the surface (the simulator's tips; see fakes.arm._press_drag)
+NEAR_GAP = 0.001  # m: an item this near the slid one may be what carries it or not (below what a fit resolves)
+NEAR_SLACK = 0.0001  # m: nearer to such an item than at the start, or up or down leaving one, by more (NearItems)
+LEAVE_TOL = 0.00001  # m: a gap growing by more than this over a part of a step: that item is being left
 
 
 def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
@@ -206,8 +210,66 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
     return out
 
 
+class NearItems:
+    """The slid item's gaps (coal, exact meshes) to the other items, to keep the slide off every item that may
+    not carry it. Pressed from above, the item rides on what it touches at the start; a new contact on the way is
+    a collision (the simulated arm stops on it, as a real one pushing into a neighbour would). Which of two items
+    a few tenths of a millimetre apart carries it is below what the fitted poses resolve (a lying mug on a plate
+    0.4 mm from a bowl's flank; on a bowl 45 micrometres above a plate), so a step of the slide is safe only if it
+    is safe whichever of the items within NEAR_GAP at the start carries the item:
+    - it comes within NEAR_GAP of no item it started farther from, and nearer to none it started near;
+    - while it leaves one of them and the path follows another one's surface (the planner's meshes touch there,
+      so its gap reads 0 and how the true one changes is not measured), its height changes by at most NEAR_SLACK
+      in all: a drop would set it down on that one if it truly hovers over it (a slide off a bowl onto a plate 45
+      micrometres below), a rise would push it into that one's flank if the other one carries it. Leaving them all
+      (every gap grows), riding on all of them, or following one once clear of the others is safe.
+    A direction that fails is not refused outright: plan_slide tries the next (the candidates go round the item),
+    so the slide goes the way that takes the item away from the neighbours that may not carry it; it is refused
+    only where no direction is safe."""
+
+    def __init__(self, planner, target: ObjectPose, others: list[ObjectPose]):
+        self.bvh = planner.world.bvh(planner.inventory[target.obj_id])
+        self.others = [(planner.world.bvh(planner.inventory[o.obj_id]), _tf(o.T_base_obj)) for o in others
+                       if o.obj_id in planner.inventory.models]
+        self.start = self.gaps(target.T_base_obj)
+
+    def gaps(self, T_base_obj: np.ndarray) -> np.ndarray:
+        T = _tf(np.asarray(T_base_obj, float))
+        return np.array([max(0.0, coal.distance(self.bvh, T, b, To, coal.DistanceRequest(), coal.DistanceResult()))
+                         for b, To in self.others])
+
+    def reset(self) -> None:
+        """A new slide path starts (from the item's start pose)."""
+        self.moved_while_ambiguous = 0.0
+
+    def unsafe(self, T_prev: np.ndarray, T_next: np.ndarray, parts: int = 5) -> str:
+        """Why the step from T_prev to T_next (the item's poses, moved by a translation; checked at `parts` points
+        along it) is not safe ("" when it is). Height changes while it leaves one start-near item and touches
+        another add up over the path (at most NEAR_SLACK in all)."""
+        near0 = self.start < NEAR_GAP
+        dz = float(T_next[2, 3] - T_prev[2, 3]) / parts
+        g0 = self.gaps(T_prev)
+        for i in range(1, parts + 1):
+            T = np.array(T_prev, float)
+            T[:3, 3] += (np.asarray(T_next, float)[:3, 3] - T[:3, 3]) * i / parts
+            g = self.gaps(T)
+            if np.any((g < NEAR_GAP) & ~near0):
+                return "slide: the item would come onto an item it does not start on"
+            if np.any(near0 & (g < self.start - NEAR_SLACK)):
+                return "slide: the item would come nearer to an item that may not carry it"
+            amb = near0 & (np.minimum(g0, g) < NEAR_GAP)
+            # it leaves one of them while the path follows another one's surface (touching it at both ends of the
+            # part: how the true gap to that one changes is below what the gaps measure)
+            if np.any(amb & (g > g0 + LEAVE_TOL)) and np.any(amb & (g0 <= 0.0) & (g <= 0.0)):
+                self.moved_while_ambiguous += abs(dz)
+                if self.moved_while_ambiguous > NEAR_SLACK:
+                    return "slide: the item would go up or down while two items may carry it"
+            g0 = g
+        return ""
+
+
 def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: SupportHeight,
-                step: float = 0.01):
+                step: float = 0.01, near: NearItems | None = None):
     """The slide as straight pieces every `step` metres whose heights follow the item's resting height (it
     climbs out of the one it is nested in): (trajectory, q_end, T_base_tcp_end, T_base_obj_end) or a failure.
     The item may not need to rise faster than 1:1 over a step (the fingers would push it into its support), nor
@@ -221,6 +283,9 @@ def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: 
     Q = [np.asarray(q_press, float)]
     T_end, T1 = T_press, T_obj
     prev_rise = 0.0
+    T1_prev = T_obj
+    if near is not None:
+        near.reset()
     n = int(np.ceil(distance / step))
     for k in range(1, n + 1):
         shift = distance * k / n * d
@@ -231,7 +296,11 @@ def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: 
         if rise < -(CLIMB_START + CLIMB_SLOPE * distance * k / n):
             return CartesianPathFailed("slide: the item would fall off the fingers", {"segment": "slide"})
         prev_rise = rise
-        T1 = trans(0.0, 0.0, rise) @ T1
+        T_prev, T1 = T1_prev, trans(0.0, 0.0, rise) @ T1
+        T1_prev = T1
+        why = near.unsafe(T_prev, T1) if near is not None else ""
+        if why:
+            return CartesianPathFailed(why, {"segment": "slide"})
         T_end = trans(shift[0], shift[1], rise) @ T_press
         r = cartesian_line(planner.robot, scene, Q[-1], T_end, step=planner.settings.validity_resolution,
                            check_step=planner.settings.validity_resolution, check_start=False)
@@ -277,6 +346,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     if not cands:
         return CartesianPathFailed("slide: no direction with room to slide the item", {"segment": "slide"})
     support = SupportHeight(planner, target, others)
+    near = NearItems(planner, target, others)
     voxels = planner._voxels(map_points, [o for o in objects if o.obj_id in planner.inventory.models])
     base_scene = planner.scene(objects, map_points)
     base_scene.set_opening(0.0)
@@ -340,7 +410,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
             under = {b if a == "held" else a for a, b in resting}
             shielded = [(f, u) for f in ("pad_a", "pad_b") for u in under]
             r = _slide_path(planner, slide_scene.allowing(resting + shielded + [("held", FLOOR)]), q_press, T_press,
-                            target, d, dist, support)
+                            target, d, dist, support, near=near)
             if isinstance(r, PlanningFailure):
                 first = first or r
                 continue
