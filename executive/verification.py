@@ -153,8 +153,11 @@ class Verification:
         a re-scan. Off a stack or another item, or touching one, one view of the pick region may settle it. False
         (nothing changed) when a re-scan must decide."""
         b, p = self.belief, self.belief.released
-        if (not self.opt.verify_without_rescan or p is None or p.target_view is None
-                or p.staged is not None or not any(q is p.obj for q in b.poses)):
+        if not self.opt.verify_without_rescan or p is None:
+            return False
+        if p.staged is not None:
+            return self._verified_from_the_counter(p)
+        if p.target_view is None or not any(q is p.obj for q in b.poses):
             return False
         presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
         if not (presence.decided and presence.present):
@@ -182,6 +185,28 @@ class Verification:
         else:
             b.picked_away(p.obj, self.task.pending_items(others))
             self._log("note", "verified from the placement view, no re-scan", cls=p.obj.cls)
+        self._verify_pending(presence)
+        self.counts.empty_scans = 0
+        return True
+
+    def _verified_from_the_counter(self, p) -> bool:
+        """The released item `p` was picked up from the counter, where it was staged for its regrasp: the sink was
+        not touched since its last perception (that of the put-down), and a scan's views (perception keeps what
+        lies in the basin only) show nothing of the counter, so a re-scan decides nothing about it. It is verified
+        as the re-scan would verify it (gone from where it was picked, present at its target: its target view, when
+        there is one; executive/verification.py, ``_verify_pending``), with the sink's poses and map as perceived.
+        False (nothing changed) when nothing would be left to do as perceived: the scans confirm the sink
+        empty."""
+        b = self.belief
+        others_waiting = [st for st in b.staged_waiting() if st.instance_id != p.staged.instance_id]
+        if not (self.task.remaining(b.poses) or p.staging or others_waiting):
+            return False
+        presence = None
+        if p.target_view is not None:
+            presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
+        b.counter_item_moved(p.staged, self.task.pending_items)
+        self._log("note", "a staged item verified without a re-scan: the sink was not touched", cls=p.obj.cls,
+                  seen=None if presence is None else bool(presence.decided and presence.present))
         self._verify_pending(presence)
         self.counts.empty_scans = 0
         return True
