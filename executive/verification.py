@@ -209,7 +209,24 @@ class Verification:
                   seen=None if presence is None else bool(presence.decided and presence.present))
         self._verify_pending(presence)
         self.counts.empty_scans = 0
+        self._back_over_the_sink()
         return True
+
+    def _back_over_the_sink(self) -> None:
+        """The arm to where a re-scan would have left it (the last scan waypoint, over the sink), without its views:
+        the next grasp's IK branch is chosen nearest where the arm stands, and from the rack it is another one
+        than from over the sink (development: the approaches and transfers after a placement verified at the
+        rack took longer than the re-scan's moves they replaced). A failed move is left to the next approach."""
+        wps = self.robot.config.scan_waypoints
+        if self.planner is None or not wps:
+            return
+        try:
+            self._move_joints_via(np.asarray(wps[-1], float), "back over the sink",
+                                  np.asarray(self.robot.config.robot.home, float))
+        except StepFailed as e:
+            if e.kind != "no_path":
+                raise
+            self._log("note", "no path back over the sink", reason=str(e))
 
     def _perceive_pick_region(self, obj: ObjectPose, others: list[ObjectPose],
                               moved: list[tuple[ObjectPose, str]]) -> bool:
