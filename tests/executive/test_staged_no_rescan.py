@@ -44,7 +44,7 @@ def _cups(world):
 def test_a_staged_items_placement_is_verified_without_a_rescan(make_runner, record_staged, safe_end):
     """A cup staged on the counter, another in the sink. The staged cup is placed first (in a rack); before, its
     verification re-scanned the sink (3 scans: the first, that one, the one confirming the sink empty); now the
-    sink's perception stays and the cup in the sink is picked next (2 scans)."""
+    sink's perception stays, the arm goes back over the sink, and the cup in the sink is picked next (2 scans)."""
     runner, world = make_runner(task="sink-to-dishwasher", cups=2)
     for dev in (runner.arm, runner.gripper, runner.camera):
         dev.connect()
@@ -56,6 +56,11 @@ def test_a_staged_items_placement_is_verified_without_a_rescan(make_runner, reco
     assert _notes(runner, NOTE) == 1
     assert runner.counts.scan_count == 2
     assert not runner.belief.staged
+    # instead of the re-scan's moves, one move back to where it would have left the arm (the last scan waypoint)
+    ev = runner.journal.events(runner.run_id)
+    k = next(i for i, e in enumerate(ev) if e["name"] == NOTE)
+    move = next(e for e in ev[k:] if e["name"] == "arm.execute_trajectory")
+    assert np.allclose(move["payload"]["q_end"], runner.robot.config.scan_waypoints[-1], atol=1e-6)
 
 
 def test_a_staged_item_with_nothing_left_in_the_sink_still_rescans(make_runner, record_staged, safe_end):
