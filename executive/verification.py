@@ -12,6 +12,10 @@ view does not decide, the item is not seen there, the region's view misses an it
 moved or new, nothing left to do) a re-scan and a new perception decide, as the first perception after a
 placement.
 
+An item picked up from the counter (staged there for its regrasp) and placed is verified without a re-scan: the
+sink was not touched since its last perception, and a scan's views show nothing of the counter
+(``_verified_from_the_counter``); the arm then goes back over the sink, where the re-scan would have left it.
+
 An item staged on the counter for a regrasp is recorded where it was put down, and it settles when let go (it
 rolls, turns, tips): before it is grasped again, one view straight down at it replaces its record with where the
 view shows it (``_look_at_staged``; once per record, Belief.needs_look).
