@@ -180,6 +180,16 @@ class Belief:
         self.unplannable = []
         self.pending_items = _items(pending)
 
+    def counter_item_moved(self, staged: Placed, pending) -> None:
+        """The staged item `staged` was picked up from the counter and placed, and no new perception followed: the
+        sink's poses and map stay as perceived, less a perceived item where it was staged (that was it: a
+        perception that sees the counter too); `pending(poses)` = the models the task still has to move. What
+        failed to plan with the old scene is tried again (the counter and its target changed)."""
+        xyz = np.asarray(staged.T_base_obj, float)[:3, 3]
+        self.poses = [p for p in self.poses if not same_item(p.cls, p.T_base_obj[:3, 3], staged.cls, xyz)]
+        self.unplannable = []
+        self.pending_items = _items(pending(self.poses))
+
     def region_perceived(self, poses: list[ObjectPose], map_points: np.ndarray | None, pending: list) -> None:
         """One region was perceived again (perception/region.py) and merged with the rest, which stays as
         perceived: `poses` and `map_points` are the merged ones. Contact marks stay (the sink was not seen
