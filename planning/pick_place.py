@@ -502,6 +502,12 @@ class Planner:
                     clear[p] = d - LIFT_CLEARANCE_TOL
         if clear:
             lift_scene = lift_scene.with_pair_margins(clear)
+        # A basin wall the held item is within the grasp margin of, but clear of, at the grasp: the lift keeps
+        # the gap it has there, for the whole lift (not closer); see _wall_gaps.
+        walls = self._wall_gaps(lift_scene, q_grasp, at_grasp)
+        if walls:
+            lift_scene = lift_scene.with_pair_margins(walls)
+            at_grasp = [p for p in at_grasp if p not in walls]
         # ... but not with an item lying on it (leaning on its rim): lifted, the item drags that one along, and
         # where the estimated poses are a millimetre off they are apart at the start in the world and meet on
         # the way up (a plate lifted along a glass leaning on it, with perceived poses: a protective stop)
@@ -618,6 +624,26 @@ class Planner:
                 first.details["lift_objects"] = sorted(lift_objects)
             first.details["held_blocked"] = held_only
         return first
+
+    # m: least gap to a basin wall at the grasp that a lift keeps as its margin with that wall (_wall_gaps); a
+    # smaller one is a contact (an item leaning on the wall), left within LIFT_CONTACT_TRAVEL as before
+    WALL_GAP_MIN = 0.0005
+
+    def _wall_gaps(self, scene: Scene, q_grasp: np.ndarray, pairs) -> dict:
+        """{(held, cell:...): margin} for the held item's pairs with the cell's fixed surfaces among `pairs` (those
+        within the grasp margin at the grasp) where it is clear of that surface by at least WALL_GAP_MIN: the
+        margin is that gap less LIFT_CLEARANCE_TOL (at least WALL_GAP_MIN / 2). The cell's surfaces are known
+        exactly; an item standing a millimetre or two off a basin wall (a glass leaning over a cup towards the wall)
+        is lifted straight up past it keeping that gap, where the grasp margin (2 mm) failed the lift as a
+        slide along the wall once the first LIFT_CONTACT_TRAVEL was used up."""
+        out = {}
+        for p in pairs:
+            if "held" not in p or not any(x.startswith("cell:") for x in p):
+                continue
+            d = scene.clearance(q_grasp, p, self.settings.grasp_margin)
+            if d >= self.WALL_GAP_MIN:
+                out[tuple(p)] = max(d - LIFT_CLEARANCE_TOL, self.WALL_GAP_MIN / 2)
+        return out
 
     @staticmethod
     def _pinned_by(vertical_start_scene: Scene, start_scene: Scene, q_grasp: np.ndarray,
