@@ -466,7 +466,11 @@ class Planner:
                 out.append((lift, o))
         return [o for _, o in sorted(out, key=lambda x: -x[0])]
 
-    def _plan_pick_with(self, q0, g: Grasp, objects, map_points, base_scene: Scene, timings: dict) -> PickPlan | PlanningFailure:
+    def _plan_pick_with(self, q0, g: Grasp, objects, map_points, base_scene: Scene, timings: dict,
+                        keep_wall_gaps: bool = False) -> PickPlan | PlanningFailure:
+        """Grasp-in and lift of grasp `g`, then the approach. `keep_wall_gaps`: the basin walls the held item is
+        within the grasp margin of, but clear of, at the grasp keep that gap for the whole lift (_wall_gaps): the
+        last resort, tried when every lift with the walls checked as before failed."""
         s = self.settings
         name = None
         for k, o in enumerate(objects):
@@ -504,6 +508,12 @@ class Planner:
                     clear[p] = d - LIFT_CLEARANCE_TOL
         if clear:
             lift_scene = lift_scene.with_pair_margins(clear)
+        # A basin wall the held item is within the grasp margin of, but clear of, at the grasp: on the last resort
+        # (keep_wall_gaps) the lift keeps the gap it has there, for the whole lift (not closer); see _wall_gaps.
+        walls = self._wall_gaps(lift_scene, q_grasp, at_grasp)
+        if keep_wall_gaps:
+            lift_scene = lift_scene.with_pair_margins(walls)
+            at_grasp = [p for p in at_grasp if p not in walls]
         # ... but not with an item lying on it (leaning on its rim): lifted, the item drags that one along, and
         # where the estimated poses are a millimetre off they are apart at the start in the world and meet on
         # the way up (a plate lifted along a glass leaning on it, with perceived poses: a protective stop)
@@ -615,11 +625,39 @@ class Planner:
                 timings["lift_sidestep_m"] = float(np.linalg.norm(leg[:2]))
                 return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
                                 lift_contact_travel=LIFT_CONTACT_TRAVEL)
+        if walls and not keep_wall_gaps:
+            # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
+            # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
+            again = self._plan_pick_with(q0, g, objects, map_points, base_scene, timings, keep_wall_gaps=True)
+            if not isinstance(again, PlanningFailure):
+                return again
         if first is not None:
             if lift_objects:
                 first.details["lift_objects"] = sorted(lift_objects)
             first.details["held_blocked"] = held_only
         return first
+
+    # m: least gap to a basin wall at the grasp that a lift keeps as its margin with that wall (_wall_gaps); a
+    # smaller one is a contact (an item leaning on the wall), left within LIFT_CONTACT_TRAVEL as before
+    WALL_GAP_MIN = 0.0005
+
+    def _wall_gaps(self, scene: Scene, q_grasp: np.ndarray, pairs) -> dict:
+        """{(held, cell:...): margin} for the held item's pairs with the cell's fixed surfaces among `pairs` (those
+        within the grasp margin at the grasp) where it is clear of that surface by at least WALL_GAP_MIN: the
+        margin is that gap less LIFT_CLEARANCE_TOL (at least WALL_GAP_MIN / 2). The cell's surfaces are known
+        exactly; an item standing a millimetre or two off a basin wall (a glass lying tilted over a cup, its upper
+        end by the wall) is lifted straight up past it keeping that gap, where the grasp margin (2 mm) failed the
+        lift as a slide along the wall once the first LIFT_CONTACT_TRAVEL was used up, and every lift tilted away
+        from the wall ran into the cup. A last resort (see _plan_pick_with): with the wall checked as before, an
+        item leaning on it leaves it at once, tilted away."""
+        out = {}
+        for p in pairs:
+            if "held" not in p or not any(x.startswith("cell:") for x in p):
+                continue
+            d = scene.clearance(q_grasp, p, self.settings.grasp_margin)
+            if d >= self.WALL_GAP_MIN:
+                out[tuple(p)] = max(d - LIFT_CLEARANCE_TOL, self.WALL_GAP_MIN / 2)
+        return out
 
     @staticmethod
     def _pinned_by(vertical_start_scene: Scene, start_scene: Scene, q_grasp: np.ndarray,
