@@ -33,6 +33,23 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
 
 
+@pytest.fixture(scope="session")
+def empty_sim_cell():
+    """A function giving the simulated cell (config/sim.yaml) with its sink emptied, and a planner for it:
+    `cfg, world, planner = empty_sim_cell()`; for tests that build their own hand-made situation in the sink."""
+    from kitchenbot.executive.assembly import make_sim_world
+    from kitchenbot.executive.config import load_config
+    from kitchenbot.planning.pick_place import Planner
+
+    def make(config: str = "config/sim.yaml"):
+        cfg = load_config(config)
+        world = make_sim_world(cfg, 0)
+        for u in list(world.objects):
+            world.remove_object(u)
+        return cfg, world, Planner.from_config(cfg, world.inventory)
+    return make
+
+
 def write_own_dishware(folder, cup: bool = False):
     """A BOP models/ folder of dishware this project has never seen, made here from parametric profiles: meshes
     (mm) and models_info.json with diameters only (no classes, no grasps, no symmetries). `cup`: also a handle-less

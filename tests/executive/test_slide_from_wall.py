@@ -12,13 +12,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from kitchenbot.executive.assembly import make_sim_world
 from kitchenbot.executive.belief import Belief
-from kitchenbot.executive.config import load_config
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.executive.strategies import WALL_NEAR, PlanFailure, PlanRequest, SlideFromWall, _wall_room
 from kitchenbot.fakes.placement import drop_onto
-from kitchenbot.planning.pick_place import Planner
 from kitchenbot.tasks import TASKS
 from kitchenbot.transforms import rot_x, rot_z
 
@@ -28,14 +25,10 @@ WALL_GAP = 0.003  # m between the mug and the basin's +x wall
 
 
 @pytest.fixture(scope="module")
-def scene():
+def scene(empty_sim_cell):
     """The sink emptied; a mug on its side (its axis along y) WALL_GAP from the +x wall, turned 90 degrees about
     its axis (the handle points down along the wall), dropped onto the floor."""
-    cfg = load_config("config/sim.yaml")
-    world = make_sim_world(cfg, 0)
-    for u in list(world.objects):
-        world.remove_object(u)
-    planner = Planner.from_config(cfg, world.inventory)
+    cfg, world, planner = empty_sim_cell()
     lo, hi = planner.cell.sink_interior
     mug = next(m for m in world.inventory if m.name == "mug")
     T = rot_x(np.pi / 2) @ rot_z(np.pi / 2)

@@ -11,13 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.executive.assembly import make_sim_world
 from kitchenbot.executive.belief import Belief
-from kitchenbot.executive.config import load_config
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.executive.strategies import PlanFailure, PlanRequest, SlideOffBlocked
 from kitchenbot.fakes.placement import drop_onto
-from kitchenbot.planning.pick_place import Planner
 from kitchenbot.planning.slide import slide_directions
 from kitchenbot.transforms import rot_y
 
@@ -27,14 +24,10 @@ WALL_GAP = 0.0015  # m between the cup's mouth and the basin's +x wall
 
 
 @pytest.fixture(scope="module")
-def scene():
+def scene(empty_sim_cell):
     """The sink emptied; a side plate flat on its floor 3 mm from the +x wall; a cup lying on the plate's rim
     (10 cm off the plate's centre across the wall), its axis along x, mouth to that wall, WALL_GAP from it."""
-    cfg = load_config("config/sim.yaml")
-    world = make_sim_world(cfg, 0)
-    for u in list(world.objects):
-        world.remove_object(u)
-    planner = Planner.from_config(cfg, world.inventory)
+    cfg, world, planner = empty_sim_cell()
     lo, hi = planner.cell.sink_interior
     plate = next(m for m in world.inventory if m.name == "side_plate")
     cup = next(m for m in world.inventory if m.name == "cup")

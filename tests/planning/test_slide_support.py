@@ -14,26 +14,19 @@ import coal
 import numpy as np
 import pytest
 
-from kitchenbot.executive.assembly import make_sim_world
-from kitchenbot.executive.config import load_config
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.fakes.placement import drop_onto
 from kitchenbot.planning.grasps import _tf
-from kitchenbot.planning.pick_place import Planner
 from kitchenbot.transforms import rot_y, rot_z
 
 pytestmark = pytest.mark.timeout(600)
 
 
-def _scene(gap_to_second: float | None, yaw_deg: float = 45.0):
+def _scene(empty_sim_cell, gap_to_second: float | None, yaw_deg: float = 45.0):
     """Two side plates flat on the sink floor 1 cm apart along x; a cup lying across the gap (its axis turned
     `yaw_deg` from y) dropped onto them; with `gap_to_second`, the plate it does not touch is moved along x until
     its rim is that far from the cup."""
-    cfg = load_config("config/sim.yaml")
-    world = make_sim_world(cfg, 0)
-    for u in list(world.objects):
-        world.remove_object(u)
-    planner = Planner.from_config(cfg, world.inventory)
+    cfg, world, planner = empty_sim_cell()
     lo, hi = planner.cell.sink_interior
     c = (lo + hi) / 2
     plate = next(m for m in world.inventory if m.name == "side_plate")
@@ -89,18 +82,18 @@ def _run(cfg, world, slide) -> tuple[int, int]:
     return arm.log.collisions, arm.log.protective_stops
 
 
-def test_a_slide_goes_away_from_a_neighbour_that_may_not_carry_the_item():
-    cfg, world, planner, cup, poses, gaps = _scene(0.0003)
+def test_a_slide_goes_away_from_a_neighbour_that_may_not_carry_the_item(empty_sim_cell):
+    cfg, world, planner, cup, poses, gaps = _scene(empty_sim_cell, 0.0003)
     assert sorted(np.round(gaps, 5)) == [0.0, 0.0003]  # on one plate, 0.3 mm from the other
     slide = planner.plan_slide(world.q.copy(), poses, cup, then_pickable=False)
     assert slide.ok, slide  # not refused: there is a safe way (away from the second plate) ...
     assert _run(cfg, world, slide) == (0, 0)  # ... and it runs without a contact (before: 1 collision, 1 stop)
 
 
-def test_a_slide_that_is_safe_in_no_direction_is_refused():
+def test_a_slide_that_is_safe_in_no_direction_is_refused(empty_sim_cell):
     """45 micrometres from the second plate (the gap of the slide that collided): every direction either comes
     nearer to it or climbs the first plate's rim while leaving it. Before: planned along the gap, 1 collision."""
-    cfg, world, planner, cup, poses, gaps = _scene(0.00005)
+    cfg, world, planner, cup, poses, gaps = _scene(empty_sim_cell, 0.00005)
     assert sorted(np.round(gaps, 6)) == [0.0, 0.00005]
     slide = planner.plan_slide(world.q.copy(), poses, cup, then_pickable=False)
     if slide.ok:
@@ -110,9 +103,9 @@ def test_a_slide_that_is_safe_in_no_direction_is_refused():
 
 
 @pytest.mark.parametrize("gap_to_second, yaw", [(None, 90.0), (None, 45.0)])
-def test_a_cup_on_both_plates_or_clear_of_the_second_still_slides(gap_to_second, yaw):
+def test_a_cup_on_both_plates_or_clear_of_the_second_still_slides(empty_sim_cell, gap_to_second, yaw):
     """On both rims (0 and 0), or on one 3 mm from the other: the slide plans and runs without a contact."""
-    cfg, world, planner, cup, poses, gaps = _scene(gap_to_second, yaw)
+    cfg, world, planner, cup, poses, gaps = _scene(empty_sim_cell, gap_to_second, yaw)
     slide = planner.plan_slide(world.q.copy(), poses, cup, then_pickable=False)
     assert slide.ok, slide
     assert _run(cfg, world, slide) == (0, 0)

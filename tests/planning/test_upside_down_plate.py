@@ -9,12 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.executive.assembly import make_sim_world
-from kitchenbot.executive.config import load_config
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.fakes.placement import drop_onto
 from kitchenbot.planning.grasp_synthesis import UNDERSIDE
-from kitchenbot.planning.pick_place import Planner
 from kitchenbot.transforms import rot_x
 
 pytestmark = pytest.mark.timeout(300)
@@ -26,14 +23,10 @@ def test_plates_get_underside_lip_pinches_the_simulated_gripper_holds(name, gras
 
 
 @pytest.fixture(scope="module")
-def tipped():
+def tipped(empty_sim_cell):
     """The sink emptied; a bowl upside down on its floor and a side plate face down, tilted 36 degrees, dropped
     beside it (a plate face down on a pile)."""
-    cfg = load_config("config/sim.yaml")
-    world = make_sim_world(cfg, 0)
-    for u in list(world.objects):
-        world.remove_object(u)
-    planner = Planner.from_config(cfg, world.inventory)
+    cfg, world, planner = empty_sim_cell()
     lo, hi = planner.cell.sink_interior
     c = (np.asarray(lo, float) + np.asarray(hi, float)) / 2
     bowl = next(m for m in world.inventory if m.cls == "bowl")
