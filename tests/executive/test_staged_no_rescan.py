@@ -41,16 +41,23 @@ def _cups(world):
                   key=lambda u: world.objects[u].T_base_obj[2, 3])
 
 
+def _run_with_a_staged_cup(make_runner, record_staged, safe_end, cups: int, staged: int):
+    """A sink-to-dishwasher run on a cell of `cups` cups, the `staged`-th lowest moved to the counter and recorded
+    staged there; returns (runner, world, report) after the run and its safe end."""
+    runner, world = make_runner(task="sink-to-dishwasher", cups=cups)
+    for dev in (runner.arm, runner.gripper, runner.camera):
+        dev.connect()
+    _stage_a_cup(record_staged, runner, world, _cups(world)[staged])
+    report = runner.run()
+    safe_end(runner, world)
+    return runner, world, report
+
+
 def test_a_staged_items_placement_is_verified_without_a_rescan(make_runner, record_staged, safe_end):
     """A cup staged on the counter, another in the sink. The staged cup is placed first (in a rack); before, its
     verification re-scanned the sink (3 scans: the first, that one, the one confirming the sink empty); now the
     sink's perception stays, the arm goes back over the sink, and the cup in the sink is picked next (2 scans)."""
-    runner, world = make_runner(task="sink-to-dishwasher", cups=2)
-    for dev in (runner.arm, runner.gripper, runner.camera):
-        dev.connect()
-    _stage_a_cup(record_staged, runner, world, _cups(world)[1])
-    report = runner.run()
-    safe_end(runner, world)
+    runner, world, report = _run_with_a_staged_cup(make_runner, record_staged, safe_end, cups=2, staged=1)
     assert report.status == "succeeded" and report.objects_done == 2
     assert report.truth["end"]["delivered"] == 2 and report.collisions == 0
     assert _notes(runner, NOTE) == 1
@@ -66,12 +73,7 @@ def test_a_staged_items_placement_is_verified_without_a_rescan(make_runner, reco
 def test_a_staged_item_with_nothing_left_in_the_sink_still_rescans(make_runner, record_staged, safe_end):
     """The only cup staged on the counter, the sink empty: after it is placed, the scan confirming the sink empty
     is made (not skipped with the re-scan)."""
-    runner, world = make_runner(task="sink-to-dishwasher", cups=1)
-    for dev in (runner.arm, runner.gripper, runner.camera):
-        dev.connect()
-    _stage_a_cup(record_staged, runner, world, _cups(world)[0])
-    report = runner.run()
-    safe_end(runner, world)
+    runner, world, report = _run_with_a_staged_cup(make_runner, record_staged, safe_end, cups=1, staged=0)
     assert report.status == "succeeded" and report.truth["end"]["delivered"] == 1 and report.collisions == 0
     assert _notes(runner, NOTE) == 0
     assert runner.counts.scan_count == 2  # the first; the one after the placement confirms the sink empty

@@ -96,6 +96,25 @@ def sim_contact_along():
     return _sim_contact_along
 
 
+def _lift_contact(world, pick, item) -> object | None:
+    """The simulator's first contact (or None) along `pick`'s lift with `item` held in the fingers, the arm put
+    at the lift's start; the world holds nothing afterwards."""
+    from kitchenbot.fakes.collision import SimCollision
+
+    world.set_joints(pick.lift.q[0])
+    world.attach(item.instance_id, slip=False)
+    try:
+        return SimCollision(world).check_path(pick.lift.q, pick.grasp.spec.opening)
+    finally:
+        world.release()
+
+
+@pytest.fixture(scope="session")
+def lift_contact():
+    """lift_contact(world, pick, item) -> the simulator's first contact along the pick's lift, or None."""
+    return _lift_contact
+
+
 def _sim_holds(inventory, model, specs, width_tol: float | None = None) -> None:
     """The simulator's Fin-Ray model (its own contact test) holds `model` with each grasp of `specs`, placed at
     the tool as the grasp says (closing within `width_tol` of the grasp's expected width, where given)."""

@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.fakes.collision import SimCollision
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.grasps import object_name
@@ -37,16 +36,11 @@ def across(cfg, inventory):
     return world, poses
 
 
-def test_the_upper_bowl_is_lifted_without_breaking_and_remaking_its_contact(planner, across):
+def test_the_upper_bowl_is_lifted_without_breaking_and_remaking_its_contact(planner, across, lift_contact):
     world, (lower, upper) = across
     pick = planner.plan_pick(Q_SCAN, [lower, upper], target=upper)
     assert pick.ok, str(pick)
-    world.set_joints(pick.lift.q[0])
-    world.attach(upper.instance_id, slip=False)
-    try:
-        contact = SimCollision(world).check_path(pick.lift.q, pick.grasp.spec.opening)
-    finally:
-        world.release()
+    contact = lift_contact(world, pick, upper)
     assert contact is None, f"{pick.grasp.spec.name}: {contact}"
 
 

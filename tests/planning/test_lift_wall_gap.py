@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.fakes.collision import SimCollision
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.pick_place import LIFT_CLEARANCE_TOL
@@ -44,17 +43,12 @@ def _scene(cfg, inventory, gap: float):
     return world, poses
 
 
-def test_a_glass_clear_of_the_wall_by_less_than_the_grasp_margin_is_lifted_straight_up(cfg, inventory, planner):
+def test_a_glass_clear_of_the_wall_by_less_than_the_grasp_margin_is_lifted_straight_up(cfg, inventory, planner, lift_contact):
     world, (cup, glass) = _scene(cfg, inventory, 0.0015)
     assert 0.0 < _wall_gap(inventory[glass.obj_id], glass.T_base_obj, planner.cell) < planner.settings.grasp_margin
     pick = planner.plan_pick(Q_SCAN, [cup, glass], target=glass)
     assert pick.ok, str(pick)
-    world.set_joints(pick.lift.q[0])
-    world.attach(glass.instance_id, slip=False)
-    try:
-        contact = SimCollision(world).check_path(pick.lift.q, pick.grasp.spec.opening)
-    finally:
-        world.release()
+    contact = lift_contact(world, pick, glass)
     assert contact is None, f"{pick.grasp.spec.name}: {contact}"
 
 
