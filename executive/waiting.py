@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.transforms import pose_error
 
 POSE_TOL = 1e-3  # m: a belief pose this close (and within ROT_TOL) is the one the plan failed with
 ROT_TOL = np.radians(0.5)  # rad; a re-estimate further off is planned anew
@@ -29,11 +30,8 @@ def _same(cls: str, T: np.ndarray, p: ObjectPose) -> bool:
     """Whether `p` is the belief pose (class, pose) `cls`, `T`: within POSE_TOL and ROT_TOL."""
     if p.cls != cls:
         return False
-    Tp = np.asarray(p.T_base_obj, float)
-    if np.linalg.norm(Tp[:3, 3] - T[:3, 3]) > POSE_TOL:
-        return False
-    c = (np.trace(Tp[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0
-    return float(np.arccos(np.clip(c, -1.0, 1.0))) <= ROT_TOL
+    rot, pos = pose_error(np.asarray(p.T_base_obj, float), T)
+    return pos <= POSE_TOL and rot <= ROT_TOL
 
 
 def _around(points, T: np.ndarray) -> int:
