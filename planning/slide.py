@@ -232,6 +232,7 @@ class NearItems:
         self.others = [(planner.world.bvh(planner.inventory[o.obj_id]), _tf(o.T_base_obj)) for o in others
                        if o.obj_id in planner.inventory.models]
         self.start = self.gaps(target.T_base_obj)
+        self.reset()
 
     def gaps(self, T_base_obj: np.ndarray) -> np.ndarray:
         T = _tf(np.asarray(T_base_obj, float))
