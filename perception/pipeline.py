@@ -464,8 +464,8 @@ class Perceiver:
                     and b.normals >= a.normals - TURNED_MARGIN and b.free_space <= a.free_space + TURNED_MARGIN:
                 log.debug("perception: %s kept turned over (%.3f -> %.3f; %s -> %s)", self.inventory[h.obj_id].name,
                           h.verification.score, turned.verification.score,
-                          {a: round(b, 3) for a, b in h.verification.parts().items()},
-                          {a: round(b, 3) for a, b in turned.verification.parts().items()})
+                          {n: round(v, 3) for n, v in a.parts().items()},
+                          {n: round(v, 3) for n, v in b.parts().items()})
                 found[k] = (turned, iid, own)
                 changed = True
         return changed
