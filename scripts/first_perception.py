@@ -97,22 +97,9 @@ def report(res, out: list[str]) -> None:
 
 def profile(perceiver, views, out: str) -> None:
     """One perception of `views` under cProfile (process CPU): OUT.pstats, OUT.txt; prints its CPU and stages."""
-    import cProfile
-    import io
-    import pstats
-    import time
+    from profile_run import cpu_profile  # scripts/profile_run.py (this script's folder is on sys.path)
 
-    pr = cProfile.Profile(time.process_time)
-    c0 = time.process_time()
-    pr.enable()
-    res = perceiver.perceive(views)
-    pr.disable()
-    cpu = time.process_time() - c0
-    pr.dump_stats(out + ".pstats")
-    s = io.StringIO()
-    pstats.Stats(pr, stream=s).sort_stats("cumulative").print_stats(120)
-    with open(out + ".txt", "w") as f:
-        f.write(s.getvalue())
+    res, cpu = cpu_profile(lambda: perceiver.perceive(views), out, top=120)
     print(f"perceive: {cpu:.2f} s CPU (under the profiler), {len(res.poses)} poses; stages (CPU ms): "
           + ", ".join(f"{k} {v:.0f}" for k, v in res.timings_cpu_ms.items()), flush=True)
 

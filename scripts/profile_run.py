@@ -17,6 +17,23 @@ import time
 import numpy as np
 
 
+def cpu_profile(call, out: str, top: int = 80):
+    """`call()` under cProfile with a process-CPU timer: OUT.pstats, OUT.txt (the top functions by cumulative CPU
+    time); returns (its result, the CPU seconds it took, profiler included). scripts/first_perception.py uses it."""
+    pr = cProfile.Profile(time.process_time)
+    c0 = time.process_time()
+    pr.enable()
+    res = call()
+    pr.disable()
+    cpu = time.process_time() - c0
+    pr.dump_stats(out + ".pstats")
+    s = io.StringIO()
+    pstats.Stats(pr, stream=s).sort_stats("cumulative").print_stats(top)
+    with open(out + ".txt", "w") as f:
+        f.write(s.getvalue())
+    return res, cpu
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("task")
@@ -33,15 +50,8 @@ def main() -> None:
     cfg = cfg.model_copy(update={"drivers": DriversConfig()})
     if a.objects is not None:
         cfg.sim.min_objects = cfg.sim.max_objects = a.objects
-    pr = cProfile.Profile(time.process_time)
-    pr.enable()
-    rep = run_task(cfg, a.task, a.seed, progress=False, journal_path=False, oracle_perception=a.oracle)
-    pr.disable()
-    pr.dump_stats(a.out + ".pstats")
-    s = io.StringIO()
-    pstats.Stats(pr, stream=s).sort_stats("cumulative").print_stats(a.top)
-    with open(a.out + ".txt", "w") as f:
-        f.write(s.getvalue())
+    rep, _ = cpu_profile(lambda: run_task(cfg, a.task, a.seed, progress=False, journal_path=False,
+                                          oracle_perception=a.oracle), a.out, a.top)
     cpu = [c.get("compute_cpu_s") for c in rep.cycles if c.get("compute_cpu_s") is not None]
     print(f"{a.task} {a.seed}: {rep.status}, placed {rep.truth['end']['delivered']}/{rep.truth['start']['in_sink']}, "
           f"collisions {rep.collisions}, cycles {len(rep.cycles)}, simulated {rep.sim_time_s:.1f} s")
