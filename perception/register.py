@@ -62,10 +62,6 @@ class RegistrationConfig:
     n_yaw: int = 8  # yaw hypotheses for models without a continuous symmetry
     keep_for_refine: int = 2
     seed: int = 0
-    # The fine ICP of `refine` runs on every k-th of the instance's voxel centres, k = N // refine_points (so
-    # refine_points to 2 x refine_points of them; all of a smaller instance). Its cost is a 6-D KD-tree query per
-    # point and iteration (a third of the pose stage at 600); the pose's score is still taken on all points.
-    refine_points: int = 300
 
 
 def propose(query: FusedCloud, db: CadDatabase, top_k: int, threshold: float) -> list[tuple[int, float, float]]:
@@ -495,11 +491,10 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
 
 def refine(query: FusedCloud, entry: ModelEntry, scorer: Scorer, T_base_obj: np.ndarray, cfg: RegistrationConfig,
            source: str = "", upright: bool = False, symmetric: bool = False, local: bool = False) -> Hypothesis:
-    """Fine ICP against the dense model surface (<= ~`cfg.refine_points` query points) and the full score.
-    `local`: a few iterations at the finer levels only, from a pose already within about a voxel (a tracked
-    prior)."""
+    """Fine ICP against the dense model surface (<= ~600 query points) and the full score. `local`: a few
+    iterations at the finer levels only, from a pose already within about a voxel (a tracked prior)."""
     v = cfg.voxel
-    step = max(1, len(query.points) // cfg.refine_points)
+    step = max(1, len(query.points) // 600)
     q, qn = query.points[::step], query.normals[::step]
     if local:
         dists, iters = (1.5 * v, 0.6 * v, 0.3 * v), 4
