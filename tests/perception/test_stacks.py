@@ -58,7 +58,7 @@ def _resting_on(inventory, lower_id: int, T_lower: np.ndarray, upper_id: int, dx
     from scipy.spatial import cKDTree
     lower, upper = inventory[lower_id].points, inventory[upper_id].points + np.array([dx, dy, 0.0])
     tree = cKDTree(lower[:, :2])
-    lift = max(lower[idx, 2].max() - p[2] for p in upper for idx in [tree.query_ball_point(p[:2], 0.004)] if idx)
+    lift = max(lower[idx, 2].max() - p[2] for p in upper[::5] for idx in [tree.query_ball_point(p[:2], 0.004)] if idx)
     return T_lower @ make_T(np.eye(3), np.array([dx, dy, lift + 0.001]))
 
 
