@@ -389,7 +389,10 @@ class Perceiver:
                     # (Fits are millimetre-accurate; a nested cup's outer wall lies >= its wall thickness, 3.5
                     # mm, outside the wall of the cup in it. At 8 mm, a lower cup's own points were 85 % "taken"
                     # by the cup nested in it, and the lower cup dropped.)
-                    if self._stacked(k[0], hyp):
+                    # So does an item of another nesting model resting in or on it (a side plate in a dinner
+                    # plate's well, both leaning in a pile): at 1.5 voxels the upper plate "took" the lower
+                    # one's visible ring, which lies a few millimetres under the upper one's plane.
+                    if self._stacked(k[0], hyp) or self._resting_in(k[0], hyp):
                         taken |= self._explained(k[0], P, SURFACE_TOL, self._map_normals(m, own))
                     else:
                         taken |= self._explained(k[0], P)
@@ -742,6 +745,23 @@ class Perceiver:
             return False
         model, along, across = off
         return across < 0.5 * model.diameter and along >= self._min_along(model)
+
+    def _resting_in(self, a: Hypothesis, b: Hypothesis) -> bool:
+        """Two poses of different models of nesting classes (plates, bowls, cups) whose axes are within 30 deg
+        and whose centres are under half the smaller diameter apart across a's axis: one rests in or on the
+        other (a side plate in a dinner plate, a cup in a bowl). Models differ in where their origin sits, so
+        the distance along the axis says nothing here; whether one is a second fit of the other is judged by
+        the points (only those on the other's surface within 3 mm, facing the same way, are the other's)."""
+        if a.obj_id == b.obj_id:
+            return False
+        ma, mb = self.inventory[a.obj_id], self.inventory[b.obj_id]
+        if ma.cls not in NESTING_CLASSES or mb.cls not in NESTING_CLASSES:
+            return False
+        z = a.T_base_obj[:3, 2]
+        if abs(z @ b.T_base_obj[:3, 2]) < np.cos(np.radians(30)):
+            return False
+        d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
+        return float(np.linalg.norm(d - (d @ z) * z)) < 0.5 * min(ma.diameter, mb.diameter)
 
     def _explained(self, hyp: Hypothesis, points: np.ndarray, voxels: float = 1.5,
                    normals: np.ndarray | None = None) -> np.ndarray:
