@@ -566,6 +566,9 @@ class Planner:
         near_wall = self._near_sink_wall(g.obj)
         centre = np.asarray(g.obj.T_base_obj, float)[:3, 3]
         separated = False  # whether the lift that first parts the held item from what it touches was tried
+        # the first lift refused only because its start contact may break within the fits' resolution (lift, end,
+        # info): used when nothing else plans (before that rule, it was planned)
+        fallback = None
         for d, along in lift_fallbacks(self.cell.sink_interior, g.obj.T_base_obj, objects, lift_objects,
                                        near_wall=near_wall, ran_into_unknown=lift_unknown):
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
@@ -584,11 +587,15 @@ class Planner:
             else:
                 lift, q_lifted = r
                 back = self._contact_comes_back(lift_scene, lift.q, held_item_pairs)
-                if back is not None:
-                    lift_objects.update(n[4:] for n in back if n.startswith("obj:"))
-                    first = first or CartesianPathFailed(
-                        "lift: the held item leaves a neighbour it started against and meets it again",
-                        {"pairs": [back], "segment": "lift"})
+                maybe = None if back is not None else self._remade_in_fit(lift_scene, lift.q, held_item_pairs)
+                if back is not None or maybe is not None:
+                    if back is not None:
+                        lift_objects.update(n[4:] for n in back if n.startswith("obj:"))
+                        first = first or CartesianPathFailed(
+                            "lift: the held item leaves a neighbour it started against and meets it again",
+                            {"pairs": [back], "segment": "lift"})
+                    elif fallback is None:  # kept, the last resort: it planned as before (see _remade_in_fit)
+                        fallback = (lift, q_lifted, info)
                     if not separated:  # once: first along the direction that parts it from those it touches
                         separated = True
                         r = self._separating_lift(lift_scene, start_scene, q_grasp, g, held_item_pairs, by_name)
@@ -638,6 +645,20 @@ class Planner:
                 timings["lift_sidestep_m"] = float(np.linalg.norm(leg[:2]))
                 return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
                                 lift_contact_travel=LIFT_CONTACT_TRAVEL)
+        if fallback is not None:
+            lift, q_lifted, info = fallback
+            if not held_scene.valid(q_lifted):
+                ext = self._lift_clear_of_walls(lift_scene, held_scene, q_lifted, info["path"], centre)
+                if ext is not None:
+                    lift, q_lifted = ext
+            if held_scene.valid(q_lifted):
+                base_scene.set_opening(g.spec.opening)
+                approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+                if isinstance(approach, PlanningFailure):
+                    return approach
+                timings["lift_fit_fallback"] = 1.0
+                return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
+                                lift_contact_travel=float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)))
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
@@ -713,6 +734,18 @@ class Planner:
             apart = np.flatnonzero(~scene.touching(Q, p, self.CONTACT_LEFT_GAP))
             if len(apart) and scene.touching(Q[apart[0]:], p).any():
                 return p
+        return None
+
+    def _remade_in_fit(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]]) -> tuple[str, str] | None:
+        """The first of `pairs` (the held item with a neighbour it touches at the start of the lift `Q`) whose contact
+        may, within the fits' resolution, break and be made again (_remade_within_fit on the half-step samples'
+        signed gaps), or None. A lift refused for it alone is the last resort (Planner._plan_pick_with): the other
+        directions, and first of all the one that parts the item from what it touches, come before it."""
+        if not pairs or len(Q) < 2:
+            return None
+        Q = np.asarray(Q, float)
+        Q = np.vstack([np.vstack([a, (a + b) / 2]) for a, b in zip(Q[:-1], Q[1:])] + [Q[-1:]])  # half steps
+        for p in pairs:
             if self._remade_within_fit(scene.signed_gaps(Q, p, self.GAP_SPAN)):
                 return p
         return None
@@ -770,7 +803,8 @@ class Planner:
         if isinstance(r, PlanningFailure):
             return None
         lift, q_lifted = r
-        if self._contact_comes_back(lift_scene, lift.q, pairs) is not None:
+        if self._contact_comes_back(lift_scene, lift.q, pairs) is not None or \
+                self._remade_in_fit(lift_scene, lift.q, pairs) is not None:
             return None
         return lift, q_lifted, leg
 
