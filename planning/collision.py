@@ -799,6 +799,33 @@ class Scene:
             return 0.0
         return self._switch(lambda m: not within(m), 0.0, float(limit), tol)[0]
 
+    def signed_gaps(self, Q: np.ndarray, pair: tuple[str, str], span: float, tol: float = 2e-5) -> np.ndarray:
+        """Per configuration of `Q` (N, 6): the pair's signed gap (m; negative: overlap depth) within `tol`, clipped
+        to [-span, span] (bisection on the pair's security margin, as `clearance` and `penetration`), whether or
+        not this scene checks the pair. All `span` for a pair the scene does not have."""
+        Q = np.asarray(Q, float).reshape(-1, 6)
+        out = np.full(len(Q), float(span))
+        k = self._pair_index(pair)
+        if k is None:
+            return out
+        other = self._variant()
+        req = other.gd.collisionRequests[k]
+
+        def within(m: float) -> bool:  # the gap is at most m
+            req.security_margin = m
+            return bool(pin.computeCollision(self.gm, other.gd, k))
+
+        for i, q in enumerate(Q):
+            pin.updateGeometryPlacements(self.model, other.data, self.gm, other.gd, q)
+            if not within(span):
+                continue
+            if within(-span):
+                out[i] = -float(span)
+                continue
+            lo, hi = self._switch(lambda m: not within(m), -float(span), float(span), tol)
+            out[i] = (lo + hi) / 2
+        return out
+
     def touching(self, Q: np.ndarray, pair: tuple[str, str], margin: float = 0.0) -> np.ndarray:
         """Per configuration of `Q` (N, 6): whether the pair's geometries come within `margin` (m; 0: they touch
         or overlap), whether or not this scene checks the pair. All False for a pair the scene does not have."""

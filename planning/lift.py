@@ -136,3 +136,47 @@ def sidesteps(centre: np.ndarray, objects, ran_into: set[str], turns=(0.0, 45.0,
             a = a0 + np.radians(da)
             out.append(np.array([level * np.cos(a), level * np.sin(a), up]))
     return out
+
+
+# A lift that first opens the held item's start contacts (separating_leg): the least rise (sine of the elevation) of
+# the directions tried, the step (m) each is scored at, and the leg lengths (m) tried for "clear", shortest first.
+SEPARATE_MIN_RISE = np.sin(np.radians(20.0))
+SEPARATE_STEP = 0.006
+SEPARATE_LEGS = (0.01, 0.02, 0.03)
+
+
+def _directions(min_rise: float, n_az: int = 12, elevations=(90.0, 70.0, 50.0, 35.0, 20.0)) -> list[np.ndarray]:
+    out = []
+    for el in elevations:
+        e = np.radians(el)
+        if np.sin(e) < min_rise - 1e-9:
+            continue
+        for k in range(1 if el >= 90.0 else n_az):
+            a = 2 * np.pi * k / n_az
+            out.append(np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)]))
+    return out
+
+
+def separating_leg(gap, others: list, clear: float) -> np.ndarray | None:
+    """The first leg (base-frame offset, m) of a lift that opens the held item's start contacts at once: along the
+    rising direction in which a short move (SEPARATE_STEP) leaves the item farthest from those it touches
+    (`others`, opaque to this function; `gap(offset, other)` -> the item's distance to `other` moved by `offset`,
+    0 or less where they touch), as far as the first of SEPARATE_LEGS after which it is `clear` of all of them
+    (the longest where none is), or None where no direction parts them. A nested item (a bowl tilted in another)
+    lifted straight up slides along the surface it rests on: in the world the two part and meet again by a
+    fraction of a millimetre, finer than the fitted poses tell; moved along the contact's normal first, they part
+    at once. Sampled directions, not the contact's normal from the meshes: mesh-mesh contact normals of overlapping
+    fitted poses are per triangle pair and scatter."""
+    if not others:
+        return None
+    best, best_d = 0.0, None
+    for d in _directions(SEPARATE_MIN_RISE):
+        s = min(gap(SEPARATE_STEP * d, o) for o in others)
+        if s > best + 1e-6:
+            best, best_d = s, d
+    if best_d is None:
+        return None
+    for length in SEPARATE_LEGS:
+        if min(gap(length * best_d, o) for o in others) >= clear:
+            return length * best_d
+    return SEPARATE_LEGS[-1] * best_d

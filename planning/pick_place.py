@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
+import coal
 import numpy as np
 
 from kitchenbot.drivers.errors import LimitViolation
@@ -24,8 +25,8 @@ from kitchenbot.drivers.ur_kinematics import ur_model
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
-from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
-from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, sidesteps
+from kitchenbot.planning.grasps import GraspStats, _tf, object_name, select_grasps
+from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_leg, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
 from kitchenbot.planning.resting import clear_travel, lies_on
@@ -564,6 +565,10 @@ class Planner:
         held_only = True
         near_wall = self._near_sink_wall(g.obj)
         centre = np.asarray(g.obj.T_base_obj, float)[:3, 3]
+        separated = False  # whether the lift that first parts the held item from what it touches was tried
+        # the first lift refused only because its start contact may break within the fits' resolution (lift, end,
+        # info): used when nothing else plans (before that rule, it was planned)
+        fallback = None
         for d, along in lift_fallbacks(self.cell.sink_interior, g.obj.T_base_obj, objects, lift_objects,
                                        near_wall=near_wall, ran_into_unknown=lift_unknown):
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
@@ -582,11 +587,26 @@ class Planner:
             else:
                 lift, q_lifted = r
                 back = self._contact_comes_back(lift_scene, lift.q, held_item_pairs)
-                if back is not None:
-                    lift_objects.update(n[4:] for n in back if n.startswith("obj:"))
-                    first = first or CartesianPathFailed(
-                        "lift: the held item leaves a neighbour it started against and meets it again",
-                        {"pairs": [back], "segment": "lift"})
+                maybe = None if back is not None else self._remade_in_fit(lift_scene, lift.q, held_item_pairs)
+                if back is not None or maybe is not None:
+                    if back is not None:
+                        lift_objects.update(n[4:] for n in back if n.startswith("obj:"))
+                        first = first or CartesianPathFailed(
+                            "lift: the held item leaves a neighbour it started against and meets it again",
+                            {"pairs": [back], "segment": "lift"})
+                    elif fallback is None:  # kept, the last resort: it planned as before (see _remade_in_fit)
+                        fallback = (lift, q_lifted, info)
+                    if not separated:  # once: first along the direction that parts it from those it touches
+                        separated = True
+                        r = self._separating_lift(lift_scene, start_scene, q_grasp, g, held_item_pairs, by_name)
+                        if r is not None and held_scene.valid(r[1]):
+                            base_scene.set_opening(g.spec.opening)
+                            approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+                            if isinstance(approach, PlanningFailure):
+                                return approach
+                            timings["lift_separate_m"] = float(np.linalg.norm(r[2]))
+                            return PickPlan(g, approach, grasp_in, r[0], timings_ms=timings,
+                                            lift_contact_travel=LIFT_CONTACT_TRAVEL)
                     continue
                 if not held_scene.valid(q_lifted):
                     # An item that rested against a basin wall is lifted along it with the grasp margin (2 mm)
@@ -625,6 +645,20 @@ class Planner:
                 timings["lift_sidestep_m"] = float(np.linalg.norm(leg[:2]))
                 return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
                                 lift_contact_travel=LIFT_CONTACT_TRAVEL)
+        if fallback is not None:
+            lift, q_lifted, info = fallback
+            if not held_scene.valid(q_lifted):
+                ext = self._lift_clear_of_walls(lift_scene, held_scene, q_lifted, info["path"], centre)
+                if ext is not None:
+                    lift, q_lifted = ext
+            if held_scene.valid(q_lifted):
+                base_scene.set_opening(g.spec.opening)
+                approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+                if isinstance(approach, PlanningFailure):
+                    return approach
+                timings["lift_fit_fallback"] = 1.0
+                return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
+                                lift_contact_travel=float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)))
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
@@ -701,6 +735,78 @@ class Planner:
             if len(apart) and scene.touching(Q[apart[0]:], p).any():
                 return p
         return None
+
+    def _remade_in_fit(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]]) -> tuple[str, str] | None:
+        """The first of `pairs` (the held item with a neighbour it touches at the start of the lift `Q`) whose contact
+        may, within the fits' resolution, break and be made again (_remade_within_fit on the half-step samples'
+        signed gaps), or None. A lift refused for it alone is the last resort (Planner._plan_pick_with): the other
+        directions, and first of all the one that parts the item from what it touches, come before it."""
+        if not pairs or len(Q) < 2:
+            return None
+        Q = np.asarray(Q, float)
+        Q = np.vstack([np.vstack([a, (a + b) / 2]) for a, b in zip(Q[:-1], Q[1:])] + [Q[-1:]])  # half steps
+        for p in pairs:
+            if self._remade_within_fit(scene.signed_gaps(Q, p, self.GAP_SPAN)):
+                return p
+        return None
+
+    # m: how far the fitted poses may be off in how deep two resting items overlap (fits within a few tenths of a
+    # millimetre): in the world the two only touch where the fitted poses overlap by up to this much
+    FIT_RESOLUTION = 0.0005
+    # m: a change in the overlap that counts (the signed gaps' bisection is 0.02 mm)
+    CONTACT_REMAKE_TOL = 0.00005
+    # m: the overlaps and gaps measured along a lift (deeper or farther ones are clipped)
+    GAP_SPAN = 0.003
+
+    @classmethod
+    def _remade_within_fit(cls, s: np.ndarray) -> bool:
+        """Whether a start contact whose signed gap along the lift is `s` (m, from the grasp on; negative: overlap,
+        as the fitted poses have it) may, in the world, break and be made again: the items only touch at the start
+        (their true gap is the fitted one less s[0], up to FIT_RESOLUTION deeper), so the contact may break where the
+        fitted overlap gets shallower than at the start and be made again where it deepens after that, back to
+        within FIT_RESOLUTION of the start's. Both by more than CONTACT_REMAKE_TOL. A bowl lying tilted in another,
+        lifted straight up, slides along the lower one's wall: in the world the two parted by 0.16 mm and met again,
+        while the fitted poses overlapped by 0.73 to 0.85 mm and then deeper, one contact at zero gap."""
+        s = np.asarray(s, float)
+        if len(s) < 3:
+            return False
+        peak = np.maximum.accumulate(s)[:-1]  # the shallowest overlap (or widest gap) before each state
+        later = s[1:]
+        return bool(np.any((peak > s[0] + cls.CONTACT_REMAKE_TOL) & (peak - later > cls.CONTACT_REMAKE_TOL)
+                           & (later <= s[0] + cls.FIT_RESOLUTION)))
+
+    def _separating_lift(self, lift_scene: Scene, start_scene: Scene, q_grasp: np.ndarray, g: Grasp,
+                         pairs: list[tuple[str, str]], by_name: dict) -> tuple[Trajectory, np.ndarray, np.ndarray] | None:
+        """(lift, its end, first leg) of a lift in two legs whose first opens the held item's start contacts with the
+        items in `pairs` at once (planning.lift.separating_leg, on the perceived poses: out of the item it nests
+        in along the contact's normal until clear of it by the grasp margin), then straight up; or None where no
+        direction parts them, a leg collides, or a contact is still made again (_contact_comes_back)."""
+        names = sorted({x for p in pairs for x in p if x in by_name})
+        if not names:
+            return None
+        held_bvh = self.world.bvh(self.inventory[g.obj.obj_id])
+        T_held = np.asarray(g.obj.T_base_obj, float)
+        others = [(self.world.bvh(self.inventory[by_name[n].obj_id]), _tf(by_name[n].T_base_obj)) for n in names]
+
+        def gap(offset: np.ndarray, other) -> float:
+            T = T_held.copy()
+            T[:3, 3] += offset
+            if coal.collide(held_bvh, _tf(T), other[0], other[1], coal.CollisionRequest(), coal.CollisionResult()):
+                return 0.0
+            return float(coal.distance(held_bvh, _tf(T), other[0], other[1], coal.DistanceRequest(),
+                                       coal.DistanceResult()))
+
+        leg = separating_leg(gap, others, self.settings.grasp_margin)
+        if leg is None:
+            return None
+        r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg)
+        if isinstance(r, PlanningFailure):
+            return None
+        lift, q_lifted = r
+        if self._contact_comes_back(lift_scene, lift.q, pairs) is not None or \
+                self._remade_in_fit(lift_scene, lift.q, pairs) is not None:
+            return None
+        return lift, q_lifted, leg
 
     # m around the TCP and the flange within which a voxel the gripper (palm 75 x 140 mm, pads, camera) ran into lies
     TOOL_REACH = 0.08
