@@ -90,7 +90,7 @@ def test_the_item_named_as_pinning_gives_way_to_what_rests_on_it(make_runner):
     W = ObjectPose(Y.obj_id, "plate", Y.T_base_obj.copy(), 1.0, instance_id=3)
     W.T_base_obj[:3, 3] += (0.03, 0.0, 0.015)
     runner.belief.poses.append(W)
-    assert runner.task._covered(Y, runner.belief.poses)  # W rests over it (so does X, which waits)
+    assert any(p is W for p in runner.task.covering(Y, runner.belief.poses))
     assert _select(runner) is X
     _pinned(runner, Y)
     assert _select(runner) is W
