@@ -115,8 +115,6 @@ class Chains:
         on = self.waits.on(obj, self.scene, self.map_points)
         if on is None:
             for p in self.covering(obj, self.scene) if self.covering is not None else ():
-                if self.waits.on(p, self.scene, self.map_points) is not None:
-                    continue  # it cannot be tried either; its own chain is followed where it is a candidate
                 d = self.deepest(p, (*seen, obj))
                 if d is not None:
                     return d

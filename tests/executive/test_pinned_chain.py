@@ -38,12 +38,11 @@ def _select(runner):
     return runner.item.obj
 
 
-def _pinned(runner, by, *more):
-    """The selected item's plan failed: pinned by `by` (and `more`) (as plan_item raises it), recovered as the
-    rules do."""
+def _pinned(runner, by):
+    """The selected item's plan failed: pinned by `by` (as plan_item raises it), recovered as the rules do."""
     f = Failure("planning", "test: lift pinned", "plan",
                 {"planning_kind": "cartesian_path_failed", "blocking": by.instance_id,
-                 "pinned_by": tuple(p.instance_id for p in (by, *more))})
+                 "pinned_by": (by.instance_id,)})
     runner._act_record_plan_failure(f, {})
     runner._act_prefer_blocker(f, {})
 
@@ -67,35 +66,6 @@ def test_a_pinned_item_waits_and_the_chain_goes_to_its_deepest_item(make_runner)
     assert _select(runner) is Y
     _placed(runner, Y)
     assert _select(runner) is X  # what pinned it went: planned again
-
-
-def test_an_item_pinned_by_two_waits_for_the_one_left_when_the_other_is_picked(make_runner):
-    """X pinned by Y and Z (each one within the margin of X at its grasp): Y picked, Z still lies where it lay, so
-    Z is tried, not X (before: the wait ended with Y gone, X was planned again and failed pinned by Z)."""
-    runner, X, Y, Z = _setup(make_runner)
-    assert _select(runner) is X
-    _pinned(runner, Y, Z)
-    assert _select(runner) is Y
-    _placed(runner, Y)
-    assert _select(runner) is Z
-    _placed(runner, Z)
-    assert _select(runner) is X
-
-
-def test_the_item_named_as_pinning_gives_way_to_what_rests_on_it(make_runner):
-    """X pinned by Y; a plate W rests over Y (its centre within Y's radius, 1.5 cm higher, lower than X: X is still
-    the task's first): W is tried, not Y (before: Y was tried in X's place and failed pinned by W, one wasted
-    attempt)."""
-    runner, X, Y, Z = _setup(make_runner)
-    W = ObjectPose(Y.obj_id, "plate", Y.T_base_obj.copy(), 1.0, instance_id=3)
-    W.T_base_obj[:3, 3] += (0.03, 0.0, 0.015)
-    runner.belief.poses.append(W)
-    assert any(p is W for p in runner.task.covering(Y, runner.belief.poses))
-    assert _select(runner) is X
-    _pinned(runner, Y)
-    assert _select(runner) is W
-    _placed(runner, W)
-    assert _select(runner) is Y
 
 
 def test_the_deepest_item_is_tried_first_when_a_chain_is_known(make_runner):
