@@ -24,7 +24,6 @@ from kitchenbot.transforms import pose_error
 POSE_TOL = 1e-3  # m: a belief pose this close (and within ROT_TOL) is the one the plan failed with
 ROT_TOL = np.radians(0.5)  # rad; a re-estimate further off is planned anew
 AROUND = 0.2  # m (horizontally) around the item: more map points there than when it failed means a new plan
-GONE_BEYOND = 0.05  # m: an item pinning another with no item of its class this near where it was has gone (picked)
 
 
 def _same(cls: str, T: np.ndarray, p: ObjectPose) -> bool:
@@ -66,22 +65,12 @@ class Waits:
 
     def on(self, obj: ObjectPose, scene: list[ObjectPose], map_points) -> list[ObjectPose] | None:
         """The scene's items that `obj` waits for (it is pinned by them), or None: it does not wait (any more: one
-        of them moved, all of them went, or the map around it gained points; the record is forgotten).
-
-        One gone (no item of its class within GONE_BEYOND of where it was: picked) leaves the others pinning it:
-        each item named was within the margin of the held item at its grasp on its own (Planner._pinned_by checks
-        pair by pair), so it still waits for those left where they were. Before, the first of two pinning items
-        picked ended the wait, and the item was planned again only to fail pinned by the other one: one wasted
-        attempt per further item on it. One that moved (re-perceived nearby, elsewhere) may no longer pin it: the
-        wait ends, as before."""
+        of them moved or went, or the map around it gained points; the record is forgotten)."""
         w = next((w for w in self.records if _same(w.cls, w.T, obj)), None)
         if w is None:
             return None
-        left = [(c, T) for c, T in w.on_it if any(
-            p is not obj and p.cls == c and np.linalg.norm(np.asarray(p.T_base_obj, float)[:3, 3] - T[:3, 3]) <= GONE_BEYOND
-            for p in scene)]
-        found = [next((p for p in scene if p is not obj and _same(c, T, p)), None) for c, T in left]
-        if not found or any(p is None for p in found) or _around(map_points, w.T) > w.around:
+        found = [next((p for p in scene if p is not obj and _same(c, T, p)), None) for c, T in w.on_it]
+        if any(p is None for p in found) or _around(map_points, w.T) > w.around:
             self.records = [r for r in self.records if r is not w]  # by identity: == compares arrays
             return None
         return found
@@ -100,24 +89,14 @@ class Chains:
     scene: list[ObjectPose]
     map_points: object
     usable: Callable[[ObjectPose], bool]
-    # covering(item, scene): the items resting on or over it, highest first (Task.covering); None: only the waits
-    # make chains
-    covering: Callable[[ObjectPose, list[ObjectPose]], list[ObjectPose]] | None = None
 
     def deepest(self, obj: ObjectPose, seen: tuple = ()) -> ObjectPose | None:
-        """`obj` when it does not wait, nothing rests on it, and it may be tried; else, depth first, the deepest
-        item of its chain that may be (None: none may; it stays where it is). An item that does not wait but has
-        items resting on it (`covering`) gives way to them, or is tried itself where none of them may be: the
-        item named as pinning a plate (tried in its place) may have a cup lying on it in turn, and was tried
-        first, to fail pinned by the cup, one wasted attempt; a waiting item's chain went down the waits only."""
+        """`obj` when it does not wait and may be tried; else, depth first, the deepest item of its chain that
+        may be (None: none may; it stays where it is)."""
         if any(obj is s for s in seen):
             return None  # a cycle: each one waits for the other
         on = self.waits.on(obj, self.scene, self.map_points)
         if on is None:
-            for p in self.covering(obj, self.scene) if self.covering is not None else ():
-                d = self.deepest(p, (*seen, obj))
-                if d is not None:
-                    return d
             return obj if self.usable(obj) else None
         for p in on:
             d = self.deepest(p, (*seen, obj))
@@ -126,21 +105,15 @@ class Chains:
         return None
 
     def order(self, cands: list[ObjectPose], prefer: ObjectPose | None) -> tuple[list[ObjectPose], list[ObjectPose]]:
-        """(the candidates in order, each that waits or has items resting on it replaced by the deepest item of its
-        chain, `prefer` (the item named last as blocking another) first; those tried for another item's sake).
-        A candidate replaced by an item already in the list that does not wait itself follows at the end (tried
-        where the items on it cannot be)."""
+        """(the candidates in order, each that waits replaced by the deepest item of its chain, `prefer` (the item
+        named last as blocking another) first; those tried for another item's sake)."""
         out: list[ObjectPose] = []
         for_others: list[ObjectPose] = []
-        later: list[ObjectPose] = []
         for k, p in enumerate(([prefer] if prefer is not None else []) + list(cands)):
             d = self.deepest(p)
             if d is None or any(d is q for q in out):
-                if d is not None and d is not p and self.usable(p) and self.waits.on(p, self.scene, self.map_points) is None:
-                    later.append(p)
                 continue
             out.append(d)
             if k == 0 and prefer is not None or d is not p:
                 for_others.append(d)
-        out += [p for p in later if not any(p is q for q in out)]
         return out, for_others

@@ -149,17 +149,6 @@ class Task:
             return True
         return bool(lying_on(p, [o for o in poses if o is not p and self.in_sink(o)], self.inventory))
 
-    def covering(self, p: ObjectPose, poses: list[ObjectPose]) -> list[ObjectPose]:
-        """The items of `poses` resting on or over `p` (the two tests of _covered), highest first: those come off
-        before it (executive/waiting.py: the item tried in place of one that waits)."""
-        r = max(self.inventory[p.obj_id].extents[:2]) / 2
-        c = p.T_base_obj[:3, 3]
-        over = [o for o in poses if o is not p and o.T_base_obj[2, 3] > c[2] + 0.01
-                and np.linalg.norm(o.T_base_obj[:2, 3] - c[:2]) < r]
-        on = lying_on(p, [o for o in poses if o is not p and self.in_sink(o) and not any(o is q for q in over)],
-                      self.inventory)
-        return sorted(over + on, key=lambda o: -o.T_base_obj[2, 3])
-
     def pending_models(self, poses: list[ObjectPose]) -> list[ObjectModel]:
         """The models of what is still to do (the belief's `pending`: room is kept for them at the targets)."""
         return [m for _, m in self.pending_items(poses)]
