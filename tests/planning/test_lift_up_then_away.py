@@ -50,7 +50,7 @@ def _wedged_cups(cfg, inventory):
 
 
 def test_the_scene_is_a_wedge(cfg, inventory):
-    """The upper cup touches the wall, and its lower end reaches into the lower cup's upturned base's height."""
+    """The upper cup's side touches the left wall (no gap): the case the fallback is for."""
     world, (low, up) = _wedged_cups(cfg, inventory)
     cup = inventory.by_name("cup")
     hi = np.asarray(Cell().sink_interior[1], float)
