@@ -65,6 +65,9 @@ LIFT_DEEPEN_TOL = 0.00025
 # m: how much of a neighbour's clearance at the grasp a lift may use up (see Planner._plan_pick_with: the lift keeps
 # the clearance the held item has from a neighbour at the grasp, up to the collision margin)
 LIFT_CLEARANCE_TOL = 0.001
+# m: an up-then-away lift (Planner._up_then_away): straight up this far (the start contacts' travel), then away, its
+# start contacts allowed for this much more of the second leg
+UP_THEN_AWAY = (LIFT_CONTACT_TRAVEL, 0.01)
 PLACED_ID = 1_000_000  # instance id of the just-released object in the retreat scene
 # Gaps (m, per pad) the pads open to past the held item's width at release when the grasp's full opening would put
 # a pad into a neighbour at the target (a bowl set on its rim beside a plate in a rack: its rim pinch opens 3.5 cm,
@@ -659,6 +662,21 @@ class Planner:
                 timings["lift_fit_fallback"] = 1.0
                 return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
                                 lift_contact_travel=float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)))
+        # Every line and sidestep failed, and the held item touches a basin wall at the grasp: up along the wall
+        # first (within the start contacts' travel), then away from it (_up_then_away)
+        touching = [p for p in start_contacts if any(x.startswith("cell:") for x in p)]
+        if touching and not keep_wall_gaps:
+            r = self._up_then_away(lift_scene, vertical_start_scene, start_scene, held_scene, q_grasp, g.T_base_tcp,
+                                   centre, held_item_pairs)
+            if r is not None:
+                lift, q_lifted = r
+                base_scene.set_opening(g.spec.opening)
+                approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+                if isinstance(approach, PlanningFailure):
+                    return approach
+                timings["lift_up_then_away"] = 1.0
+                return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
+                                lift_contact_travel=UP_THEN_AWAY[0] + UP_THEN_AWAY[1])
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
@@ -848,6 +866,40 @@ class Planner:
         if isinstance(traj, PlanningFailure):
             return traj
         return traj, Q[-1]
+
+    def _up_then_away(self, lift_scene: Scene, vertical_start_scene: Scene, start_scene: Scene, held_scene: Scene,
+                      q_grasp: np.ndarray, T_grasp: np.ndarray, centre: np.ndarray,
+                      held_item_pairs) -> tuple[Trajectory, np.ndarray] | None:
+        """(lift, end) in two straight legs for an item that touches a basin wall at the grasp, or None: straight up by
+        UP_THEN_AWAY[0] (its start contacts may last, as on any lift straight up), then tilted towards the sink's
+        middle (planning.lift.base_directions' tilts) by lift_height, its start contacts allowed for the first
+        UP_THEN_AWAY[1] of that leg (it leaves the wall it slid up along). An item leaning on a wall with its lower
+        end in a neighbour (an upturned cup on an upturned cup, tilted against the wall) slides along the wall on
+        every line straight up, and drags its lower end through the neighbour on every line tilted from the grasp;
+        up out of the neighbour first, then away from the wall, it comes out. The simulator, like a real arm,
+        tolerates a start contact that lasts unbroken for 10 cm of travel (fakes/collision.py); here at most
+        UP_THEN_AWAY[0] + UP_THEN_AWAY[1], and a neighbour's contact, once left, may not come back."""
+        up, keep = UP_THEN_AWAY
+        info1: dict = {}
+        r = self._line(vertical_start_scene, q_grasp, trans(0.0, 0.0, up) @ T_grasp, "lift", check_start=False,
+                       info=info1)  # the whole leg is within the start contacts' travel
+        if isinstance(r, PlanningFailure):
+            return None
+        q1 = r[1]
+        T1 = self.robot.fk_tcp(q1)
+        for d in self._lift_directions(centre)[1:]:
+            info2: dict = {}
+            r = self._line(lift_scene, q1, trans(*(self.settings.lift_height * d)) @ T1, "lift", check_start=False,
+                           start_scene=start_scene, start_travel=keep, info=info2)
+            if isinstance(r, PlanningFailure) or not held_scene.valid(r[1]):
+                continue
+            Q = np.vstack([info1["path"], info2["path"][1:]])
+            if self._contact_comes_back(lift_scene, Q, held_item_pairs) is not None:
+                continue
+            traj = self._time(Q, "lift", "along_path")
+            if not isinstance(traj, PlanningFailure):
+                return traj, Q[-1]
+        return None
 
     # after a lift that ends within the transport margin: short moves towards the sink's middle (level, then up)
     LIFT_CLEAR_MOVES = ((0.02, 0.0), (0.04, 0.0), (0.03, 0.05))
