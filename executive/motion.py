@@ -170,31 +170,18 @@ class Motions:
             out.extend(a + (c - a) * (k / n) for k in range(1, n + 1))
         return np.asarray(out)
 
-    def _turned_near(self, q: np.ndarray) -> np.ndarray:
-        """`q` with each joint turned by whole turns (2*pi) to the value nearest where the arm stands, inside the
-        limits (planning's `wrap_near`): the same tool and camera pose, since a joint turned by a whole turn puts
-        every link where it was. A place can leave a wrist a turn away from a scan waypoint's value (the grasp's
-        and the release's IK branches are chosen nearest the arm's configuration, not the waypoint's): moving to
-        the waypoint's own values then unwound the wrist, up to ~5 rad of travel and 2-4 s of a 1.5 rad/s joint.
-        `q` itself where it is already nearest (no turn) or where no turned value is inside the limits."""
-        if self.planner is None:
-            return q
-        w = self.planner.robot.wrap_near(q, self.arm.joint_positions())
-        return q if w is None else w
-
     def _move_joints_via(self, q: np.ndarray, what: str, via: np.ndarray) -> None:
-        """_move_joints to the pose `q` stands for (its joint values turned by whole turns nearest where the arm
-        stands: _turned_near); when it finds no path, by way of `via` (home: a pose the planner connects easily to
-        the rest). A place can leave the arm on another IK branch (elbow flipped, wrists turned by a full turn),
-        from where a search with a bounded budget finds no way to a scan waypoint while one to home exists."""
+        """_move_joints; when it finds no path, by way of `via` (home: a pose the planner connects easily to the
+        rest). A place can leave the arm on another IK branch (elbow flipped, wrists turned by a full turn), from
+        where a search with a bounded budget finds no way to a scan waypoint while one to home exists."""
         try:
-            self._move_joints(self._turned_near(q), what)
+            self._move_joints(q, what)
         except StepFailed as e:
             if e.kind != "no_path" or np.max(np.abs(self.arm.joint_positions() - via)) < 1e-3:
                 raise
             self._log("note", "no path; going by way of home", what=what, reason=str(e))
             self._move_joints(via, f"home (on the way to {what})")
-            self._move_joints(self._turned_near(q), what)
+            self._move_joints(q, what)
 
     def _index_on(self, traj: Trajectory | None) -> int | None:
         """The sample of `traj` the arm stands at (within 0.01 rad per joint), or None if it is not on it."""
