@@ -90,6 +90,8 @@ def build_runner(config, task_name: str, seed: int | None = None, *, record_path
     robot = robot or assemble(config, seed)
     task = make_task(task_name, robot.inventory, robot.cell)
     planner = planner or Planner.from_config(config, robot.inventory)
+    if planner.q_rest is None and config.scan_waypoints:  # a re-scan, or the move back over the sink, ends there
+        planner.q_rest = np.asarray(config.scan_waypoints[-1], float)
     perceiver, label = make_perceiver(config, robot, oracle_perception)
     if journal is None:
         journal = open_journal(config, journal_path)

@@ -240,6 +240,7 @@ def select_grasps(
     stats: GraspStats | None = None,
     limit: int | None = None,
     avoid: Sequence[str] = (),
+    q_rest: np.ndarray | None = None,
 ) -> list[Grasp] | PlanningFailure:
     """Ranked feasible grasps (best first), or the failure that explains why there are none.
 
@@ -249,6 +250,8 @@ def select_grasps(
     `scene` holds every perceived object as ``obj:<object_name>``; `grasp_filter(obj, spec, T_base_tcp) -> bool`
     is an extra predicate (e.g. the placement must be reachable with this grasp). `avoid`: grasp names not to use,
     with their tilted variants (expand_grasps): a grasp that closed on nothing closes on nothing tilted by 5 degrees.
+    `q_rest`: where the arm comes back to after the item (RobotModel.wrap_round_trip): each IK branch's joints
+    turned by whole turns for the shortest way out from `q_current` and back there.
     """
     st = stats or GraspStats()
     gripper = scene.world.gripper
@@ -328,6 +331,8 @@ def select_grasps(
                 first_taken = first_taken or taken_by
                 continue
             branches = robot.ik_all(Tb, q_current)
+            if q_rest is not None:
+                branches = [robot.wrap_round_trip(qb, q_current, q_rest) for qb in branches]
             # numerical IK only where it may find something: not where the pose is clearly out of reach
             if not branches and not robot.surely_unreachable(Tb):
                 ik = robot.ik(Tb, q_current, max_seeds=6, max_iter=40)

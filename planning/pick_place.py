@@ -111,6 +111,9 @@ class Planner:
         self._place_reach = PlaceReach(robot, self.world)  # release-pose geometry, kept across queries
         self._turns_cache: dict = {}  # (obj_id, target pose, ...) -> the turns _place_turns allows
         self._voxel_cache: dict = {}
+        # where the arm comes back to between items (the executive sets it: the last scan waypoint), or None: a
+        # grasp's joints are then turned for the way out and back (RobotModel.wrap_round_trip), not only out
+        self.q_rest: np.ndarray | None = None
         # OMPL's check step must stay below twice the margin (see planning.motion); never above it.
         self.planning_resolution = min(s.planning_resolution, max(2 * s.collision_margin - 0.002, s.validity_resolution))
 
@@ -341,7 +344,8 @@ class Planner:
                 return self._placeable[key]
 
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
-                             target=target, grasp_filter=flt, stats=stats, limit=limit, avoid=avoid_grasps)
+                             target=target, grasp_filter=flt, stats=stats, limit=limit, avoid=avoid_grasps,
+                             q_rest=self.q_rest)
 
     # ---- pick ------------------------------------------------------------------------------------------------------
     def plan_pick(

@@ -186,6 +186,24 @@ class RobotModel:
         good = ok.any(axis=1).all(axis=1)
         return [q if g else None for q, g in zip(out, good)]
 
+    def wrap_round_trip(self, q: np.ndarray, ref: np.ndarray, rest: np.ndarray) -> np.ndarray:
+        """`q` (inside the limits) with each joint turned by whole turns (2*pi, staying inside the limits) for the
+        shortest way out from `ref` and back to `rest`: the value x with the least |x - ref| + |x - rest| (the
+        nearest `ref` among equals, so `q` itself where `q` is already `wrap_near(q, ref)` and `ref` is `rest`).
+        Every turn of a joint puts the links where they were: the same pose. Nearest `ref` alone (wrap_near), a
+        wrist within ~pi of `ref` either way is turned the way that leaves it a whole turn from `rest`, and the
+        way back (a re-scan's waypoint, whose value turned the other way is outside the limits) unwinds it."""
+        q, ref, rest = (np.asarray(a, float) for a in (q, ref, rest))
+        cand = q[None, :] + 2 * np.pi * _TURNS[:, None]  # (5, 6): q itself first
+        ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)
+        to_ref = np.abs(cand - ref)
+        cost = np.where(ok, to_ref + np.abs(cand - rest), np.inf)
+        best = cost.min(axis=0)
+        # among the least costs (to rounding), the nearest ref; q's own value where nothing else is inside
+        pick = np.argmin(np.where(cost <= best + 1e-9, to_ref, np.inf), axis=0)
+        out = cand[pick, np.arange(6)]
+        return np.where(np.isfinite(best), out, q)
+
     def _dls(self, T_target: pin.SE3, q0: np.ndarray, max_iter: int, tol: float, damping: float) -> tuple[np.ndarray, float, int]:
         model, data, fid = self.model, self.data, self.tcp_id
         q = q0.copy()
