@@ -5,9 +5,9 @@ iterations on a thread pool (TBB: OMP_NUM_THREADS does not limit it) whose threa
 generator, and stop early at a count that depends on which thread found the best fit first. With the generator
 seeded just before the call they still gave a different answer from call to call (the sink floor's plane: 4080 or
 4083 inliers of 5353 points, half and half), so segmentation masks, the map and the poses differed between two runs
-of the same scene (docs/perception.md, "Run-to-run determinism"). On one thread the draws and the early stop come
-in one order: the same seed, the same answer. They take no more CPU time that way (a plane fit 2.7 ms either way);
-only their wall time is that of one core.
+of the same scene (docs/perception_measurements.md, "Run-to-run determinism"). On one thread the draws and the
+early stop come in one order: the same seed, the same answer. They take no more CPU time that way (a plane fit
+2.7 ms either way); only their wall time is that of one core.
 """
 
 from __future__ import annotations

@@ -63,7 +63,8 @@ FINE_TOL_NOISE = 4.0
 FINE_FULL = 0.6
 # The continued share at which a pose scores 0 (linear from 0 at none): right fits of lying cups, mugs and glasses
 # have 0-0.06, cups fitted along a lying bottle 0-0.6, most over 0.15 (development scenes with distractors,
-# docs/perception.md "A bottle is longer than a cup"); with the threshold 0.85 a pose is rejected above 0.15.
+# docs/perception_measurements.md "A bottle is longer than a cup"); with the threshold 0.85 a pose is rejected
+# above 0.15.
 CONTINUED_FULL = 1.0
 # Past each end of the model along its axis, this far, is where a longer object would continue.
 CONTINUE_REACH = 0.03
@@ -81,11 +82,12 @@ AROUND_BIN = 15
 AROUND_MIN = 0.02
 AROUND_SPAN = 120
 # The filled share at which a pose scores 0 (linear from 0 at none; see `filled`): calibrated with
-# perception/calibrate_verify.py on development scenes with distractors (docs/perception.md "A can is closed").
+# perception/calibrate_verify.py on development scenes with distractors (docs/perception_measurements.md, "Speed
+# and the lid of a can", "A can's lid is no opening").
 FILLED_FULL = 1.0
 # The overhang share at which a pose scores 0 (linear from 0 at none; see `overhang`): right poses of cups, mugs
 # and glasses not standing have 0-0.11, upside-down glasses over drink cans and cups on bottles up to 0.23
-# (development scenes with distractors, docs/perception.md "The lid is wider than the base").
+# (development scenes with distractors, docs/perception_measurements.md, "Speed and the lid of a can").
 OVERHANG_FULL = 1.0
 # The band past the edge of the model's base (metres, radially: beyond the fit's error, within an item's reach)
 # and the depth of its plane (the noise) where a surface going on counts as overhang.
