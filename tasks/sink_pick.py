@@ -8,7 +8,8 @@ Targets, the way a person clears a sink onto the counter:
   below, or on the top of a different plate);
 - free spots on the counter are searched on a 2 cm grid, 1 cm apart from what is there, and room is kept for the
   first plate / bowl / cup pile while such items are still in the sink (a cup must not take the only spot a
-  dinner plate fits in);
+  dinner plate fits in); of the free spots offered (a few more than asked, each in its own part of the zone),
+  those leaving room for the most items still to come go first;
 - only when the counter is full does a glass or mug stand on top of a plate pile, and only once no plate is
   left to come (it would block the pile);
 - items that do not lie upright in the sink may also be set down the way they lie.
