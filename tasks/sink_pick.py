@@ -8,7 +8,8 @@ Targets, the way a person clears a sink onto the counter:
   below, or on the top of a different plate);
 - free spots on the counter are searched on a 2 cm grid, 1 cm apart from what is there, and room is kept for the
   first plate / bowl / cup pile while such items are still in the sink (a cup must not take the only spot a
-  dinner plate fits in);
+  dinner plate fits in); of the free spots offered (a few more than asked, each in its own part of the zone),
+  those leaving room for the most items still to come go first;
 - only when the counter is full does a glass or mug stand on top of a plate pile, and only once no plate is
   left to come (it would block the pile);
 - items that do not lie upright in the sink may also be set down the way they lie.
@@ -27,6 +28,7 @@ from kitchenbot.planning.placement import nesting_height
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
 from kitchenbot.tasks.base import (
     CLEARANCE,
+    _overlaps,
     Holdings,
     Placed,
     Task,
@@ -41,6 +43,8 @@ from kitchenbot.world.inventory import ObjectModel
 
 PILE_CLASSES = ("plate", "bowl", "cup")  # items a person piles up on the counter
 PILE_MAX_TOP = 0.20  # m above the counter: a pile higher gets unstable, and the tool must still reach over it
+SPARE_SPOTS = 3  # counter spots offered beyond those asked for (farther ones, when the nearest are out of reach)
+LOOKAHEAD_ITEMS = 8  # items still to come whose room a counter spot is chosen to keep (the largest ones)
 PILE_CLEARANCE = 0.015  # m above a pile where the item is let go: its pose in the gripper is as good as perception
 # from the zone's far corner (tests/tasks/test_sink_pick_drop_zone.py)
 
@@ -169,8 +173,14 @@ class SinkPick(Task):
 
     @staticmethod
     def _carries(top: Placed, zone_items: list[Placed]) -> list[Placed]:
-        """The items standing on `top` off its centre (not part of its pile: see `_plate_top_spots`)."""
-        return [p for p in zone_items if p is not top and p.T_base_obj[2, 3] > top.T_base_obj[2, 3] + 1e-3
+        """The items standing on `top` off its centre (not part of its pile: see `_plate_top_spots`): over it, their
+        bottom above its bottom. A taller item standing on the counter beside a one-plate pile, its box grazing the
+        plate's, has its centre higher too but does not close the pile."""
+        def bottom(p: Placed) -> float:  # the footprint box is centred on the pose: bottom = 2 z - top
+            return 2.0 * float(p.T_base_obj[2, 3]) - p.top_z
+
+        return [p for p in zone_items if p is not top and bottom(p) > bottom(top) + 1e-3
+                and p.T_base_obj[2, 3] > top.T_base_obj[2, 3] + 1e-3
                 and bool(np.all(p.lo < top.hi) and np.all(p.hi > top.lo))]
 
     def _plate_top_spots(self, model: ObjectModel, belief: Holdings, limit: int) -> list[np.ndarray]:
@@ -259,7 +269,9 @@ class SinkPick(Task):
         return growth, extra
 
     def _floor(self, model: ObjectModel, belief: Holdings, limit: int, pose=upright,
-               centre_inside=True) -> list[np.ndarray]:
+               centre_inside=True, spare: int = SPARE_SPOTS) -> list[np.ndarray]:
+        """Free counter spots for `model` (`limit` plus `spare` farther ones, each in its own part of the zone),
+        those leaving the most room for what is still to come first (`_leaving_room`)."""
         lo, hi, z = self._zone()
         zone_items = [p for p in belief.placed if self._in_zone(p)]
         # a new pile is started with room for the largest item of its class still to come (a dinner plate
@@ -272,13 +284,92 @@ class SinkPick(Task):
         spots: list[np.ndarray] = []
         # the reservations leave no room: first a new pile's spot, then a pile's growth gives way to a placement now
         for keep in (growth + new, growth, []):
-            spots = area_spots(probe, lo, hi, z, zone_items + keep, pose, limit, preferred=pref,
+            # more candidates than asked for, each in its own part of the zone: ranked by the room they leave
+            spots = area_spots(probe, lo, hi, z, zone_items + keep, pose, limit + spare, preferred=pref,
                                centre_inside=centre_inside)
             if spots:
                 break
+        if len(spots) > 1:
+            spots = self._leaving_room(probe, spots, zone_items + keep, belief)
         if probe is not model:
             spots = [upright(model, T[:2, 3], z) for T in spots]
         return spots
+
+    def _floor_needs(self, model: ObjectModel, belief: Holdings) -> list[ObjectModel]:
+        """The items still to come (besides `model`, the one being placed) that will need a spot of their own on
+        the counter, largest first: each glass or mug (they do not pile), and the first item of each pile model
+        with no pile in the zone yet (one plate pile takes every plate: plates go on plates)."""
+        pending = list(belief.pending)
+        for k, m in enumerate(pending):
+            if m is model or m.obj_id == model.obj_id:
+                del pending[k]  # the item being placed
+                break
+        tops = {pile[-1].obj_id for pile in _piles([p for p in belief.placed if self._in_zone(p)])}
+        top_cls = {self.inventory[i].cls for i in tops if i in self.inventory.models}
+        needs: dict = {}
+        singles = []
+        for m in pending:
+            if m.cls == "plate":
+                if "plate" in top_cls or model.cls == "plate":
+                    continue
+                if "plate" not in needs or max(m.extents[:2]) > max(needs["plate"].extents[:2]):
+                    needs["plate"] = m
+            elif m.cls in PILE_CLASSES:
+                if m.obj_id not in tops and m.obj_id != model.obj_id:
+                    needs.setdefault(m.obj_id, m)
+            else:
+                singles.append(m)
+        out = list(needs.values()) + singles
+        return sorted(out, key=lambda m: -float(np.prod(m.extents[:2])))[:LOOKAHEAD_ITEMS]
+
+    def _leaving_room(self, model: ObjectModel, spots: list[np.ndarray], taken: list[Placed],
+                      belief: Holdings) -> list[np.ndarray]:
+        """`spots` ranked by how many of the items still to come that need counter room of their own
+        (`_floor_needs`, largest first) still fit, each at the first free spot of its edge-to-edge lattice or the 2 cm grid, once
+        `model` stands there; ties keep the given order (nearest the robot). Taking the nearest free spot
+        regardless scattered items over the zone: the space between them fitted no later plate or bowl pile
+        (tests/tasks/test_drop_zone_room.py)."""
+        needs = self._floor_needs(model, belief)
+        if not needs:
+            return spots
+        lo, hi, z = self._zone()
+        # where each still-to-come item may stand: its edge-to-edge lattice, then a 2 cm grid (as `area_spots`),
+        # as upright boxes centred there (vectorised: a spot search per item per candidate)
+        step = 0.02
+        c = (lo + hi) / 2
+        n = (np.ceil((hi - lo) / 2 / step) + 1).astype(int)
+        grid = np.array([(c[0] + i * step, c[1] + j * step) for i in range(-n[0], n[0] + 1)
+                         for j in range(-n[1], n[1] + 1)])
+        grid = grid[np.argsort(np.hypot(grid[:, 0], grid[:, 1]), kind="stable")]
+        where = {}
+        for m in needs:
+            lat = np.array(self._lattice(m, lo, hi), float).reshape(-1, 2)
+            lat = lat[np.argsort(np.hypot(lat[:, 0], lat[:, 1]), kind="stable")]
+            P = np.vstack([lat, grid])
+            half = np.asarray(m.extents[:2], float) / 2
+            ok = np.all(P - half >= lo + CLEARANCE / 2 - 1e-6, axis=1) & np.all(P + half <= hi - CLEARANCE / 2 + 1e-6, axis=1)
+            where[id(m)] = (P[ok] - half, P[ok] + half)
+
+        def fits(T) -> int:
+            f_lo, f_hi, _ = footprint(model, T)
+            occ_lo = np.array([p.lo for p in taken] + [f_lo]).reshape(-1, 2) - CLEARANCE
+            occ_hi = np.array([p.hi for p in taken] + [f_hi]).reshape(-1, 2) + CLEARANCE
+            count = 0
+            for m in needs:
+                b_lo, b_hi = where[id(m)]
+                if not len(b_lo):
+                    continue
+                hit = np.all(b_lo[:, None, :] < occ_hi[None], axis=2) & np.all(b_hi[:, None, :] > occ_lo[None], axis=2)
+                free = np.flatnonzero(~hit.any(axis=1))
+                if len(free):
+                    count += 1
+                    occ_lo = np.vstack([occ_lo, b_lo[free[0]] - CLEARANCE])
+                    occ_hi = np.vstack([occ_hi, b_hi[free[0]] + CLEARANCE])
+            return count
+
+        score = [fits(T) for T in spots]
+        order = sorted(range(len(spots)), key=lambda k: -score[k])
+        return [spots[k] for k in order]
 
     @staticmethod
     def _lattice(model: ObjectModel, lo: np.ndarray, hi: np.ndarray, pose=None) -> list[tuple[float, float]]:
@@ -349,7 +440,7 @@ class SinkPick(Task):
             for T in self._same_way_piles(model, Rl, belief)[:1]:
                 out.append(PlaceTarget(T, "drop", free_yaw=True, support=f"a {model.cls} pile (upside down)",
                                        clearance=PILE_CLEARANCE))
-            for T in self._floor(model, belief, 2, as_is(Rl)):
+            for T in self._floor(model, belief, 2, as_is(Rl), spare=0):
                 out.append(PlaceTarget(T, "drop", free_yaw=True, support="counter (upside down)"))
         if not is_upright(obj.T_base_obj):
             # Not upright in the sink (a glass on its side): no grasp may reach "upright", so also offer the
@@ -358,6 +449,6 @@ class SinkPick(Task):
             for T in self._same_way_piles(model, R, belief)[:1]:
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support=f"a {model.cls} pile (as it lay)",
                                        clearance=PILE_CLEARANCE))
-            for T in self._floor(model, belief, 2, as_is(R), centre_inside="any"):
+            for T in self._floor(model, belief, 2, as_is(R), centre_inside="any", spare=0):
                 out.append(PlaceTarget(T, "drop", free_yaw=False, support="counter (as it lay)"))
         return out or NoFreeSlot(f"drop zone has no free spot for a {obj.cls}")

@@ -150,3 +150,20 @@ def test_plan_item_passes_on_what_pins_the_item():
             plan_item(req, [DirectPick(), BlockerFirst()], {})
         assert e.value.details["blocking"] == 1
         assert e.value.details.get("pinned_by") == ((1, 2) if pinned else None)
+
+
+def test_a_ring_of_waits_ends_with_each_item_reported(make_runner):
+    """X pinned by Y and Y pinned by X (a ring: estimated poses of a tilted pile each lying on the other): neither
+    is a candidate any more (the run does not loop between them), Z still is; once Z is placed nothing is, and
+    the run's message names both with why they were left (nothing silently lost)."""
+    runner, X, Y, Z = _setup(make_runner)
+    assert _select(runner) is X
+    _pinned(runner, Y)
+    assert _select(runner) is Y
+    _pinned(runner, X)
+    assert _select(runner) is Z
+    _placed(runner, Z)
+    runner.belief.unplannable = []
+    assert runner._candidates() == []
+    msg = runner._why_left([X, Y])
+    assert msg.count("pinned by the plate lying on it") == 2, msg
