@@ -36,6 +36,12 @@ from kitchenbot.world.inventory import ObjectModel
 # ---- shapes ------------------------------------------------------------------------------------------------
 
 
+def coal_transform(T: np.ndarray) -> coal.Transform3s:
+    """A 4x4 pose as coal's transform (a copy)."""
+    T = np.asarray(T, float)
+    return coal.Transform3s(T[:3, :3].copy(), T[:3, 3].copy())
+
+
 @dataclass(frozen=True)
 class Capsule:
     name: str

@@ -20,7 +20,7 @@ import coal
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.collision import Scene
+from kitchenbot.planning.collision import Scene, coal_transform
 from kitchenbot.planning.pad_give import pad_contacts
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.types import (
@@ -64,11 +64,6 @@ class GraspStats:
     # perceived objects (names) the rejected grasps collided with or took in, and how often; filled only when no
     # grasp is feasible (what crowds the item: Planner.plan_pick names the most frequent one as its blocker)
     crowded_by: dict = field(default_factory=dict)
-
-
-def _tf(T: np.ndarray) -> coal.Transform3s:
-    T = np.asarray(T, float)
-    return coal.Transform3s(T[:3, :3].copy(), T[:3, 3].copy())
 
 
 def closing_volume(opening: float, pad_width: float, pad_root: float, pad_tip: float) -> tuple[coal.Box, np.ndarray]:
@@ -216,12 +211,12 @@ def _crowded_by(scenes: dict, names: list[str], collided: list, taken: list, obj
 def _taken_in(T: np.ndarray, spec, gripper, others, scene: Scene, req) -> ObjectPose | None:
     """The first other object (``others``: (pose, model) pairs) where a pad of grasp `spec` at `T` sweeps while
     closing (it would be pushed or taken in with the target), or None."""
-    sweeps = [(vol, _tf(T @ T_v)) for vol, T_v in
+    sweeps = [(vol, coal_transform(T @ T_v)) for vol, T_v in
               pad_sweeps(spec.opening, spec.width, gripper.pad_width, gripper.pad_root, gripper.pad_tip)]
     for po, pm in others:
         if np.linalg.norm(po.T_base_obj[:3, 3] - T[:3, 3]) > pm.diameter / 2 + 0.15:
             continue
-        if any(coal.collide(vol, T_vol, scene.world.bvh(pm), _tf(po.T_base_obj), req, coal.CollisionResult())
+        if any(coal.collide(vol, T_vol, scene.world.bvh(pm), coal_transform(po.T_base_obj), req, coal.CollisionResult())
                for vol, T_vol in sweeps):
             return po
     return None

@@ -22,17 +22,12 @@ from __future__ import annotations
 import coal
 import numpy as np
 
-from kitchenbot.planning.collision import PADS, Scene
+from kitchenbot.planning.collision import PADS, Scene, coal_transform
 from kitchenbot.transforms import make_T
 from kitchenbot.world.gripper import FINGERS, PAD_ENVELOPE
 
 # m a neighbour may reach into a pad envelope's outer face (see the module docstring)
 PAD_GIVE = round(PAD_ENVELOPE.thickness - FINGERS.finger_thickness - 0.001, 4)
-
-
-def _tf(T: np.ndarray) -> coal.Transform3s:
-    T = np.asarray(T, float)
-    return coal.Transform3s(T[:3, :3].copy(), T[:3, 3].copy())
 
 
 def core_sweeps(opening: float, approach: float, give: float, gripper) -> list[tuple[coal.Box, np.ndarray]]:
@@ -67,7 +62,8 @@ def pad_contacts(grasp_scene: Scene, q: np.ndarray, T_base_tcp: np.ndarray, open
     if not grasp_scene.allowing_keep_zone(allowed).valid(q):
         return None
     gripper = grasp_scene.world.gripper
-    cores = [(box, _tf(np.asarray(T_base_tcp, float) @ T)) for box, T in core_sweeps(opening, approach, give, gripper)]
+    cores = [(box, coal_transform(np.asarray(T_base_tcp, float) @ T))
+             for box, T in core_sweeps(opening, approach, give, gripper)]
     req = coal.CollisionRequest()
     for n in neighbours:
         gid = grasp_scene.names.index(n)

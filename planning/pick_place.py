@@ -23,9 +23,9 @@ from kitchenbot.drivers.errors import LimitViolation
 from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import ur_model
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject
+from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject, coal_transform
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
-from kitchenbot.planning.grasps import GraspStats, _tf, object_name, select_grasps
+from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_leg, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
@@ -808,14 +808,16 @@ class Planner:
             return None
         held_bvh = self.world.bvh(self.inventory[g.obj.obj_id])
         T_held = np.asarray(g.obj.T_base_obj, float)
-        others = [(self.world.bvh(self.inventory[by_name[n].obj_id]), _tf(by_name[n].T_base_obj)) for n in names]
+        others = [(self.world.bvh(self.inventory[by_name[n].obj_id]), coal_transform(by_name[n].T_base_obj))
+                  for n in names]
 
         def gap(offset: np.ndarray, other) -> float:
             T = T_held.copy()
             T[:3, 3] += offset
-            if coal.collide(held_bvh, _tf(T), other[0], other[1], coal.CollisionRequest(), coal.CollisionResult()):
+            T_c = coal_transform(T)
+            if coal.collide(held_bvh, T_c, other[0], other[1], coal.CollisionRequest(), coal.CollisionResult()):
                 return 0.0
-            return float(coal.distance(held_bvh, _tf(T), other[0], other[1], coal.DistanceRequest(),
+            return float(coal.distance(held_bvh, T_c, other[0], other[1], coal.DistanceRequest(),
                                        coal.DistanceResult()))
 
         leg = separating_leg(gap, others, self.settings.grasp_margin)
