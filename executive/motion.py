@@ -160,7 +160,10 @@ class Motions:
                     if self._escape():
                         q_now = self.arm.joint_positions()
             self._log("note", "no collision-free path; not moving", what=what, reason=str(plan))
-            raise StepFailed("no_path", f"no collision-free path to {what}: {plan}")
+            # the pairs within the margin where the arm stands (a start it could not leave): in the run's report
+            blocking = [list(p) for p in plan.details.get("pairs", [])] if plan.kind == "start_in_collision" else []
+            raise StepFailed("no_path", f"no collision-free path to {what}: {plan}",
+                             **({"blocking_pairs": blocking} if blocking else {}))
         self._cmd("arm.move_joints", q=q, speed=self.opt.scan_speed, what=what)
         with self._arm_lock:
             self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
