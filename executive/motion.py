@@ -121,13 +121,22 @@ class Motions:
         b = self.belief
         if self.planner is not None:
             plan, escaped, scale, tries, narrowed = None, False, 1.0, 0, set()
+            opening, read = None, False
             while tries < 3:
                 tries += 1
                 plan = self.planner.plan_move(q_now, q, objects=b.scene_objects(), map_points=b.map_points,
-                                              timeout_scale=scale)
+                                              timeout_scale=scale, opening=opening)
                 if plan.ok:
                     self._run_trajectory(plan.trajectory)
                     return
+                if plan.kind == "start_in_collision" and not read:
+                    # the pads where they are (a release leaves them at the opening they let go with, narrower
+                    # than the fully open pads plans assume): the way out the tool came in is checked with them
+                    read = True
+                    opening = None if self._holding() else self._opening()
+                    if opening is not None:
+                        tries -= 1  # (a try of its own)
+                        continue
                 if plan.kind == "planner_timeout":
                     scale *= self.TIMEOUT_GROWTH
                 if plan.kind in ("start_in_collision", "goal_in_collision") and len(b.contact_points) \
@@ -151,7 +160,10 @@ class Motions:
                     if self._escape():
                         q_now = self.arm.joint_positions()
             self._log("note", "no collision-free path; not moving", what=what, reason=str(plan))
-            raise StepFailed("no_path", f"no collision-free path to {what}: {plan}")
+            # the pairs within the margin where the arm stands (a start it could not leave): in the run's report
+            blocking = [list(p) for p in plan.details.get("pairs", [])] if plan.kind == "start_in_collision" else []
+            raise StepFailed("no_path", f"no collision-free path to {what}: {plan}",
+                             **({"blocking_pairs": blocking} if blocking else {}))
         self._cmd("arm.move_joints", q=q, speed=self.opt.scan_speed, what=what)
         with self._arm_lock:
             self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)

@@ -44,6 +44,7 @@ from kitchenbot.planning.types import (
     PlaceTarget,
     PlacePlan,
     PlanningFailure,
+    StartInCollision,
     Trajectory,
     marks_of,
 )
@@ -1217,9 +1218,12 @@ class Planner:
         held: Grasp | None = None,
         map_points: np.ndarray | None = None,
         timeout_scale: float = 1.0,
+        opening: float | None = None,
     ) -> MovePlan | PlanningFailure:
         """Collision-free joint motion (e.g. to a scan waypoint or home), with `held` attached if given;
-        `timeout_scale` times the configured RRT-Connect budget."""
+        `timeout_scale` times the configured RRT-Connect budget. Planned with the pads fully open; where the
+        tool starts within the margin of items (after a release: `opening`, the pads' real distance), it first
+        leaves the way it came in (planning.leave)."""
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
             return q0
@@ -1229,6 +1233,24 @@ class Planner:
         timings: dict = {}
         scene = self.scene(objects, map_points, exclude=held.obj if held is not None else None, held=held)
         traj = self._joint_motion(scene, q0, q1, "move", timings, timeout_scale)
+        if isinstance(traj, StartInCollision) and held is None:
+            # the tool stands within the margin of items it let go among (planning.leave): out the way it came in
+            # first, the start's pairs relaxed on that leg only; from there a motion with the full margins
+            from kitchenbot.planning.leave import join, leave_leg, tool_item_pairs
+
+            pairs = scene.colliding_pairs(q0)
+            if not tool_item_pairs(pairs):
+                return traj
+            at = scene if opening is None else self.scene(objects, map_points, opening=opening)
+            leg = leave_leg(self, scene, at, q0, pairs)
+            if isinstance(leg, PlanningFailure):
+                return leg
+            rest = self._joint_motion(scene, leg[1], q1, "move", timings, timeout_scale)
+            if isinstance(rest, PlanningFailure):
+                rest.message = f"after leaving {pairs} along the tool axis: {rest.message}"
+                return rest
+            timings["left_start_pairs"] = float(len(pairs))
+            return MovePlan(join(leg[0], rest, "move"), timings)
         if isinstance(traj, PlanningFailure):
             return traj
         return MovePlan(traj, timings)

@@ -111,3 +111,40 @@ def test_a_scan_waypoint_with_no_path_from_here_is_reached_by_way_of_home(make_r
     assert np.max(np.abs(runner.arm.joint_positions() - wp)) < 1e-3
     assert legs[-2:] == [(False, False), (True, True)]  # to home, then from home to the waypoint
     assert runner.arm.log.collisions == 0
+
+
+def test_a_start_within_the_margin_is_planned_again_with_the_pads_where_they_are_and_the_pairs_reported(make_runner):
+    """A start within the margin (the pads, planned fully open, beside items the gripper let go among): the move
+    is planned again with the gripper's real opening (planning.leave checks the way out with it); when the arm
+    still cannot move, the failure names the pairs that block it (the run's report shows them)."""
+    import pytest
+
+    from kitchenbot.executive.failures import StepFailed
+    from kitchenbot.planning.types import CartesianPathFailed, StartInCollision
+
+    runner, world = make_runner()
+    runner.arm.connect()
+    runner.gripper.connect()
+    real = runner.planner
+    runner.gripper.open(0.03)
+    home = np.asarray(runner.robot.config.robot.home, float)
+    openings = []
+
+    class Stuck:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def plan_move(self, q0, q1, **kw):
+            openings.append(kw.get("opening"))
+            return StartInCollision("test: within the margin", {"pairs": [("pad_b", "obj:7"), ("pad_a", "obj:8")]})
+
+        def plan_escape(self, q0, objects=(), **kw):
+            return CartesianPathFailed("test: no straight way out")
+
+    runner.planner = Stuck()
+    with pytest.raises(StepFailed) as e:
+        runner._move_joints(home + np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0]), "home")
+    assert e.value.kind == "no_path"
+    assert e.value.details["blocking_pairs"] == [["pad_b", "obj:7"], ["pad_a", "obj:8"]]
+    assert openings[0] is None and openings[1] == pytest.approx(runner.gripper.opening())
+    assert runner.arm.log.collisions == 0
