@@ -23,8 +23,8 @@ import numpy as np
 import open3d as o3d
 
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.collision import Held
-from kitchenbot.planning.grasps import _tf, object_name
+from kitchenbot.planning.collision import Held, coal_transform
+from kitchenbot.planning.grasps import object_name
 from kitchenbot.planning.motion import cartesian_line
 from kitchenbot.planning.types import CartesianPathFailed, NoIK, PlanningFailure, SlidePlan
 from kitchenbot.transforms import inv, make_T, rot_z, trans
@@ -123,8 +123,8 @@ class SupportHeight:
 def _touching(planner, a: ObjectPose, b: ObjectPose, gap: float = 0.003) -> bool:
     if a.obj_id not in planner.inventory.models or b.obj_id not in planner.inventory.models:
         return False
-    d = coal.distance(planner.world.bvh(planner.inventory[a.obj_id]), _tf(a.T_base_obj),
-                      planner.world.bvh(planner.inventory[b.obj_id]), _tf(b.T_base_obj),
+    d = coal.distance(planner.world.bvh(planner.inventory[a.obj_id]), coal_transform(a.T_base_obj),
+                      planner.world.bvh(planner.inventory[b.obj_id]), coal_transform(b.T_base_obj),
                       coal.DistanceRequest(), coal.DistanceResult())
     return d < gap
 
@@ -133,10 +133,10 @@ def _cell_touching(planner, a: ObjectPose, gap: float = 0.003) -> list:
     """The cell's boxes (the sink floor, a basin wall) within `gap` of item `a`."""
     if a.obj_id not in planner.inventory.models:
         return []
-    bvh, T = planner.world.bvh(planner.inventory[a.obj_id]), _tf(a.T_base_obj)
+    bvh, T = planner.world.bvh(planner.inventory[a.obj_id]), coal_transform(a.T_base_obj)
     out = []
     for b in planner.cell.boxes:
-        d = coal.distance(bvh, T, coal.Box(*np.asarray(b.size, float)), _tf(make_T(t=b.centre)),
+        d = coal.distance(bvh, T, coal.Box(*np.asarray(b.size, float)), coal_transform(make_T(t=b.centre)),
                           coal.DistanceRequest(), coal.DistanceResult())
         if d < gap:
             out.append(b)
@@ -167,8 +167,8 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
     req = coal.CollisionRequest()
     touching = set()
     for k, o in enumerate(others):
-        if coal.collide(bvh, _tf(T0), planner.world.bvh(planner.inventory[o.obj_id]), _tf(o.T_base_obj), req,
-                        coal.CollisionResult()):
+        if coal.collide(bvh, coal_transform(T0), planner.world.bvh(planner.inventory[o.obj_id]),
+                        coal_transform(o.T_base_obj), req, coal.CollisionResult()):
             touching.add(k)
         elif planner._lies_on(target, o):
             # further down the stack the item rests on (the plate under the one under it): the item climbs over
@@ -198,8 +198,8 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
                 continue
             dreq = coal.DistanceRequest()
             dres = coal.DistanceResult()
-            dist = coal.distance(bvh, _tf(T1), planner.world.bvh(planner.inventory[o.obj_id]), _tf(o.T_base_obj),
-                                 dreq, dres)
+            dist = coal.distance(bvh, coal_transform(T1), planner.world.bvh(planner.inventory[o.obj_id]),
+                                 coal_transform(o.T_base_obj), dreq, dres)
             if dist < 0.005:
                 hit = True
                 break
@@ -229,13 +229,13 @@ class NearItems:
 
     def __init__(self, planner, target: ObjectPose, others: list[ObjectPose]):
         self.bvh = planner.world.bvh(planner.inventory[target.obj_id])
-        self.others = [(planner.world.bvh(planner.inventory[o.obj_id]), _tf(o.T_base_obj)) for o in others
+        self.others = [(planner.world.bvh(planner.inventory[o.obj_id]), coal_transform(o.T_base_obj)) for o in others
                        if o.obj_id in planner.inventory.models]
         self.start = self.gaps(target.T_base_obj)
         self.reset()
 
     def gaps(self, T_base_obj: np.ndarray) -> np.ndarray:
-        T = _tf(np.asarray(T_base_obj, float))
+        T = coal_transform(np.asarray(T_base_obj, float))
         return np.array([max(0.0, coal.distance(self.bvh, T, b, To, coal.DistanceRequest(), coal.DistanceResult()))
                          for b, To in self.others])
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.collision import coal_transform
 from kitchenbot.planning.grasp_synthesis import RIM_LEVEL
 from kitchenbot.planning.grasps import FALLBACK_GRASPS, GraspStats, select_grasps
 from kitchenbot.transforms import make_T, rot_x
@@ -23,10 +24,6 @@ def cone(own_b):
     return inv, by_name["conical_bowl"]
 
 
-def _tf(T):
-    return coal.Transform3s(T[:3, :3].copy(), T[:3, 3].copy())
-
-
 def _leaning_pair(planner, bowl, tilt_deg: float, shift: float) -> list[ObjectPose]:
     """One bowl upright on the sink floor's middle; a second tilted `tilt_deg` about x, moved `shift` along y,
     lowered until it rests in the first."""
@@ -35,8 +32,9 @@ def _leaning_pair(planner, bowl, tilt_deg: float, shift: float) -> list[ObjectPo
     T_low = make_T(t=(c[0], c[1], lo[2] - np.asarray(bowl.mesh.vertices)[:, 2].min() + 0.001))
     R = rot_x(np.radians(tilt_deg))[:3, :3]
     z = T_low[2, 3] + 0.1
-    while not coal.collide(planner.world.bvh(bowl), _tf(make_T(R, (c[0], c[1] + shift, z))), planner.world.bvh(bowl),
-                           _tf(T_low), coal.CollisionRequest(), coal.CollisionResult()):
+    while not coal.collide(planner.world.bvh(bowl), coal_transform(make_T(R, (c[0], c[1] + shift, z))),
+                           planner.world.bvh(bowl), coal_transform(T_low), coal.CollisionRequest(),
+                           coal.CollisionResult()):
         z -= 0.0005
     T_up = make_T(R, (c[0], c[1] + shift, z + 0.001))
     return [ObjectPose(bowl.obj_id, bowl.cls, T_low, 1.0, instance_id=1),

@@ -11,7 +11,7 @@ import numpy as np
 from kitchenbot.executive.config import CellConfig
 from kitchenbot.fakes.world import SimWorld
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.grasps import _tf
+from kitchenbot.planning.collision import coal_transform
 from kitchenbot.transforms import from_rotvec, inv
 from kitchenbot.world.cell import Cell
 
@@ -62,8 +62,8 @@ def test_a_lift_keeps_the_full_margin_from_a_neighbour_clear_of_the_item_at_the_
 
     def gap(q, o):
         r = coal.DistanceResult()
-        coal.distance(bvh, _tf(fk(q) @ g.T_tcp_obj), planner.world.bvh(planner.inventory[o.obj_id]),
-                      _tf(o.T_base_obj), coal.DistanceRequest(), r)
+        coal.distance(bvh, coal_transform(fk(q) @ g.T_tcp_obj), planner.world.bvh(planner.inventory[o.obj_id]),
+                      coal_transform(o.T_base_obj), coal.DistanceRequest(), r)
         return r.min_distance
 
     Q = np.asarray(pick.lift.q, float)

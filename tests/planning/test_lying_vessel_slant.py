@@ -12,6 +12,7 @@ import pytest
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning import grasp_synthesis
+from kitchenbot.planning.collision import coal_transform
 from kitchenbot.planning.grasp_synthesis import RIM_LEVEL, RIM_SLANT, ensure_grasps, synthesise_grasps
 from kitchenbot.planning.grasps import FALLBACK_GRASPS, GraspStats, select_grasps
 from kitchenbot.transforms import make_T, rot_y, rot_z
@@ -26,10 +27,6 @@ def own(own_dishware, tmp_path_factory):
     return inv, by
 
 
-def _tf(T):
-    return coal.Transform3s(T[:3, :3].copy(), T[:3, 3].copy())
-
-
 def _glass_in_bowl(planner, inv, glass, bowl, yaw: float, tilt: float) -> list[ObjectPose]:
     """The bowl upright on the sink floor's middle, the glass lying in it (axis `tilt` above level, turned `yaw`),
     lowered until it rests on the bowl."""
@@ -38,8 +35,9 @@ def _glass_in_bowl(planner, inv, glass, bowl, yaw: float, tilt: float) -> list[O
     T_bowl = make_T(t=(c[0], c[1], lo[2] - np.asarray(bowl.mesh.vertices)[:, 2].min() + 0.001))
     R = (rot_z(yaw) @ rot_y(np.pi / 2 - tilt))[:3, :3]
     z = 0.1
-    while not coal.collide(planner.world.bvh(glass), _tf(make_T(R, (c[0], c[1], z))), planner.world.bvh(bowl),
-                           _tf(T_bowl), coal.CollisionRequest(), coal.CollisionResult()):
+    while not coal.collide(planner.world.bvh(glass), coal_transform(make_T(R, (c[0], c[1], z))),
+                           planner.world.bvh(bowl), coal_transform(T_bowl), coal.CollisionRequest(),
+                           coal.CollisionResult()):
         z -= 0.001
     T_glass = make_T(R, (c[0], c[1], z + 0.002))
     return [ObjectPose(bowl.obj_id, bowl.cls, T_bowl, 1.0, instance_id=1),

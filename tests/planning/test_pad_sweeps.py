@@ -3,15 +3,15 @@
 import coal
 import numpy as np
 
-from kitchenbot.planning.collision import GripperGeometry, mesh_bvh
+from kitchenbot.planning.collision import GripperGeometry, coal_transform, mesh_bvh
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
-from kitchenbot.planning.grasps import _tf, pad_sweeps
+from kitchenbot.planning.grasps import pad_sweeps
 from kitchenbot.transforms import trans
 from kitchenbot.world.inventory import Inventory
 
 
 def _hits(vol_T, bvh, T_obj):
-    return coal.collide(vol_T[0], vol_T[1], bvh, _tf(T_obj), coal.CollisionRequest(), coal.CollisionResult())
+    return coal.collide(vol_T[0], vol_T[1], bvh, coal_transform(T_obj), coal.CollisionRequest(), coal.CollisionResult())
 
 
 def test_overhanging_top_plate_is_pinched_alone_on_its_overhang_side():
@@ -32,11 +32,13 @@ def test_overhanging_top_plate_is_pinched_alone_on_its_overhang_side():
     assert over and under
     for spec in over:
         T = T_top @ spec.T_obj_tcp
-        sweeps = [(v, _tf(T @ Tv)) for v, Tv in pad_sweeps(spec.opening, spec.width, g.pad_width, g.pad_root, g.pad_tip)]
+        sweeps = [(v, coal_transform(T @ Tv))
+                  for v, Tv in pad_sweeps(spec.opening, spec.width, g.pad_width, g.pad_root, g.pad_tip)]
         assert not any(_hits(s, bvh, T_lower) for s in sweeps), spec.name
     for spec in under:  # where the lower plate sticks out, the outer pad sweeps into its rim
         T = T_top @ spec.T_obj_tcp
-        sweeps = [(v, _tf(T @ Tv)) for v, Tv in pad_sweeps(spec.opening, spec.width, g.pad_width, g.pad_root, g.pad_tip)]
+        sweeps = [(v, coal_transform(T @ Tv))
+                  for v, Tv in pad_sweeps(spec.opening, spec.width, g.pad_width, g.pad_root, g.pad_tip)]
         assert any(_hits(s, bvh, T_lower) for s in sweeps), spec.name
 
 

@@ -7,7 +7,7 @@ import coal
 import pytest
 import numpy as np
 
-from kitchenbot.planning.grasps import _tf
+from kitchenbot.planning.collision import coal_transform
 from kitchenbot.transforms import make_T
 
 
@@ -17,7 +17,7 @@ def _nested_below(planner, model, T_top, shift):
     req = coal.CollisionRequest()
     for dz in np.arange(0.0, 0.03, 0.0005):
         T = make_T(t=T_top[:3, 3] + shift - (0, 0, dz))
-        if not coal.collide(bvh, _tf(T_top), bvh, _tf(T), req, coal.CollisionResult()):
+        if not coal.collide(bvh, coal_transform(T_top), bvh, coal_transform(T), req, coal.CollisionResult()):
             return T
     raise AssertionError("no nested pose")
 
@@ -27,8 +27,8 @@ def _finger_distance(planner, spec, T_tcp, model, T_obj):
     out = []
     for pb in planner.world.gripper.pads(np.eye(4), spec.opening):
         r = coal.DistanceResult()
-        out.append(coal.distance(coal.Box(*pb.size), _tf(T_tcp @ pb.T_flange_box), planner.world.bvh(model),
-                                 _tf(T_obj), coal.DistanceRequest(), r))
+        out.append(coal.distance(coal.Box(*pb.size), coal_transform(T_tcp @ pb.T_flange_box), planner.world.bvh(model),
+                                 coal_transform(T_obj), coal.DistanceRequest(), r))
     return min(out)
 
 
@@ -64,8 +64,8 @@ def test_lip_pinch_clears_a_plate_nested_below(planner, inventory, name, overhan
 
         gr = planner.world.gripper
         vol, T_v = closing_volume(narrow.opening, gr.pad_width, gr.pad_root, gr.pad_tip)
-        assert not coal.collide(vol, _tf(T_top @ narrow.T_obj_tcp @ T_v), planner.world.bvh(m), _tf(T_below),
-                                coal.CollisionRequest(), coal.CollisionResult())
+        assert not coal.collide(vol, coal_transform(T_top @ narrow.T_obj_tcp @ T_v), planner.world.bvh(m),
+                                coal_transform(T_below), coal.CollisionRequest(), coal.CollisionResult())
 
 
 

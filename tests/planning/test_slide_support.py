@@ -16,7 +16,7 @@ import pytest
 
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.fakes.placement import drop_onto
-from kitchenbot.planning.grasps import _tf
+from kitchenbot.planning.collision import coal_transform
 from kitchenbot.transforms import rot_y, rot_z
 
 pytestmark = pytest.mark.timeout(600)
@@ -45,8 +45,8 @@ def _scene(empty_sim_cell, gap_to_second: float | None, yaw_deg: float = 45.0):
 
     def gap(p):
         A, B = world.objects[cu], world.objects[p]
-        return coal.distance(planner.world.bvh(A.model), _tf(A.T_base_obj), planner.world.bvh(B.model),
-                             _tf(B.T_base_obj), coal.DistanceRequest(), coal.DistanceResult())
+        return coal.distance(planner.world.bvh(A.model), coal_transform(A.T_base_obj), planner.world.bvh(B.model),
+                             coal_transform(B.T_base_obj), coal.DistanceRequest(), coal.DistanceResult())
 
     if gap_to_second is not None:
         far = max(plates, key=gap)
