@@ -562,6 +562,17 @@ class Planner:
         pinned = self._pinned_by(vertical_start_scene, start_scene, q_grasp, on_it)
         if pinned is not None:
             return pinned
+
+        def with_approach(lift: Trajectory, contact_travel: float, **marks: float) -> PickPlan | PlanningFailure:
+            """The plan with this lift, its approach planned last (RRT-Connect only for a grasp that lifts out);
+            `marks` go into the timings (which fallback lifted it)."""
+            base_scene.set_opening(g.spec.opening)
+            approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
+            if isinstance(approach, PlanningFailure):
+                return approach
+            timings.update(marks)
+            return PickPlan(g, approach, grasp_in, lift, timings_ms=timings, lift_contact_travel=contact_travel)
+
         # Straight up first; an item resting tilted in a stack comes off along its own axis (as it was
         # stacked); an item leaning on a basin wall (or in a corner) would slide up along it, so then up and
         # away from the walls (towards the sink's middle), tilted by 30 / 50 degrees.
@@ -608,13 +619,8 @@ class Planner:
                         separated = True
                         r = self._separating_lift(lift_scene, start_scene, q_grasp, g, held_item_pairs, by_name)
                         if r is not None and held_scene.valid(r[1]):
-                            base_scene.set_opening(g.spec.opening)
-                            approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
-                            if isinstance(approach, PlanningFailure):
-                                return approach
-                            timings["lift_separate_m"] = float(np.linalg.norm(r[2]))
-                            return PickPlan(g, approach, grasp_in, r[0], timings_ms=timings,
-                                            lift_contact_travel=LIFT_CONTACT_TRAVEL)
+                            return with_approach(r[0], LIFT_CONTACT_TRAVEL,
+                                                 lift_separate_m=float(np.linalg.norm(r[2])))
                     continue
                 if not held_scene.valid(q_lifted):
                     # An item that rested against a basin wall is lifted along it with the grasp margin (2 mm)
@@ -623,12 +629,7 @@ class Planner:
                     if ext is not None:
                         lift, q_lifted = ext
                 if held_scene.valid(q_lifted):  # plan_place starts here with the full margins
-                    base_scene.set_opening(g.spec.opening)
-                    approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
-                    if isinstance(approach, PlanningFailure):
-                        return approach
-                    return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
-                                    lift_contact_travel=float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)))
+                    return with_approach(lift, float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)))
                 pairs = held_scene.colliding_pairs(q_lifted)
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 first = first or CartesianPathFailed("lift: the lifted pose is within the collision margin",
@@ -646,13 +647,7 @@ class Planner:
             if self._contact_comes_back(lift_scene, lift.q, held_item_pairs) is not None:
                 continue
             if held_scene.valid(q_lifted):
-                base_scene.set_opening(g.spec.opening)
-                approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
-                if isinstance(approach, PlanningFailure):
-                    return approach
-                timings["lift_sidestep_m"] = float(np.linalg.norm(leg[:2]))
-                return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
-                                lift_contact_travel=LIFT_CONTACT_TRAVEL)
+                return with_approach(lift, LIFT_CONTACT_TRAVEL, lift_sidestep_m=float(np.linalg.norm(leg[:2])))
         if fallback is not None:
             lift, q_lifted, info = fallback
             if not held_scene.valid(q_lifted):
@@ -660,13 +655,8 @@ class Planner:
                 if ext is not None:
                     lift, q_lifted = ext
             if held_scene.valid(q_lifted):
-                base_scene.set_opening(g.spec.opening)
-                approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
-                if isinstance(approach, PlanningFailure):
-                    return approach
-                timings["lift_fit_fallback"] = 1.0
-                return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
-                                lift_contact_travel=float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)))
+                return with_approach(lift, float(info.get("contact_travel", LIFT_CONTACT_TRAVEL)),
+                                     lift_fit_fallback=1.0)
         # Every line and sidestep failed, and the held item touches a basin wall at the grasp: up along the wall
         # first (within the start contacts' travel), then away from it (_up_then_away)
         touching = [p for p in start_contacts if any(x.startswith("cell:") for x in p)]
@@ -674,14 +664,7 @@ class Planner:
             r = self._up_then_away(lift_scene, vertical_start_scene, start_scene, held_scene, q_grasp, g.T_base_tcp,
                                    centre, held_item_pairs)
             if r is not None:
-                lift, q_lifted = r
-                base_scene.set_opening(g.spec.opening)
-                approach = self._joint_motion(base_scene, q0, g.q_pregrasp, "approach", timings)
-                if isinstance(approach, PlanningFailure):
-                    return approach
-                timings["lift_up_then_away"] = 1.0
-                return PickPlan(g, approach, grasp_in, lift, timings_ms=timings,
-                                lift_contact_travel=UP_THEN_AWAY[0] + UP_THEN_AWAY[1])
+                return with_approach(r[0], UP_THEN_AWAY[0] + UP_THEN_AWAY[1], lift_up_then_away=1.0)
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
