@@ -182,3 +182,21 @@ def run_pick_on_fake_arm():
         assert world.held_uid is not None
 
     return run
+
+
+@pytest.fixture
+def sim_items(cfg, inventory):
+    """sim_items([(name, T_true, T_fit), ...]) -> (a SimWorld of the builtin cell with those items at their true
+    poses, the items as perceived: ObjectPoses at T_fit with the simulator's instance ids)."""
+    from kitchenbot.fakes.world import SimWorld
+    from kitchenbot.world.cell import Cell
+
+    def make(items):
+        world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
+        out = []
+        for name, T_true, T_fit in items:
+            m = inventory.by_name(name)
+            out.append(ObjectPose(m.obj_id, m.cls, T_fit, 1.0, instance_id=world.add_object(m, T_true)))
+        return world, out
+
+    return make

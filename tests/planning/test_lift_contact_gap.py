@@ -11,11 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.fakes.world import SimWorld
-from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.grasps import object_name
 from kitchenbot.transforms import from_rotvec
-from kitchenbot.world.cell import Cell
 
 # (rotation vector, position; base frame): the lower bowl tilted by 33 degrees, the upper one on its side across
 # the lower one's mouth, 5 cm higher
@@ -25,15 +22,9 @@ Q_SCAN = np.array([2.198, -1.734, 2.006, -1.53, -1.13, 0.142])  # the last scan 
 
 
 @pytest.fixture
-def across(cfg, inventory):
+def across(sim_items):
     """The SimWorld with the two bowls, and the same items as perceived poses (exact)."""
-    world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
-    bowl = inventory.by_name("bowl")
-    poses = []
-    for rv, t in (LOWER, UPPER):
-        T = from_rotvec(rv, t)
-        poses.append(ObjectPose(bowl.obj_id, bowl.cls, T, 1.0, instance_id=world.add_object(bowl, T)))
-    return world, poses
+    return sim_items([("bowl", from_rotvec(*p), from_rotvec(*p)) for p in (LOWER, UPPER)])
 
 
 def test_the_upper_bowl_is_lifted_without_breaking_and_remaking_its_contact(planner, across, lift_contact):

@@ -12,11 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.fakes.world import SimWorld
-from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.pick_place import Planner
 from kitchenbot.transforms import from_rotvec
-from kitchenbot.world.cell import Cell
 
 # (rotation vector, position; base frame): the true poses, and the fitted ones perception gave
 LOWER = ((-0.808945, 0.212234, 2.235314), (0.564417, -0.044593, -0.096473))
@@ -27,15 +24,10 @@ Q_SCAN = np.array([2.198, -1.734, 2.006, -1.53, -1.13, 0.142])  # the last scan 
 
 
 @pytest.fixture
-def tilted_in(cfg, inventory):
+def tilted_in(sim_items):
     """The SimWorld with the two bowls (true poses), and the two as perceived (fitted poses)."""
-    world = SimWorld(Cell(), inventory, T_flange_tcp=cfg.safety_limits().T_flange_tcp, q=np.array(cfg.robot.home))
-    bowl = inventory.by_name("bowl")
-    out = []
-    for (rv, t), (rv_fit, t_fit) in ((LOWER, LOWER_FIT), (UPPER, UPPER_FIT)):
-        uid = world.add_object(bowl, from_rotvec(rv, t))
-        out.append(ObjectPose(bowl.obj_id, bowl.cls, from_rotvec(rv_fit, t_fit), 1.0, instance_id=uid))
-    return world, out
+    return sim_items([("bowl", from_rotvec(*true), from_rotvec(*fit)) for true, fit in ((LOWER, LOWER_FIT),
+                                                                                         (UPPER, UPPER_FIT))])
 
 
 def test_the_bowl_tilted_in_another_is_lifted_without_a_contact_made_again(planner, tilted_in, lift_contact):

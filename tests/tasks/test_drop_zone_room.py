@@ -37,22 +37,7 @@ def put(task, belief, inv, name, xy, k, on=None):
     return belief.placed[-1]
 
 
-def clear(task, belief, inv, names):
-    """Place each item (in this order) at its first target; the names of those left without one."""
-    left = [item(inv, n, (0.45 + 0.01 * k, 0.0, -0.15), 100 + k) for k, n in enumerate(names)]
-    out = []
-    while left:
-        belief.pending = task.pending_models(left)
-        o = left.pop(0)
-        ts = task.targets(o, belief)
-        if isinstance(ts, NoFreeSlot):
-            out.append(inv[o.obj_id].name)
-            continue
-        belief.record_placed(task, o, ts[0], ts[0].T_base_obj)
-    return out
-
-
-def test_a_glass_leaves_room_for_the_bowl_still_to_come(inv):
+def test_a_glass_leaves_room_for_the_bowl_still_to_come(inv, place_in_order):
     """The zone's right part holds a plate pile (room kept for a dinner plate around it), its back row glasses, the
     left middle two cups: an L-shaped room is left at the front left, 28 x 19 cm, room for a bowl and two glasses
     side by side. The nearest free spot for the first glass is the front middle, which left no room for the bowl;
@@ -65,7 +50,7 @@ def test_a_glass_leaves_room_for_the_bowl_still_to_come(inv):
     put(task, belief, inv, "glass", (-0.259, 0.656), 7)
     put(task, belief, inv, "cup", (-0.167, 0.637), 8)
     put(task, belief, inv, "cup", (-0.072, 0.637), 9)
-    left = clear(task, belief, inv, ["glass", "glass", "bowl", "dinner_plate"])
+    left = place_in_order(task, belief, ["glass", "glass", "bowl", "dinner_plate"], first_id=100)
     assert left == [], left
 
 

@@ -308,28 +308,13 @@ def test_on_a_full_counter_two_glasses_stand_side_by_side_on_a_dinner_plate_pile
     assert isinstance(ts, NoFreeSlot) or all(np.linalg.norm(t.T_base_obj[:2, 3] - Tp[:2, 3]) > 0.1 for t in ts)
 
 
-def place_in_order(task, belief, inv, names):
-    """Place each item at its first target in the order given (the one in which the sink gives them up: a buried
-    plate comes out after the cups on it); returns the names that found no target."""
-    left = [in_sink(inv, n, k) for k, n in enumerate(names)]
-    failed = []
-    for k, o in enumerate(left):
-        belief.pending = task.pending_models(left[k:])
-        ts = task.targets(o, belief)
-        if isinstance(ts, NoFreeSlot):
-            failed.append(inv[o.obj_id].name)
-            continue
-        belief.record_placed(task, o, ts[0], ts[0].T_base_obj)
-    return failed
-
-
 @pytest.mark.parametrize("names", [
     ["bowl", "mug", "mug", "mug", "glass", "cup"] + ["dinner_plate"] * 5 + ["side_plate"] * 3,
     ["glass", "cup", "cup", "bowl", "bowl", "mug", "mug", "bowl", "glass", "mug"] + ["dinner_plate"] * 6,
 ])
-def test_items_that_come_out_before_the_plates_leave_them_a_pile_spot(inv, names):
+def test_items_that_come_out_before_the_plates_leave_them_a_pile_spot(inv, names, place_in_order):
     """Bowls, mugs and cups that come out of the sink first (the plates lie under them) are set down around the
     spot the plate pile will take: every plate still finds room (one pile holds them all)."""
     task = make_task("sink-pick", inv, Cell())
     belief = Belief()
-    assert place_in_order(task, belief, inv, names) == []
+    assert place_in_order(task, belief, names) == []
