@@ -22,7 +22,8 @@ from kitchenbot.executive.failures import Failure, StepFailed, Stopped
 from kitchenbot.executive.recovery_rules import CAMERA, rule_for
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, Trajectory
+from kitchenbot.planning.leave import rise_keeping_own_margins
+from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, PlanningFailure, Trajectory
 from kitchenbot.world.gripper import DROP_HEIGHT
 from kitchenbot.world.inventory import grasp_kind
 from kitchenbot.world.same_item import SAME_ITEM_RADIUS
@@ -270,10 +271,12 @@ class RecoveryActions:
         lo, hi = self.robot.cell.sink_interior
         tcp = self.arm.tcp_pose()[:3, 3]
         in_sink = bool(np.all(tcp[:2] >= np.asarray(lo)[:2]) and np.all(tcp[:2] <= np.asarray(hi)[:2]))
-        if in_sink and tcp[2] < 0.05:  # deep in the sink elsewhere: straight up a little
+        if in_sink and tcp[2] < 0.05 and self.planner is not None:
+            self._rise_out()
+        elif in_sink and tcp[2] < 0.05:  # deep in the sink elsewhere: straight up a little
             T = self.arm.tcp_pose()
-            T[2, 3] += 0.08
-            self._cmd("arm.move_linear", up=0.08)
+            T[2, 3] += self.BACK_OUT_RISES[0]
+            self._cmd("arm.move_linear", up=self.BACK_OUT_RISES[0])
             try:
                 with self._arm_lock:
                     self.arm.move_linear(T, speed=0.05, accel=0.3, asynchronous=True)
@@ -284,6 +287,29 @@ class RecoveryActions:
 
                 if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
                     self.arm.unlock_protective_stop()
+
+    BACK_OUT_RISES = (0.08, 0.06, 0.04, 0.02)  # m straight up out of the sink, longest first
+
+    def _rise_out(self) -> None:
+        """Straight up out of the sink by the longest of BACK_OUT_RISES along which the arm keeps its own margins
+        (planning.leave.rise_keeping_own_margins): a straight TCP line can bring the wrist within the margin of
+        the forearm, a start every planned motion refuses. None: stay (the next motion's planned escape)."""
+        why = []
+        for up in self.BACK_OUT_RISES:
+            r = rise_keeping_own_margins(self.planner, self.arm.joint_positions(), up)
+            if isinstance(r, PlanningFailure):
+                why.append(f"{up:.2f} m: {r.message}")
+                continue
+            try:
+                self._run_trajectory(r[0])
+            except (LimitViolation, ProtectiveStopError) as e:
+                self._log("note", "back out refused", reason=str(e))
+                from kitchenbot.drivers.arm import SafetyState
+
+                if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
+                    self.arm.unlock_protective_stop()
+            return
+        self._log("note", "no way straight up out of the sink keeping the arm's own margins", reason="; ".join(why))
 
     SEARCH_RADIUS = 0.25  # m around the drop site an item found there may have come to rest
 

@@ -61,6 +61,18 @@ def leave_leg(planner, scene: Scene, at: Scene, q0: np.ndarray,
                             f"axis or up: {'; '.join(why)}", {"pairs": list(pairs), "q": q0.tolist()})
 
 
+def rise_keeping_own_margins(planner, q0: np.ndarray, up: float) -> tuple[Trajectory, np.ndarray] | PlanningFailure:
+    """(trajectory, its end): the TCP straight up by `up` m from `q0` with the arm's own pairs (its links, and the
+    tool against them) checked with the full margin all along, the end included; nothing else is checked (a move
+    out of the sink after a failed grasp or a slip, from wherever the tool stopped among the items, as an
+    unplanned straight-up move would be). A straight TCP line can swing the wrist into the forearm: unchecked, it
+    could end within the margin of the arm's own links, a start every planner then refuses (no way out by
+    moving the tool, the arm's own geometry goes along)."""
+    scene = planner.world.scene()
+    own = scene.allowing([(a, b) for a, b in scene.pair_names if a.startswith("cell:") or b.startswith("cell:")])
+    return planner._line(own, q0, trans(0.0, 0.0, up) @ planner.robot.fk_tcp(q0), "back_out", check_start=False)
+
+
 def _names(pairs: Sequence[tuple[str, str]]) -> str:
     return ", ".join(f"{a}/{b}" for a, b in pairs)
 
@@ -72,5 +84,5 @@ def join(first: Trajectory, rest: Trajectory, name: str) -> Trajectory:
     return Trajectory(t, np.vstack([first.q, rest.q[1:]]), name)
 
 
-__all__ = ["LEAVE_CONTACT_TRAVEL", "LEAVE_DISTANCES", "leave_leg", "tool_item_pairs", "join",
+__all__ = ["LEAVE_CONTACT_TRAVEL", "LEAVE_DISTANCES", "leave_leg", "rise_keeping_own_margins", "tool_item_pairs", "join",
            "CartesianPathFailed"]
