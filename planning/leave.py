@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from kitchenbot.planning.collision import TOOL_PARTS, Scene
-from kitchenbot.planning.types import CartesianPathFailed, PlanningFailure, StartInCollision, Trajectory
+from kitchenbot.planning.types import PlanningFailure, StartInCollision, Trajectory
 from kitchenbot.transforms import trans
 
 LEAVE_DISTANCES = (0.05, 0.10)  # m of the first leg, shortest first
@@ -84,5 +84,5 @@ def join(first: Trajectory, rest: Trajectory, name: str) -> Trajectory:
     return Trajectory(t, np.vstack([first.q, rest.q[1:]]), name)
 
 
-__all__ = ["LEAVE_CONTACT_TRAVEL", "LEAVE_DISTANCES", "leave_leg", "rise_keeping_own_margins", "tool_item_pairs", "join",
-           "CartesianPathFailed"]
+__all__ = ["LEAVE_CONTACT_TRAVEL", "LEAVE_DISTANCES", "join", "leave_leg", "rise_keeping_own_margins",
+           "tool_item_pairs"]
