@@ -560,7 +560,8 @@ class Perceiver:
                 and along > 0.25 * (model.extents[2] + other.extents[2])
             if not end_to_end:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
-        return continuation(P, model.points, T, explained, len(own), only_along=standing)
+        return continuation(P, model.points, T, explained, len(own), only_along=standing,
+                            on_base=standing and z @ up > 0)
 
     def _near_points(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis) -> tuple[np.ndarray, np.ndarray]:
         """Map points within the model's diameter of a pose, and which of them the pose puts on its surface."""

@@ -254,7 +254,7 @@ def _unexplained_along_axis(points: np.ndarray, model_points: np.ndarray, T_base
 
 
 def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
-                 n_own: int, reach: float = CONTINUE_REACH, only_along: bool = False) -> float:
+                 n_own: int, reach: float = CONTINUE_REACH, only_along: bool = False, on_base: bool = False) -> float:
     """Of map points near a pose (`points`, base frame; `explained`: those this pose or another one puts on its
     surface), how many lie past the model's ends along its axis (up to `reach`) within that end's radius, per
     point of the pose's own (`n_own`). A model of a surface of revolution about its z axis (`model_points`,
@@ -267,7 +267,13 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
     vessel stands on, a neighbour beside it), not along it. A bottle's body, shoulder and neck going on past an
     upright or upside-down cup or glass stay within the end's radius. Nor is an end judged where what lies past it
     within its radius covers under `AROUND_SPAN` degrees around the axis (`around_span`): one side only (a cup
-    leaning on a mug's rim), not a body going on around the axis."""
+    leaning on a mug's rim), not a body going on around the axis.
+
+    `on_base` (a vessel standing on its base, upright): the end past its base (the model's lowest z) is not judged:
+    what lies under a standing item within its footprint is what it stands on, however narrow (a drink can under
+    a glass, the glass a glass is nested in, whose wall goes on under the upper one's base). A longer object
+    fitted by the vessel still goes on past its rim (a bottle's shoulder and neck) or through its opening
+    (`filled`)."""
     if n_own == 0 or len(points) == 0:
         return 0.0
     q, axis, r_model, z0, z1 = _unexplained_along_axis(points, model_points, T_base_obj, explained)
@@ -275,8 +281,10 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
     # Past each end, within that end's own radius (1 cm more: a bottle a little wider than a cup's base; not the
     # reach of a mug's handle, beside which a neighbour may lie).
     n_past = 0
-    for r_end, beyond in ((r_model[model_points[:, 2] < z0 + 0.005].max(), (q[:, 2] < z0) & (q[:, 2] > z0 - reach)),
-                          (r_model[model_points[:, 2] > z1 - 0.005].max(), (q[:, 2] > z1) & (q[:, 2] < z1 + reach))):
+    ends = [(r_model[model_points[:, 2] > z1 - 0.005].max(), (q[:, 2] > z1) & (q[:, 2] < z1 + reach))]
+    if not on_base:
+        ends.append((r_model[model_points[:, 2] < z0 + 0.005].max(), (q[:, 2] < z0) & (q[:, 2] > z0 - reach)))
+    for r_end, beyond in ends:
         inner = int(np.count_nonzero(beyond & (r_q < r_end + 0.01)))
         if only_along and inner:
             wide = np.count_nonzero(beyond & (r_q > r_end + ACROSS_RING[0]) & (r_q < r_end + ACROSS_RING[1]))

@@ -380,3 +380,50 @@ def test_a_vessel_facing_down_fitted_a_little_off_is_judged_where_its_own_points
             h = Hypothesis(6, T_fit, verification=Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0))
             perceiver._fine_parts(m, cKDTree(pts), 0.003, h, np.arange(len(own_pts)), [(h, 0, None)])
             assert (h.verification.intruded > 0.15 * INTRUDED_FULL) == expect, (expect, h.verification.intruded)
+
+
+def test_a_vessel_standing_on_something_narrow_is_not_continued_by_it(perceiver, inventory):
+    """A glass standing upright on a drink can (its base on the can's lid, the can's side seen 3 cm down under it,
+    a little narrower than the base) or nested in another glass (whose wall goes on under its base): what lies
+    under a standing vessel's base within its footprint is what it stands on, not the same body going on, so the
+    pose passes. On the base code the can's side read as continuation (a bottle going on past the base) and the
+    glass was rejected. An upright glass fitted over the lower part of an upright bottle, whose shoulder and neck
+    go on past its rim, is still rejected; so is the same glass lying (its base end judged as before)."""
+    from kitchenbot.perception.map import InstanceMap
+    from kitchenbot.perception.register import Hypothesis
+    from kitchenbot.perception.verify import Verification
+
+    entry, model = perceiver.database[6], inventory[6]  # the glass
+    z0, z1 = model.points[:, 2].min(), model.points[:, 2].max()
+    axis = np.median(model.points[:, :2], axis=0)
+    r_base = np.linalg.norm(model.points[model.points[:, 2] < z0 + 0.005, :2] - axis, axis=1).max()
+    r_rim = np.linalg.norm(model.points[model.points[:, 2] > z1 - 0.005, :2] - axis, axis=1).max()
+    upright = make_T(np.eye(3), np.array([0.4, 0.0, 0.16]))
+    lying = make_T(rot_x(np.pi / 2)[:3, :3], np.array([0.4, 0.0, 0.05]))
+
+    def verdict(T, extra):
+        own, _ = _cup_surface(entry, T, 0.0005)
+        extra = extra[extra[:, 0] > -0.3 * np.abs(extra[:, :2]).max()]  # the side the cameras see
+        points = np.vstack([own, extra @ T[:3, :3].T + T[:3, 3]])
+        ids = np.r_[np.zeros(len(own), int), np.ones(len(extra), int)]
+        m = InstanceMap(points, ids, np.zeros(len(points), int), np.zeros((len(points), 2), int),
+                        np.array([[0.8, 0.0, 0.6]]))
+        h = Hypothesis(6, T, verification=Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0))
+        perceiver._active_cell = perceiver.cell  # gravity: the base frame's z
+        perceiver._fine_check(m, [(h, 0, np.nonzero(ids == 0)[0])])
+        return h.verification
+
+    can = _cylinder_side(r_base - 0.002, z0 - 0.03, z0)  # a can's side under the base
+    ver = verdict(upright, can)
+    assert ver.continued < 0.02 and ver.score >= perceiver.settings.verify_threshold, ver
+    # the wall of the glass it is nested in, going on under its base, wider than the base (tapered like it)
+    nest = _cylinder_side(r_base + 0.004, z0 - 0.03, z0)
+    ver = verdict(upright, nest)
+    assert ver.continued < 0.02 and ver.score >= perceiver.settings.verify_threshold, ver
+    # a bottle going on past the rim (its shoulder, as wide as the rim, then a neck): still continuation
+    bottle = np.vstack([_cylinder_side(r_rim - 0.002, z1, z1 + 0.015), _cylinder_side(0.012, z1 + 0.015, z1 + 0.03)])
+    ver = verdict(upright, bottle)
+    assert ver.score < perceiver.settings.verify_threshold, ver
+    # lying, the base end is judged as before
+    ver = verdict(lying, can)
+    assert ver.score < perceiver.settings.verify_threshold, ver
