@@ -534,7 +534,9 @@ class Perceiver:
         how a bottle is fitted by cups (one after the other along its body). For a standing vessel (upright or
         upside down) an end is judged only where nothing past it reaches out across the axis: what lies across a
         cup's rim (a plate, a lying bottle) or under its base (its support) is past its end too, while an
-        upright bottle's body, shoulder and neck go on past an upside-down cup's base within its radius."""
+        upright bottle's body, shoulder and neck go on past an upside-down cup's base within its radius. An
+        upright vessel's base end is not judged at all: what lies under it is what it stands on, however narrow
+        (a drink can, the glass it is nested in, whose wall goes on under its base)."""
         model = self.inventory[hyp.obj_id]
         T = hyp.T_base_obj
         z = T[:3, 2]

@@ -14,7 +14,8 @@ The checks, each a share in [0, 1]:
   within its radius) that neither it nor another pose puts on a surface, per point of its own (`continuation`):
   a bottle or a rolling pin lying there is longer than any cup, its surface goes on where the cup ends. A
   standing vessel's end is judged only where nothing past it reaches out across the axis (a plate over a rim, the
-  support under a base): a standing bottle's body, shoulder and neck go on along it.
+  support under a base): a standing bottle's body, shoulder and neck go on along it. An upright vessel's base end is
+  not judged: what lies under it is what it stands on (a drink can, the glass it is nested in).
 
 - intruded (cups, mugs, glasses whose opening faces down): other surfaces seen inside the model's cavity,
   i.e. passing through where its wall would be (`intruded`): a glass fitted upside down or lying over a drink
