@@ -58,6 +58,13 @@ class ModelEntry:
             if len(self.dense_points) else 0.0
 
     @cached_property
+    def fused_matrix(self) -> tuple[np.ndarray, np.ndarray]:
+        """The reference points' fused features (float64, one row per point) and their squared norms: the model
+        side of perception.register.feature_matches."""
+        F = np.ascontiguousarray(self.ref.fused, dtype=np.float64)
+        return F, (F * F).sum(axis=1)
+
+    @cached_property
     def oriented_tree(self) -> cKDTree:
         """KD-tree over (point, NORMAL_WEIGHT x outward normal) of the dense surface: a nearest neighbour here
         is a near point whose surface faces the same way (a thin wall's far side is not one)."""
