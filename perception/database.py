@@ -58,11 +58,9 @@ class ModelEntry:
             if len(self.dense_points) else 0.0
 
     @cached_property
-    def fused_matrix(self) -> tuple[np.ndarray, np.ndarray]:
-        """The reference points' fused features (float64, one row per point) and their squared norms: the model
-        side of perception.register.feature_matches."""
-        F = np.ascontiguousarray(self.ref.fused, dtype=np.float64)
-        return F, (F * F).sum(axis=1)
+    def fused_features(self) -> np.ndarray:
+        """The reference points' fused features, float64, one row per point (perception.register.feature_matches)."""
+        return np.ascontiguousarray(self.ref.fused, dtype=np.float64)
 
     @cached_property
     def oriented_tree(self) -> cKDTree:
