@@ -58,6 +58,11 @@ class ModelEntry:
             if len(self.dense_points) else 0.0
 
     @cached_property
+    def fused_features(self) -> np.ndarray:
+        """The reference points' fused features, float64, one row per point (perception.register.feature_matches)."""
+        return np.ascontiguousarray(self.ref.fused, dtype=np.float64)
+
+    @cached_property
     def oriented_tree(self) -> cKDTree:
         """KD-tree over (point, NORMAL_WEIGHT x outward normal) of the dense surface: a nearest neighbour here
         is a near point whose surface faces the same way (a thin wall's far side is not one)."""
