@@ -143,37 +143,99 @@ WELL_OBSERVED = 200
 # still counts as from above when the item is turned upside down (sin 5 deg < max_approach_up 0.1);
 # +-30/50 deg: from above into a sink, where a 20 cm tool cannot come in level below the counter top.
 TILTS = tuple(np.radians(a) for a in (5.0, -5.0, 30.0, -30.0, 50.0, -50.0))
+# A steep tilt of an item that is not round (a mug: its handle) is kept where the tilted pads close across the
+# width the untilted grasp closes across, within this (m; the handle between the pads would widen it).
+STEEP_WIDTH_TOL = 0.002
 _expanded: dict[int, tuple] = {}
+
+
+def _steep_tilt_fits(model, spec, T_obj_tcp: np.ndarray, checks: dict) -> bool:
+    """Whether a side grasp of a non-round item tilted steeply about its closing axis still closes on the body
+    only: its open pads keep out of the item's own mesh (the handle; planning.grasp_synthesis._pads_clear on
+    surface samples) and the pads close across the untilted grasp's width (nothing else between them).
+
+    The planner lets the pads touch the target they grasp, so these are checked on the model here, once per
+    model (`checks` holds its surface samples and ray scene)."""
+    from kitchenbot.planning import grasp_synthesis as synth
+
+    if not checks:
+        import open3d as o3d
+
+        mesh = model.mesh
+        checks["surface"] = _surface_samples(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+        checks["scene"] = scene
+    if not synth._pads_clear(checks["surface"], T_obj_tcp, spec.opening):
+        return False
+    w = synth.pad_span(model, T_obj_tcp, scene=checks["scene"])
+    return w is not None and abs(w - spec.width) <= STEEP_WIDTH_TOL
+
+
+def _surface_samples(V: np.ndarray, F: np.ndarray, n: int = 30000) -> np.ndarray:
+    """`n` points uniformly on the mesh (area-weighted), and its vertices, as float32: ~2 mm apart on a mug, as
+    generate_grasps checks its own grasps. Sampled with a local generator, not Open3D's (its one global random
+    state is perception's too: drawing from it here would change what perception draws next)."""
+    rng = np.random.default_rng(2)
+    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(B - A, C - A), axis=1)
+    tri = rng.choice(len(F), size=n, p=area / area.sum())
+    u, v = rng.random(n), rng.random(n)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    P = A[tri] + u[:, None] * (B[tri] - A[tri]) + v[:, None] * (C[tri] - A[tri])
+    return np.vstack([P, V]).astype(np.float32)
 
 
 def expand_grasps(model) -> list:
     """The model's predefined grasps plus each side grasp (approach perpendicular to the item's axis) tilted
-    about its closing axis by +-5 degrees, and for rotationally symmetric items also +-30 and +-50 degrees.
+    about its closing axis by +-5 degrees, and also by +-30 and +-50 degrees: for rotationally symmetric items
+    all of them; for others (a mug: its handle) those whose tilted pads still close on the body only
+    (`_steep_tilt_fits`), as fallbacks (`is_fallback`).
 
     The closing axis and the TCP point stay, so the pads pinch the same diameter; only the direction the
     gripper comes from changes (from above at an angle, not level: a 20 cm tool cannot come in level below
     the counter top). Contacts of the tilted pads with the target are allowed at the grasp anyway."""
+    return _expansion(model)[0]
+
+
+def is_fallback(model, spec) -> bool:
+    """Whether grasp `spec` of `model` ranks after every feasible standard one: the fallback kinds
+    (FALLBACK_GRASPS) and the steep tilts of a non-round item's side grasps (expand_grasps)."""
+    return spec.name.startswith(FALLBACK_GRASPS) or spec.name in _expansion(model)[1]
+
+
+def _expansion(model) -> tuple[list, frozenset]:
+    """(expand_grasps(model), the names of the steep tilts kept for a non-round item), cached per model."""
     from kitchenbot.transforms import rot_y
     from kitchenbot.world.inventory import GraspSpec
 
     key = id(model)
     hit = _expanded.get(key)
     if hit is not None and hit[0] is model:  # (the model is kept in the entry: its id cannot be reused meanwhile)
-        return hit[1]
+        return hit[1], hit[2]
     out = list(model.grasps)
+    steep: set[str] = set()
+    checks: dict = {}
     sym = model.is_rotationally_symmetric
     axis = np.asarray(model.symmetries_continuous[0]["axis"], float) if sym else np.array([0.0, 0.0, 1.0])
     axis /= np.linalg.norm(axis)
     for g in model.grasps:
         if abs(float(g.T_obj_tcp[:3, 2] @ axis)) > 0.2:
             continue  # not a side grasp
-        # a non-symmetric item (a mug: its handle) only gets the nearly level variants
-        for t in TILTS if sym else TILTS[:2]:
-            out.append(GraspSpec(tilted_name(g.name, t), g.T_obj_tcp @ rot_y(t), g.opening, g.width))
+        for t in TILTS:
+            T = g.T_obj_tcp @ rot_y(t)
+            name = tilted_name(g.name, t)
+            if not sym and abs(t) > TILTS[0] + 1e-9:
+                # a non-round item's steep tilt: only where the pads still close on the body alone
+                if model.mesh is None or not _steep_tilt_fits(model, g, T, checks):
+                    continue
+                steep.add(name)
+            out.append(GraspSpec(name, T, g.opening, g.width))
     if len(_expanded) > 256:
         _expanded.clear()
-    _expanded[key] = (model, out)
-    return out
+    _expanded[key] = (model, out, frozenset(steep))
+    return out, frozenset(steep)
 
 
 def _observed_near(o: ObjectPose, objects: Sequence[ObjectPose], reach: float = 0.25) -> np.ndarray:
@@ -293,7 +355,7 @@ def select_grasps(
     # Phase 2, most promising first (objects higher up are less buried; approaches closer to vertical leave
     # the gripper more room), fallback grasps after every standard one (they rank after them anyway, so they must
     # not take the places of standard ones under `limit`): the expensive checks, until `limit` grasps are feasible.
-    pending.sort(key=lambda c: (c[2].name.startswith(FALLBACK_GRASPS), -(c[3][2, 3] + 0.05 * -c[3][2, 2])))
+    pending.sort(key=lambda c: (is_fallback(inventory[c[1].obj_id], c[2]), -(c[3][2, 3] + 0.05 * -c[3][2, 2])))
     scenes: dict[int, Scene] = {}
     collided: list = []  # (object index, q, opening) of rejected grasps: what crowds the item, if nothing fits
     taken: list = []  # objects a pad would take in
@@ -372,7 +434,7 @@ def select_grasps(
         motion = float(np.max(np.abs(q_pre - q_current)))
         down = -T[2, 2]  # 1 = straight down
         score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
-        if spec.name.startswith(FALLBACK_GRASPS):
+        if is_fallback(inventory[o.obj_id], spec):
             score -= FALLBACK_PENALTY
         if brush:  # after every grasp whose pads keep clear of the neighbours
             score -= PAD_GIVE_PENALTY
