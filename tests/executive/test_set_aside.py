@@ -98,3 +98,40 @@ def test_a_staged_item_with_no_room_waits_while_the_sink_has_work(make_runner, r
     assert not b.staged_waiting()
     t = b.attempts_for(ObjectPose(rec.obj_id, rec.cls, rec.T_base_obj, 1.0))
     assert any("no_free_slot" in r for r in t.reasons)
+
+
+def test_a_blocker_whose_targets_its_grasps_do_not_reach_is_set_aside_mouth_down(make_runner):
+    """A bowl lying mouth-down on a plate, the racks with room for it, but every plan for it in this scene ended
+    in ``no_feasible_placement`` (no grasp of it as it lies reaches a rack spot left, and no staging spot leads on):
+    the plate it lies on named it as its blocker. Before, the bowl waited for the scene to change and the plate
+    failed under it: both stayed in the sink. Now the bowl is set aside on the counter, mouth-down as it lies (a
+    grasp from above cannot turn it upright), and the plate can go."""
+    runner, _ = make_runner(task="sink-to-dishwasher")
+    inv, b, task = runner.robot.inventory, runner.belief, runner.task
+    plate_m, bowl_m = inv.by_name("dinner_plate"), inv.by_name("bowl")
+    plate = ObjectPose(plate_m.obj_id, "plate", make_T(np.eye(3), (0.48, 0.0, -0.19)), 1.0, instance_id=1)
+    bowl = ObjectPose(bowl_m.obj_id, "bowl", make_T(np.diag([1.0, -1.0, -1.0]), (0.48, 0.0, -0.15)), 1.0,
+                      instance_id=2)
+    b.poses = [plate, bowl]
+    b.pending = [plate_m, bowl_m]
+    assert not isinstance(task.targets(bowl, b), NoFreeSlot)  # the racks have room for it
+    for _ in range(M.MAX_PLAN_FAILURES_PER_SCENE):
+        b.record_plan_failure(bowl, "no_feasible_placement")
+    b.record_blocked(plate, bowl.instance_id)
+    assert runner._do_select_grasp() == "selected"
+    it = runner.item
+    assert it.obj is bowl and it.staged is None
+    assert it.targets and all(t.kind == "stage" for t in it.targets)
+    assert all(t.T_base_obj[2, 2] < -0.99 for t in it.targets)  # mouth-down, as it lies
+
+
+def test_a_blocker_whose_last_plan_failed_otherwise_is_not_set_aside(make_runner):
+    """Only a blocker whose targets are out of its grasps' reach is set aside; one whose plans failed for another
+    reason (its own lift blocked) waits for the scene to change, as before."""
+    runner, _ = make_runner(task="sink-to-dishwasher")
+    plate, cup = _plate_and_cup(runner)
+    b = runner.belief
+    for _ in range(M.MAX_PLAN_FAILURES_PER_SCENE):
+        b.record_plan_failure(cup, "cartesian_path_failed")
+    b.record_blocked(plate, cup.instance_id)
+    assert runner._do_select_grasp() == "selected" and runner.item.obj is plate
