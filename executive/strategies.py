@@ -176,10 +176,8 @@ class SetAsideBlocker(Strategy):
     target has room."""
 
     name = "set_aside_blocker"
-    when = "the item has no target (`no_free_slot`), or none its grasps reach (its plans in this scene ended in " \
-           "`no_feasible_placement`), and an item still in the sink that has one was blocked by it " \
-           "(`blocker_first` named it): the runner gives it counter spots instead (`Task.aside_spots`: " \
-           "mouth-down where it lies mouth-down)"
+    when = "the item has no target (`no_free_slot`) and an item still in the sink that has one was blocked by it " \
+           "(`blocker_first` named it): the runner gives it counter spots instead (`Task.staging_targets`)"
     does = "a pick and a place onto the counter (a staging: it is picked up again when a target has room)"
 
     def applies(self, failure, obj, belief, req):
