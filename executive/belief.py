@@ -323,14 +323,6 @@ class Belief:
         t = self.attempts_for(obj)
         return t is None or t.set_aside_plans < M.MAX_SET_ASIDE_PLANS
 
-    def targets_out_of_reach(self, obj: ObjectPose) -> bool:
-        """Whether the plans for `obj` in this scene failed as often as they may, the last one because no grasp of it
-        reaches any of its targets (``no_feasible_placement``, after every strategy): it is not planned again for
-        them until the scene changes."""
-        t = self.attempts_for(obj)
-        return (t is not None and t.plan_epoch == self.scene_epoch and t.plan_failures >= M.MAX_PLAN_FAILURES_PER_SCENE
-                and bool(t.reasons) and t.reasons[-1] == "no_feasible_placement")
-
     def record_set_aside(self, obj: ObjectPose) -> None:
         """A plan to set `obj` aside on the counter starts."""
         self.attempts_for(obj, create=True).set_aside_plans += 1

@@ -421,14 +421,14 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         cands, for_others = self._ordered(True, b.take_preferred())
         for obj in cands:
             targets = self.task.targets(obj, b)
-            aside = aside_targets(self.task, b, obj, targets) if any(obj is q for q in for_others) else None
-            if aside is not None:  # no target, or none its grasps reach: set aside for the item it blocks
-                b.record_set_aside(obj)
-                self.item = Item(obj, aside)
-                self._log("note", "selected to set aside", obj_id=obj.obj_id, cls=obj.cls, reason=str(targets),
-                          xyz=obj.T_base_obj[:3, 3], targets=[t.T_base_obj[:3, 3] for t in aside])
-                return "selected"
             if isinstance(targets, NoFreeSlot):
+                aside = aside_targets(self.task, b, obj) if any(obj is q for q in for_others) else None
+                if aside is not None:
+                    b.record_set_aside(obj)
+                    self.item = Item(obj, aside)
+                    self._log("note", "selected to set aside", obj_id=obj.obj_id, cls=obj.cls, reason=str(targets),
+                              xyz=obj.T_base_obj[:3, 3], targets=[t.T_base_obj[:3, 3] for t in aside])
+                    return "selected"
                 b.no_room(obj, str(targets))  # tried again when the room changes
                 self._log("note", "no_target", cls=obj.cls, reason=str(targets))
                 continue

@@ -149,23 +149,17 @@ def _setting_aside(req: PlanRequest) -> bool:
     return req.staged is None and bool(req.targets) and all(t.kind == "stage" for t in req.targets)
 
 
-def aside_targets(task, belief: Belief, obj: ObjectPose, targets=None) -> list | None:
-    """Counter spots to set `obj` down on when its task has no target for it (the racks have no room for it), or
-    none that its grasps reach (every plan for it in this scene ended in ``no_feasible_placement``:
-    Belief.targets_out_of_reach), but it lies on, or in the lift's way of, an item that has one (`blocker_first`
-    named it): a deadlock otherwise, since the room kept for that item can be what leaves none for `obj` (a cup
-    over a plate, the lower rack's last room kept for the plate; a bowl mouth-down on two plates whose only rack
-    spots left are beyond its grasps' reach). Set down there as a staging (SetAsideBlocker), in the attitude it lies
-    in where that is level (Task.aside_spots: a mouth-down bowl carried from above cannot be turned upright), it is
-    picked up again when a target has room. None when the task does not set aside, there is no room on the
-    counter, or `obj` was planned to be set aside often enough (Belief.may_set_aside). `targets`: the task's
-    targets for `obj`, when already asked."""
-    if "set_aside_blocker" not in task.strategies or not belief.may_set_aside(obj):
+def aside_targets(task, belief: Belief, obj: ObjectPose) -> list | None:
+    """Counter spots to set `obj` down on when its task has no target for it (the racks have no room for it)
+    but it lies on, or in the lift's way of, an item that has one (`blocker_first` named it): a deadlock
+    otherwise, since the room kept for that item can be what leaves none for `obj` (a cup over a plate, the
+    lower rack's last room kept for the plate). Set down there as a staging (SetAsideBlocker), it is picked up
+    again when a target has room. None when the task does not set aside, there is no room on the counter, or
+    `obj` was planned to be set aside often enough (Belief.may_set_aside)."""
+    if "set_aside_blocker" not in task.strategies or not belief.may_set_aside(obj) \
+            or not isinstance(task.targets(obj, belief), NoFreeSlot):
         return None
-    targets = task.targets(obj, belief) if targets is None else targets
-    if not isinstance(targets, NoFreeSlot) and not belief.targets_out_of_reach(obj):
-        return None
-    spots = task.aside_spots(obj, belief)
+    spots = task.staging_targets(obj, belief)
     return None if isinstance(spots, NoFreeSlot) or not spots else list(spots)
 
 

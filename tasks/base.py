@@ -228,19 +228,6 @@ class Task:
             out += self.lying_spots(model, belief)
         return out or NoFreeSlot("drop zone has no free spot to stage a regrasp")
 
-    def aside_spots(self, obj: ObjectPose, belief: Holdings) -> list[PlaceTarget] | NoFreeSlot:
-        """Spots in the drop zone to set `obj` aside on (it blocks another item and has no target it can reach):
-        mouth-down where it lies mouth-down (it is carried from above, and a grasp from above cannot turn it
-        upright), as the staging spots otherwise (upright)."""
-        if not faces_down(obj.T_base_obj):
-            return self.staging_targets(obj, belief)
-        zone = self.cell.spec.drop_zone
-        lo = np.array(zone.origin_xy)
-        spots = area_spots(self.inventory[obj.obj_id], lo, lo + np.array(zone.size_xy), zone.z, list(belief.placed),
-                           inverted, 2, centre_inside=True)
-        out = [PlaceTarget(T, "stage", free_yaw=True, support="counter (set aside, mouth-down)") for T in spots]
-        return out or self.staging_targets(obj, belief)
-
     def lying_spots(self, model: ObjectModel, belief: Holdings) -> list[PlaceTarget]:
         """A round cup or glass lying on its side in the drop zone (its mouth towards +y, then -x), PAD_ROOM from its
         neighbours; none for other items (a mug rolls onto its handle, a bowl or plate does not rest on its side)."""
