@@ -202,12 +202,13 @@ class StageForRegrasp(Strategy):
     An item already staged standing (upright or upside down) is staged once more only on its side, where the
     task offers that: from standing, a level side grasp reaches a rack's near part only, and when that is full
     its targets stay out of reach; from its side a grasp from above turns it mouth-down anywhere. One staged on
-    its side is not staged again (at most two stagings per item)."""
+    its side is not staged again (at most two stagings per item). Only the robot's own stagings count: an item
+    that slipped and was found on the counter lies where it fell, which no staging chose (_set_down_there)."""
 
     name = "stage_for_regrasp"
     when = "no grasp of the item as it lies reaches a target (`no_feasible_placement` in the pick), the targets " \
            "turn it over (`Task.needs_regrasp`) and it is not already staged (staged standing: once more, on its " \
-           "side)"
+           "side; an item that fell on the counter and was found there counts as not staged)"
     does = "a pick and a place onto the counter (`Task.staging_targets`: upright, upside down or on its side), " \
            "only at spots (and turns) from which a grasp reaches a target (`Planner.onward_staging`), from where " \
            "the next pick offers other grasps; verified there and picked again first"
@@ -218,12 +219,13 @@ class StageForRegrasp(Strategy):
     def plan(self, req):
         if not req.task.needs_regrasp(req.targets, req.obj):
             return None
-        if req.staged is not None and not _staged_standing(req.staged):
+        staged = req.staged if _set_down_there(req.staged) else None  # where it fell is no staging
+        if staged is not None and not _staged_standing(staged):
             return None
         stage = req.task.staging_targets(req.obj, req.belief, req.targets)
         if isinstance(stage, NoFreeSlot):
             return None
-        if req.staged is not None:
+        if staged is not None:
             stage = [t for t in stage if is_lying(t.T_base_obj)]
             if not stage:
                 return None
@@ -235,6 +237,17 @@ class StageForRegrasp(Strategy):
             return None
         r = _direct(req, self.name, stage, staging=True)
         return None if isinstance(r, PlanFailure) and r.stage == "pick" else r
+
+
+def _set_down_there(staged) -> bool:
+    """Whether a staged item's record (tasks.base.Placed) is one of the robot setting it down there, not of where
+    it fell (a slip found on the counter: Belief.record_found, a "drop" target). Only the robot's own stagings
+    count towards the bound on stagings: a mug that slipped on its way to the rack and lies on its side where it
+    fell, out of reach of every rack spot, read as "staged on its side already" and was never moved again
+    (``no_feasible_placement`` on every pick; tests/executive/test_fallen_item_staged.py)."""
+    if staged is None:
+        return False
+    return getattr(getattr(staged, "target", None), "kind", None) != "drop"
 
 
 def _staged_standing(staged) -> bool:

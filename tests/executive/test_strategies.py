@@ -415,3 +415,32 @@ def test_an_item_set_aside_is_planned_as_a_staging_onto_the_counter(inv):
     # its own targets: the direct pick, as before
     plan = plan_item(request(task, b, cup, planner), strategies_for(task), counts := {})
     assert plan.strategy == "direct_pick" and not plan.staging
+
+
+def test_a_mug_that_fell_on_the_counter_is_staged_the_robot_s_own_staging_on_its_side_is_not(inv):
+    """A mug slipped on its way to the rack and was found lying on its side on the counter (recovery: its record
+    has a "drop" target, "counter (it fell there)"); as it lies there no grasp reaches a rack spot. It was never
+    set down there: it is staged as an item from the sink is (standing, in the drop zone). It used to be read as
+    "already staged on its side" and left on the counter (``no_feasible_placement`` on every pick). A mug the robot
+    itself set down on its side (a "stage" target) is still not staged again: the bound on stagings stays."""
+    from kitchenbot.planning.types import PlaceTarget
+    from kitchenbot.tasks.base import Placed
+    from kitchenbot.transforms import rot_x
+
+    task, b = make_task("sink-to-dishwasher", inv, Cell()), Belief()
+    planner = Situation(lambda staging, n: _Ok() if staging else NoFeasiblePlacement("test: none reaches a rack"))
+    m = inv.by_name("mug")
+    T = make_T(rot_x(np.pi / 2)[:3, :3], (0.60, 0.29, 0.045))  # on its side, beside the stacking area
+    mug = ObjectPose(m.obj_id, m.cls, T, 1.0, instance_id=10_000)
+    fell = Placed(m.obj_id, m.cls, T, np.zeros(2), np.zeros(2), 0.09,
+                  PlaceTarget(T.copy(), "drop", support="counter (it fell there)"), 10_000)
+    plan = plan_item(request(task, b, mug, planner, staged=fell), strategies_for(task), counts := {})
+    assert plan.strategy == "stage_for_regrasp" and plan.staging and counts["stage_for_regrasp"]["planned"] == 1
+    assert planner.calls == ["pick", "onward", "pick:stage", "place"]
+
+    planner.calls.clear()
+    set_down = Placed(m.obj_id, m.cls, T, np.zeros(2), np.zeros(2), 0.09,
+                      PlaceTarget(T.copy(), "stage", support="counter (regrasp)"), 10_000)
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(task, b, mug, planner, staged=set_down), strategies_for(task), {})
+    assert e.value.details["planning_kind"] == "no_feasible_placement" and "pick:stage" not in planner.calls
