@@ -72,6 +72,9 @@ class Released:
     staging: bool = False  # set down upright on the counter to be grasped again (regrasp)
     staged: Placed | None = None  # the record this item was picked up from (a staged item)
     near_before: int = 1  # same-class items within gone_radius of it in the scan it was picked from
+    # the gripper held it from the lift to its release at the target (every motion poll said holding): it left
+    # where it was picked, whatever the sink shows there (executive/verify.py, where_it_went)
+    carried: bool = False
 
 
 @dataclass

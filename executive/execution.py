@@ -196,12 +196,14 @@ class Execution:
         self._log("result", "slid", cls=obj.cls, to=sl.T_base_obj_after[:3, 3])
         return "executed"
 
-    def _expect_placed(self, target, T_rest: np.ndarray, staging: bool) -> None:
+    def _expect_placed(self, target, T_rest: np.ndarray, staging: bool, carried: bool = True) -> None:
         """The current object was set down at `target`, resting at T_rest: the next perception verifies it (gone
-        from the sink, present there) and records it (staged for a regrasp when `staging`)."""
+        from the sink, present there) and records it (staged for a regrasp when `staging`). `carried`: the gripper
+        was polled holding it all the way from the lift to the target (a pick and place, or a slip in the lowering
+        onto its target), so it is not where it was picked any more."""
         obj, b = self.item.obj, self.belief
         b.release(Released(obj, target, T_rest, None, staging, self.item.staged,
-                           near_before=max(1, len(self._same_class_near(obj)))))
+                           near_before=max(1, len(self._same_class_near(obj))), carried=carried))
         if self.planner is not None and b.map_base is not None:
             # the map still holds the points where it stood: nothing explains them now that it is gone
             b.set_map_base(self.planner.without_points_of(b.map_base, obj))

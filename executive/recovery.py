@@ -18,8 +18,10 @@ from __future__ import annotations
 import numpy as np
 
 from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutError, LimitViolation, ProtectiveStopError
+from kitchenbot.executive.belief import as_pose
 from kitchenbot.executive.failures import Failure, StepFailed, Stopped
 from kitchenbot.executive.recovery_rules import CAMERA, rule_for
+from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.leave import rise_keeping_own_margins
@@ -348,6 +350,8 @@ class RecoveryActions:
                 # the item lies somewhere under there, unseen: plans keep clear of it for the rest of the run
                 # (what is in the sink is dropped once an item has been placed: the scans see the sink)
                 self._add_contact_marks(keep_out)
+        if unseen_rec is not None and unseen_rec.target.kind != "stage" and self._seen_at_its_target(view, unseen_rec):
+            return
         with self.stages.within("perceive"):
             res = self._drop_perceiver().perceive([view])
         placed = [o for o in b.obstacles() if unseen_rec is None or o.instance_id != unseen_rec.instance_id]
@@ -383,6 +387,24 @@ class RecoveryActions:
             return
         b.record_found(placed)
         self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
+
+    def _seen_at_its_target(self, view, rec) -> bool:
+        """A second view (straight down at its target) of a placement its first view did not see there: where this
+        one shows it standing as recorded (the depth check, executive/verify.py), it is verified there (counted
+        done, no longer unverified) and True. Not perceived anew: a perception that finds it there would take it
+        for an item fallen near its target and pick it up again out of its slot."""
+        presence = target_presence(view, self.robot.inventory[rec.obj_id], rec.T_base_obj)
+        self._log("result", "second look at the target", cls=rec.cls, presence=presence.as_dict())
+        if not (presence.decided and presence.present):
+            return False
+        b = self.belief
+        if rec.cls in b.unverified:
+            b.unverified.remove(rec.cls)
+        self.report.objects_done += int(self.task.wants(as_pose(rec)))
+        b.scene_changed()
+        self._log("note", "seen standing at its target on a second look: verified there", cls=rec.cls,
+                  xyz=rec.T_base_obj[:3, 3])
+        return True
 
     def _unexplained_in(self, view, region: np.ndarray | None) -> np.ndarray | None:
         """Centres of the 2 cm voxels of what `view` sees within 1 cm of `region`'s points (a keep-out) that neither
@@ -480,8 +502,9 @@ class RecoveryActions:
                     own = it.place is not None and tgt is it.place.target
                     if it.obj is not None:
                         there = ObjectPose(it.obj.obj_id, it.obj.cls, T_rest, 1.0)
+                        # (its transfer was not polled for a hold: the sink may still show what the hand held)
                         self._expect_placed(tgt, T_rest, staging=it.staging if own
-                                            else not self.task.accepts_as_it_lies(there))
+                                            else not self.task.accepts_as_it_lies(there), carried=False)
                     return True
                 except ProtectiveStopError as e:
                     self._log("fault", "put_down_stopped", message=str(e))

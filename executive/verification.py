@@ -35,7 +35,7 @@ from kitchenbot.executive.belief import as_pose
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.unrecognised import Unrecognised, unrecognised_things
-from kitchenbot.executive.verify import depth_agreement, target_presence
+from kitchenbot.executive.verify import KEPT, NOT_TAKEN, UNSEEN, depth_agreement, target_presence, where_it_went
 from kitchenbot.perception.region import Region, update_region
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.grasps import too_hidden
@@ -439,36 +439,45 @@ class Verification:
         still = near if len(near) >= p.near_before else []
         if presence is None and p.target_view is not None:
             presence = target_presence(p.target_view, self.robot.inventory[p.obj.obj_id], p.T_base_obj)
-        self._log("result", "verify", still_in_sink=len(still), presence=presence.as_dict() if presence else None)
-        seen_there = presence is not None and presence.decided and presence.present
-        if still and not seen_there:
-            if presence is None or not presence.decided:
-                # Something was let go at the target and no view there can tell whether it stands there (no view;
-                # the model's pixels have no depth, as a plate on edge in a rack below the counter). The sink still
-                # showing its class is no proof it was not taken: a pinch into a stack lifts the top item of two
-                # the scan saw as one, and the sink still shows "it". Forgotten, the slot looked free and the next
-                # item was carried into the one standing there. Kept there as an obstacle (a slot of room lost if it
-                # was not taken), not counted done; not counted unverified either (an item gone from the sink and
-                # not seen at its target): the sink still shows its class, and the scans count what is left there.
-                # Not looked for around it as an item the view saw absent is: one found standing in its slot would
-                # be picked up again out of it.
-                if p.staged is not None:
-                    b.unplace(p.staged)
-                b.record_placed(self.task, p.obj, p.target, p.T_base_obj)
-                self._log("note", "let go at its target, where no view can tell: kept there as an obstacle",
-                          cls=p.obj.cls, xyz=p.T_base_obj[:3, 3])
-                raise StepFailed("verify_failed", f"the {p.obj.cls} is still seen in the sink and no view of its "
-                                 "target can tell whether it stands there: kept there as an obstacle")
+        self._log("result", "verify", still_in_sink=len(still), presence=presence.as_dict() if presence else None,
+                  carried=p.carried)
+        went = where_it_went(p.carried, bool(still), presence)
+        if went == KEPT:
+            # Something was let go at the target and no view there can tell whether it stands there (no view;
+            # the model's pixels have no depth, as a plate on edge in a rack below the counter). The sink still
+            # showing its class is no proof it was not taken: a pinch into a stack lifts the top item of two
+            # the scan saw as one, and the sink still shows "it". Forgotten, the slot looked free and the next
+            # item was carried into the one standing there. Kept there as an obstacle (a slot of room lost if it
+            # was not taken), not counted done; not counted unverified either (an item gone from the sink and
+            # not seen at its target): the sink still shows its class, and the scans count what is left there.
+            # Not looked for around it as an item the view saw absent is: one found standing in its slot would
+            # be picked up again out of it.
+            if p.staged is not None:
+                b.unplace(p.staged)
+            b.record_placed(self.task, p.obj, p.target, p.T_base_obj)
+            self._log("note", "let go at its target, where no view can tell: kept there as an obstacle",
+                      cls=p.obj.cls, xyz=p.T_base_obj[:3, 3])
+            raise StepFailed("verify_failed", f"the {p.obj.cls} is still seen in the sink and no view of its "
+                             "target can tell whether it stands there: kept there as an obstacle")
+        if went == NOT_TAKEN:
             raise StepFailed("verify_failed", f"the {p.obj.cls} is still in the sink")
-        if still:  # seen at its target: what is still counted at its old spot is the item under it or a duplicate
+        if still and went == UNSEEN:
+            # carried to its target and let go there: what the sink shows where it was picked is another item (the
+            # one it lay on, seen with it as one before the pick), with no attempts of its own yet
+            b.record_taken(p.obj)
+            self._log("note", "carried to its target: the item of its class still seen where it was picked is "
+                      "another one (it lay under it)", cls=p.obj.cls, xyz=still[0].T_base_obj[:3, 3])
+        elif still:  # seen at its target: what is still counted at its old spot is the item under it or a duplicate
             self._log("note", "placed, though an item of its class is still seen where it was", cls=p.obj.cls)
-        if presence is not None and presence.decided and not presence.present:
-            # Gone from the sink but not seen where it should be (tipped over, fell): something is likely
-            # there, so it stays an obstacle at its target; the report counts it as unverified.
+        if went == UNSEEN:
+            # Gone from the sink (or carried away from it) but not seen where it should be (tipped over, fell, or
+            # standing where one view cannot make it out): something is likely there, so it stays an obstacle at
+            # its target; the report counts it as unverified.
             if p.staged is not None:
                 b.unplace(p.staged)
             # it may have tipped or fallen off a stack next to its target: the recovery looks there from above
-            # (as for a slip), and an item found there is picked up again (its record at the target goes)
+            # (as for a slip): seen standing at its target there, it is verified; an item found near it is picked
+            # up again (its record at the target goes)
             b.record_unseen(p.obj, b.record_placed(self.task, p.obj, p.target, p.T_base_obj), p.T_base_obj[:3, 3])
             raise StepFailed("verify_failed", f"the {p.obj.cls} was not seen at its target "
                              f"({presence.agree:.0%} of {presence.pixels} px agree)")

@@ -99,3 +99,35 @@ def _presence_at(view: View, model: ObjectModel, T_base_obj: np.ndarray, tol: fl
         return Presence(n, 0.0, False, False)
     frac = agree / n
     return Presence(n, frac, True, frac >= threshold)
+
+
+# What a placement's check decides (`where_it_went`)
+PLACED = "placed"  # at its target: seen there, or gone from the sink where no view can tell
+KEPT = "kept"  # let go at its target, no view can tell, and the sink still shows its class: an obstacle there
+UNSEEN = "unseen"  # not seen where it was recorded at its target: an obstacle there, looked for around it
+NOT_TAKEN = "not_taken"  # still in the sink, not seen at its target, and nothing says it was carried away
+
+
+def where_it_went(carried: bool, still_in_sink: bool, presence: Presence | None) -> str:
+    """Weigh what is known about where a released item went:
+
+    - `carried`: the gripper held it from the lift to its release at the target (polled at every motion poll; a
+      slip on the way is a drop, not a release);
+    - `still_in_sink`: the sink still shows as many items of its class where it was picked as before the pick;
+    - `presence`: the target's view (None: no view; `decided` false: it cannot tell).
+
+    Seen at its target, it is there. Otherwise an item carried to its target and let go there is not in the sink,
+    whatever the sink shows where it was picked: an item of its class seen there is another one (it lay under the
+    picked one, seen with it as one item before the pick, or revealed by it), and the item stays recorded at its
+    target as an obstacle: one view not showing it where it was recorded (a plate on edge seen from above, leaning
+    against a tine) is weaker evidence than the hand that put it there, and a record dropped sends the next item
+    into the one standing there. Only an item that nothing says was carried away (a put-down whose hold was not
+    polled) and that the sink still shows is "not taken"."""
+    seen = presence is not None and presence.decided
+    if seen and presence.present:
+        return PLACED
+    if still_in_sink and not seen:
+        return KEPT
+    if still_in_sink and not carried:
+        return NOT_TAKEN
+    return UNSEEN if seen else PLACED
