@@ -117,10 +117,14 @@ class Scorer:
 
     def __init__(self, entry: ModelEntry, query_points: np.ndarray, views: list[View], eps: float, n_model: int = 800,
                  inside_solid: Callable[[np.ndarray], np.ndarray] | None = None,
-                 depths: list[np.ndarray] | None = None):
+                 depths: list[np.ndarray] | None = None, covered: np.ndarray | None = None):
         """`inside_solid(P)`: which base-frame points lie inside known solid matter (the cell's counter and sink
-        walls, or below the support plane); a pose that puts the model there is penalised."""
+        walls, or below the support plane); a pose that puts the model there is penalised. `covered`: points
+        another pose already explains (the item stacked on this one): model surface the depth confirms near them
+        but not near the query is hidden under that item (a plate's top 6 mm under the plate on it lies within
+        the depth tolerance of the upper one's surface), neither for nor against the pose."""
         self.inside_solid = inside_solid
+        self.covered_tree = cKDTree(covered) if covered is not None and len(covered) else None
         step = max(1, len(entry.dense_points) // n_model)
         self.mp = entry.dense_points[::step].astype(np.float64)
         self.mn = entry.dense_normals[::step].astype(np.float64)
@@ -182,6 +186,10 @@ class Scorer:
         if len(sup_idx):
             dq, _ = self.q_tree.query(P[sup_idx], distance_upper_bound=2 * self.eps)
             near = np.bincount(sup_idx[np.isfinite(dq)] // n, minlength=H).astype(float)
+            if self.covered_tree is not None:
+                far = sup_idx[~np.isfinite(dq)]
+                dc, _ = self.covered_tree.query(P[far], distance_upper_bound=tol)
+                n_vis = n_vis - np.bincount(far[np.isfinite(dc)] // n, minlength=H)
         has = n_vis > 0
         den = np.maximum(n_vis, 1)
         or_m = np.where(has, near / den, 0.0)
