@@ -132,6 +132,12 @@ def test_three_stacked_side_plates_are_three_poses(perceiver, inventory, cell):
     _one_pose_each(inventory, placed, perceiver.perceive(views).poses)
 
 
+def test_three_nested_cups_are_three_poses(perceiver, inventory, cell):
+    """Three cups nested 2.7 cm apart, each 4 mm off the one under it. Before: the top and the middle cup."""
+    placed = _pile(inventory, cell, 4, 3, 0.027, (0.004, 0.0))
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    _one_pose_each(inventory, placed, perceiver.perceive(views).poses)
+
 def test_two_nested_bowls_leaning_are_two_poses(perceiver, inventory, cell):
     """Two bowls nested (at the bowl's nest pitch), leaning 20 deg. The base found both; kept as a guard: with the
     covered surface free wherever it lay, a fit of the lower bowl leaning 10 deg more poked out of the upper bowl
