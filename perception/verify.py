@@ -119,6 +119,8 @@ class Verification:
     filled: float = 0.0  # set by the pipeline on the final poses of open vessels (filled)
     overhang: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang)
     intruded: float = 0.0  # set by the pipeline on the final poses of tall vessels not facing up (intruded)
+    normals_segment: float | None = None  # `normals` as judged on the whole segment (the pipeline's fine check
+    # may raise `normals` to its value over the points no other pose explains: facing_unclaimed)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
@@ -201,6 +203,24 @@ def _on(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: 
     if (~has).any():
         out[~has] = on_surface(points[~has], None, entry, T_base_obj, tol)
     return out
+
+
+def facing_unclaimed(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
+                     voxel: float, tol: float, others: list[tuple[ModelEntry, np.ndarray]]) -> float | None:
+    """The `normals` part over a pose's own points (camera-facing `normals`, NaN rows by position only) less those
+    another pose (`others`) has on its surface within `tol`; None where no other pose has any. (A stacked item's
+    segment, what the item on it left over, also holds the rim of the item under it, fitted later: those points
+    lie within a voxel of its underside and face the other way.)"""
+    claimed = np.zeros(len(points), bool)
+    for e, T in others:
+        claimed |= _on(points, normals, e, T, tol)
+    if not claimed.any() or claimed.all():
+        return None
+    P, N = points[~claimed], normals[~claimed]
+    near = on_surface(P, None, entry, T_base_obj, voxel)
+    if not near.any():
+        return None
+    return float(_on(P[near], N[near], entry, T_base_obj, voxel).mean())
 
 
 def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray, tol: float,
