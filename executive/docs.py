@@ -1,6 +1,7 @@
 """Sections of docs/ generated from the tables in code, so the docs cannot drift from what runs:
 
 - ``recovery-rules``: executive/recovery_rules.py (the rules and their actions);
+- ``recovery-strategies``: executive/recovery_strategies.py (per failure kind, the strategies in order);
 - ``strategies``: executive/strategies.py (the strategies and the tasks that list them);
 - ``state-machine``: executive/machine.py (the mermaid diagram).
 
@@ -20,12 +21,14 @@ DOCS = Path(__file__).resolve().parents[1] / "docs" / "executive.md"
 def sections() -> dict[str, str]:
     from kitchenbot.executive.machine import mermaid
     from kitchenbot.executive.recovery_rules import rules_markdown
+    from kitchenbot.executive.recovery_strategies import strategies_markdown as recovery_markdown
     from kitchenbot.executive.strategies import strategies_markdown
     from kitchenbot.tasks import TASKS
 
     return {
         "state-machine": "```mermaid\n" + mermaid() + "\n```",
         "recovery-rules": rules_markdown(),
+        "recovery-strategies": recovery_markdown(),
         "strategies": strategies_markdown(TASKS),
     }
 

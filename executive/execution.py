@@ -105,6 +105,7 @@ class Execution:
         pick, place, obj = it.pick, it.place, it.obj
         self.report.attempts += 1
         self.belief.record_attempt(obj)
+        self.tracks.new_cycle()
         self._cmd("gripper.open", opening=pick.grasp.spec.opening)
         self.gripper.open(pick.grasp.spec.opening)
         self._run_trajectory(pick.approach)

@@ -9,12 +9,13 @@ remembers of the motions lives in ``self.tracks`` (:class:`MotionTracks`).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from kitchenbot.drivers.errors import DriverError, DriverTimeoutError, ProtectiveStopError
 from kitchenbot.executive.failures import StateTimeout, StepFailed, Stopped
+from kitchenbot.executive.recovery_strategies import recover_with
 from kitchenbot.perception.types import View
 from kitchenbot.planning.types import Trajectory
 from kitchenbot.transforms import make_T, rot_z
@@ -24,7 +25,9 @@ from kitchenbot.transforms import make_T, rot_z
 class MotionTracks:
     last: Trajectory | None = None  # the last motion commanded (to retrace it after a stop)
     stopped: Trajectory | None = None  # the motion the last protective stop cut short
+    last_from_contact: bool = False  # the last motion began by leaving a release (never retraced: see below)
     searching: bool = False  # looking for a fallen item (see RecoveryActions._search_drop_site)
+    tries: dict = field(default_factory=dict)  # recovery strategy (kind/name) -> runs this cycle
     wall: float = 0.0  # wall seconds spent waiting for motions
     cpu: float = 0.0  # process CPU seconds spent meanwhile (in simulation: stepping the simulated arm)
 
@@ -32,6 +35,10 @@ class MotionTracks:
         """Count the wait since perf_counter() `t0` / process_time() `c0` as waiting for a motion."""
         self.wall += time.perf_counter() - t0
         self.cpu += time.process_time() - c0
+
+    def new_cycle(self) -> None:
+        """A pick starts: every recovery strategy has its tries again (executive/recovery_strategies.py)."""
+        self.tries.clear()
 
 
 def spot_measured(view: View, p_base: np.ndarray, half: int = 20) -> float:
@@ -87,11 +94,13 @@ class Motions:
         self.tracks.waited(t0, c0)
         self._check_deadline()
 
-    def _run_trajectory(self, traj: Trajectory, carrying: bool = False, guarded: bool = False) -> None:
+    def _run_trajectory(self, traj: Trajectory, carrying: bool = False, guarded: bool = False,
+                        from_contact: bool = False) -> None:
         """Execute a planned trajectory and wait for it. `guarded` (set-down moves): a contact of the held item
-        or a pad ends it early (`arm.stopped_on_contact`) instead of in a protective stop."""
+        or a pad ends it early (`arm.stopped_on_contact`) instead of in a protective stop. `from_contact`: it
+        begins by leaving where the tool let go of an item (never retraced to get out of the margin)."""
         self._check_deadline()
-        self.tracks.last = traj
+        self.tracks.last, self.tracks.last_from_contact = traj, from_contact
         self._cmd("arm.execute_trajectory", name=traj.name, n=len(traj), duration=traj.duration,
                   q_start=traj.q[0], q_end=traj.q[-1], **({"guarded": True} if guarded else {}))
         t0, c0 = time.perf_counter(), time.process_time()
@@ -120,14 +129,14 @@ class Motions:
             return
         b = self.belief
         if self.planner is not None:
-            plan, escaped, scale, tries, narrowed = None, False, 1.0, 0, set()
+            plan, escaped, scale, tries, narrowed = None, None, 1.0, 0, set()
             opening, read = None, False
             while tries < 3:
                 tries += 1
                 plan = self.planner.plan_move(q_now, q, objects=b.scene_objects(), map_points=b.map_points,
                                               timeout_scale=scale, opening=opening)
                 if plan.ok:
-                    self._run_trajectory(plan.trajectory)
+                    self._run_trajectory(plan.trajectory, from_contact="left_start_pairs" in plan.timings_ms)
                     return
                 if plan.kind == "start_in_collision" and not read:
                     # the pads where they are (a release leaves them at the opening they let go with, narrower
@@ -155,15 +164,20 @@ class Motions:
                         self._log("note", "contact marks dropped: they block the move", what=what, reason=str(plan),
                                   dropped=n, left=len(b.contact_points))
                         continue
-                if plan.kind == "start_in_collision" and not escaped:
-                    escaped = True  # stopped within the margin of something (a protective stop): jog out first
-                    if self._escape():
+                if plan.kind == "start_in_collision" and escaped is None:
+                    # stopped within the margin of something (a protective stop): jog out first
+                    escaped = recover_with(self, "start_in_collision")
+                    if escaped:
                         q_now = self.arm.joint_positions()
             self._log("note", "no collision-free path; not moving", what=what, reason=str(plan))
             # the pairs within the margin where the arm stands (a start it could not leave): in the run's report
             blocking = [list(p) for p in plan.details.get("pairs", [])] if plan.kind == "start_in_collision" else []
-            raise StepFailed("no_path", f"no collision-free path to {what}: {plan}",
-                             **({"blocking_pairs": blocking} if blocking else {}))
+            extra = {"blocking_pairs": blocking} if blocking else {}
+            why = ""
+            if escaped is not None and not escaped:  # why no recovery strategy got it out
+                extra["escape"] = escaped.reason()
+                why = f" (no way out of the margin: {escaped.reason()})"
+            raise StepFailed("no_path", f"no collision-free path to {what}: {plan}{why}", **extra)
         self._cmd("arm.move_joints", q=q, speed=self.opt.scan_speed, what=what)
         with self._arm_lock:
             self.arm.move_joints(q, speed=self.opt.scan_speed, accel=1.0, asynchronous=True)
@@ -232,40 +246,10 @@ class Motions:
                           at=where)
 
     def _escape(self) -> bool:
-        """The arm is within the collision margin of something (it stopped there): move the tool straight out
-        (planning.escape), so that planned motions can start again. False if no safe straight way out exists."""
-        pick = self.item.pick
-        held = pick.grasp if (pick is not None and self._holding()) else None
-        b = self.belief
-        # the pads where they are (open at the last grasp's opening after a release), not fully open as plans assume
-        opening = None if held is not None else self._opening()
-        q_now = self.arm.joint_positions()
-        plan = self.planner.plan_escape(q_now, b.scene_objects(), map_points=b.map_points, held=held, opening=opening)
-        if not plan.ok and "voxels" in str(plan) and len(b.contact_points):
-            # the marks of the stop close every way out (those of the held item's volume where a lift stopped lie
-            # just over the pads once the arm has backed down and let go): the ones around the arm go, those
-            # farther away stay; a move blocked by the marks the arm stands in drops only those (_move_joints)
-            n = b.drop_contacts(self._arm_points(q_now), self.MARKS_BLOCKING_RADIUS)
-            if n:
-                self._log("note", "contact marks dropped: they close the way out", reason=str(plan), dropped=n,
-                          left=len(b.contact_points))
-                plan = self.planner.plan_escape(q_now, b.scene_objects(), map_points=b.map_points, held=held,
-                                                opening=opening)
-        if not plan.ok:
-            # Inside something as perceived (a pose error: the arm was stopped before real contact): back along
-            # the motion that brought it here (not when looking for a fallen item: it may lie on that way now).
-            last = self.tracks.last
-            if not self.tracks.searching and self._retrace(last, "retrace"):
-                self._log("note", "retraced the stopped motion out of the collision margin", reason=str(plan),
-                          motion=last.name)
-                self.report.escapes += 1
-                return True
-            self._log("note", "no way out of the collision margin", reason=str(plan))
-            return False
-        self._log("note", "escaping the collision margin", **plan.timings_ms)
-        self._run_trajectory(plan.trajectory)
-        self.report.escapes += 1
-        return True
+        """The arm is within the collision margin of something (it stopped there): the strategies for a start
+        within the margin, in order (executive/recovery_strategies.py: a straight move out, else back along a
+        last motion that started clear of any contact). False if none got it out."""
+        return bool(recover_with(self, "start_in_collision"))
 
     def _opening(self) -> float | None:
         """The gripper's pad distance (m), None when it cannot be read."""

@@ -21,6 +21,7 @@ from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutErro
 from kitchenbot.executive.belief import as_pose
 from kitchenbot.executive.failures import Failure, StepFailed, Stopped
 from kitchenbot.executive.recovery_rules import CAMERA, rule_for
+from kitchenbot.executive.recovery_strategies import recover_with
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import ObjectPose
@@ -123,8 +124,7 @@ class RecoveryActions:
                 if self._retrace(tr.stopped, "back_off", short_of=self.RELEASE_ABOVE) and self._holding():
                     self._release_in_place()
             except ProtectiveStopError as e:  # should not happen (the way back was free): put down from here
-                self._log("note", "back off stopped", reason=str(e))
-                self.arm.unlock_protective_stop()
+                self._unlock_after_refused("back off stopped", e)
             tr.stopped = None
         elif stopped:
             self._back_off()
@@ -136,6 +136,10 @@ class RecoveryActions:
         self._cmd("gripper.open", opening=opening, release=True)
         self.gripper.open(opening)
         self._log("note", "backed down the stopped lift and let go where the item was taken from")
+
+    def _act_leave_after_slip(self, f: Failure, ctx: dict) -> None:
+        if f.kind == "slip" and not self._holding():  # the strategies for a slip (executive/recovery_strategies.py)
+            recover_with(self, "slip")
 
     def _act_put_down_held(self, f: Failure, ctx: dict) -> None:
         if self._holding():  # not again where the held item was just stopped on its way down to its target
@@ -175,6 +179,17 @@ class RecoveryActions:
         if self.arm.is_moving():
             self.arm.stop()
 
+    def _unlock_after_refused(self, what: str, e: Exception, kind: str = "note") -> None:
+        """A recovery motion was refused (a limit) or stopped (a protective stop): journal why (`kind`, `what`)
+        and, where the arm stands in a protective stop, unlock it, so that the next action or rule can move it.
+        The one way every recovery motion (back off, back out, rise out, put down) gets the arm going again."""
+        from kitchenbot.drivers.arm import SafetyState
+
+        self._log(kind, what, reason=str(e))
+        if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
+            self._cmd("arm.unlock_protective_stop", reason=what)
+            self.arm.unlock_protective_stop()
+
     def _back_off(self) -> None:
         """After a protective stop (on the real arm: a contact) go back along the motion it cut short, to where
         that motion started: the one way known to be free in the world as it is. Re-planning from the stop
@@ -188,8 +203,7 @@ class RecoveryActions:
             if self._retrace(traj, "back_off"):
                 self._log("note", "backed off along the stopped motion", motion=traj.name)
         except ProtectiveStopError as e:  # should not happen (the way back was free): leave it to the next rule
-            self._log("note", "back off stopped", reason=str(e))
-            self.arm.unlock_protective_stop()
+            self._unlock_after_refused("back off stopped", e)
 
     CONTACT_LOOKAHEAD = 0.015  # m of tool travel past a stop within which what it touched must lie
     RELEASE_ABOVE = 0.005  # m short of a stopped lift's start where the item is let go (it drops that far)
@@ -284,11 +298,7 @@ class RecoveryActions:
                     self.arm.move_linear(T, speed=0.05, accel=0.3, asynchronous=True)
                 self._wait_motion("back out up", 2.5)
             except (LimitViolation, ProtectiveStopError) as e:
-                self._log("note", "back out refused", reason=str(e))
-                from kitchenbot.drivers.arm import SafetyState
-
-                if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
-                    self.arm.unlock_protective_stop()
+                self._unlock_after_refused("back out refused", e)
 
     BACK_OUT_RISES = (0.08, 0.06, 0.04, 0.02)  # m straight up out of the sink, longest first
 
@@ -305,11 +315,7 @@ class RecoveryActions:
             try:
                 self._run_trajectory(r[0])
             except (LimitViolation, ProtectiveStopError) as e:
-                self._log("note", "back out refused", reason=str(e))
-                from kitchenbot.drivers.arm import SafetyState
-
-                if self.arm.safety_state() is SafetyState.PROTECTIVE_STOP:
-                    self.arm.unlock_protective_stop()
+                self._unlock_after_refused("back out refused", e)
             return
         self._log("note", "no way straight up out of the sink keeping the arm's own margins", reason="; ".join(why))
 
@@ -507,9 +513,7 @@ class RecoveryActions:
                                             else not self.task.accepts_as_it_lies(there), carried=False)
                     return True
                 except ProtectiveStopError as e:
-                    self._log("fault", "put_down_stopped", message=str(e))
-                    self._cmd("arm.unlock_protective_stop", reason="put down")
-                    self.arm.unlock_protective_stop()
+                    self._unlock_after_refused("put_down_stopped", e, kind="fault")
                     hit.append(tgt.T_base_obj[:3, 3])
                     self._back_off()
                     if not self._holding():

@@ -47,8 +47,8 @@ RULES: tuple[Rule, ...] = (
          "`limit_violation`, `no_path`, `camera_timeout`, `bad_depth`, `arm_disconnected`, `gripper_hardware`)",
          "otherwise",
          lambda f, c: True,
-         ("restore_devices", "record_failure", "back_off", "put_down_held", "mark_lift_contact", "back_out",
-          "search_drop_site"), "rescan"),
+         ("restore_devices", "record_failure", "back_off", "leave_after_slip", "put_down_held", "mark_lift_contact",
+          "back_out", "search_drop_site"), "rescan"),
 )
 
 #: What each action does (the docs table's legend; the methods are in executive/recovery.py).
@@ -67,6 +67,8 @@ ACTIONS: dict[str, str] = {
                 "and go back along the stopped motion to its start (the one way known to be free); a stopped lift "
                 "goes back down to 5 mm above where the item was taken and lets go there (a put-down planned from "
                 "the stop point started against what the lift met and met it again)",
+    "leave_after_slip": "after a slip: the strategies for a `slip` (below, executive/recovery_strategies.py): "
+                        "on a lift, on up along its rest, checked, out of the items before the re-scan",
     "put_down_held": "anything still held: at its target, else the drop zone (staged, picked up again unless the "
                      "task takes it there), else open in place over the cell; never again within 10 cm of a target "
                      "whose way in was just stopped",

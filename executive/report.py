@@ -23,6 +23,7 @@ class RunReport:
     recovered_drops: int = 0  # items that slipped out over the counter, found there and picked up again
     strategies: dict = field(default_factory=dict)  # per strategy (executive/strategies.py): tried, planned
     recovery_actions: dict = field(default_factory=dict)  # per recovery action (executive/recovery_rules.py): count
+    recovery_strategies: dict = field(default_factory=dict)  # "kind/strategy" (recovery_strategies.py) that worked
     state_time_s: dict = field(default_factory=dict)  # wall seconds per state
     state_sim_time_s: dict = field(default_factory=dict)  # simulated seconds per state (simulation only)
     transitions: list = field(default_factory=list)
