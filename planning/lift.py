@@ -157,26 +157,30 @@ def _directions(min_rise: float, n_az: int = 12, elevations=(90.0, 70.0, 50.0, 3
     return out
 
 
-def separating_leg(gap, others: list, clear: float) -> np.ndarray | None:
-    """The first leg (base-frame offset, m) of a lift that opens the held item's start contacts at once: along the
-    rising direction in which a short move (SEPARATE_STEP) leaves the item farthest from those it touches
-    (`others`, opaque to this function; `gap(offset, other)` -> the item's distance to `other` moved by `offset`,
-    0 or less where they touch), as far as the first of SEPARATE_LEGS after which it is `clear` of all of them
-    (the longest where none is), or None where no direction parts them. A nested item (a bowl tilted in another)
-    lifted straight up slides along the surface it rests on: in the world the two part and meet again by a
-    fraction of a millimetre, finer than the fitted poses tell; moved along the contact's normal first, they part
-    at once. Sampled directions, not the contact's normal from the meshes: mesh-mesh contact normals of overlapping
-    fitted poses are per triangle pair and scatter."""
+def separating_legs(gap, others: list, clear: float) -> list[np.ndarray]:
+    """First legs (base-frame offsets, m) of lifts that open the held item's start contacts at once, best first:
+    along each rising direction in which a short move (SEPARATE_STEP) takes the item away from all those it
+    touches (`others`, opaque to this function; `gap(offset, other)` -> the item's distance to `other` moved by
+    `offset`, 0 or less where they touch), ranked by that distance, each as far as the first of SEPARATE_LEGS
+    after which it is `clear` of all of them (the longest where none is); [] where no direction parts them.
+    A nested item (a bowl tilted in another) lifted straight up slides along the surface it rests on: in the
+    world the two part and meet again by a fraction of a millimetre, finer than the fitted poses tell; moved
+    along the contact's normal first, they part at once. Sampled directions, not the contact's normal from the
+    meshes: mesh-mesh contact normals of overlapping fitted poses are per triangle pair and scatter. All the
+    parting directions, not only the best: the best may run into something else (a bowl nobody perceived under
+    the one the item nests in, seen only as map points), and the caller checks each leg against everything."""
     if not others:
-        return None
-    best, best_d = 0.0, None
-    for d in _directions(SEPARATE_MIN_RISE):
+        return []
+    scored = []
+    for k, d in enumerate(_directions(SEPARATE_MIN_RISE)):
         s = min(gap(SEPARATE_STEP * d, o) for o in others)
-        if s > best + 1e-6:
-            best, best_d = s, d
-    if best_d is None:
-        return None
-    for length in SEPARATE_LEGS:
-        if min(gap(length * best_d, o) for o in others) >= clear:
-            return length * best_d
-    return SEPARATE_LEGS[-1] * best_d
+        if s > 1e-6:
+            scored.append((-s, k, d))
+    out = []
+    for _, _, d in sorted(scored, key=lambda r: r[:2]):
+        for length in SEPARATE_LEGS:
+            if min(gap(length * d, o) for o in others) >= clear:
+                break
+        out.append(length * d)
+    return out
+

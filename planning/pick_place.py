@@ -26,7 +26,7 @@ from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject, coal_transform
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
-from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_leg, sidesteps
+from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_legs, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
 from kitchenbot.planning.resting import clear_travel, lies_on
@@ -617,8 +617,9 @@ class Planner:
                         fallback = (lift, q_lifted, info)
                     if not separated:  # once: first along the direction that parts it from those it touches
                         separated = True
-                        r = self._separating_lift(lift_scene, start_scene, q_grasp, g, held_item_pairs, by_name)
-                        if r is not None and held_scene.valid(r[1]):
+                        r = self._separating_lift(lift_scene, start_scene, held_scene, q_grasp, g, held_item_pairs,
+                                                  by_name)
+                        if r is not None:
                             return with_approach(r[0], LIFT_CONTACT_TRAVEL,
                                                  lift_separate_m=float(np.linalg.norm(r[2])))
                     continue
@@ -781,12 +782,16 @@ class Planner:
         return bool(np.any((peak > s[0] + cls.CONTACT_REMAKE_TOL) & (peak - later > cls.CONTACT_REMAKE_TOL)
                            & (later <= s[0] + cls.FIT_RESOLUTION)))
 
-    def _separating_lift(self, lift_scene: Scene, start_scene: Scene, q_grasp: np.ndarray, g: Grasp,
-                         pairs: list[tuple[str, str]], by_name: dict) -> tuple[Trajectory, np.ndarray, np.ndarray] | None:
+    def _separating_lift(self, lift_scene: Scene, start_scene: Scene, held_scene: Scene, q_grasp: np.ndarray,
+                         g: Grasp, pairs: list[tuple[str, str]],
+                         by_name: dict) -> tuple[Trajectory, np.ndarray, np.ndarray] | None:
         """(lift, its end, first leg) of a lift in two legs whose first opens the held item's start contacts with the
-        items in `pairs` at once (planning.lift.separating_leg, on the perceived poses: out of the item it nests
+        items in `pairs` at once (planning.lift.separating_legs, on the perceived poses: out of the item it nests
         in along the contact's normal until clear of it by the grasp margin), then straight up; or None where no
-        direction parts them, a leg collides, or a contact is still made again (_contact_comes_back)."""
+        direction parts them, or every one's lift collides, makes a contact again (_contact_comes_back,
+        _remade_in_fit) or ends within the transport margins (`held_scene`). The directions are tried best first, each checked against everything else with the lift's
+        margins: the one that parts the item fastest from what it rests in may lead it towards something else (a
+        third bowl under the two, perceived as none, whose points stay obstacles)."""
         names = sorted({x for p in pairs for x in p if x in by_name})
         if not names:
             return None
@@ -804,17 +809,15 @@ class Planner:
             return float(coal.distance(held_bvh, T_c, other[0], other[1], coal.DistanceRequest(),
                                        coal.DistanceResult()))
 
-        leg = separating_leg(gap, others, self.settings.grasp_margin)
-        if leg is None:
-            return None
-        r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg)
-        if isinstance(r, PlanningFailure):
-            return None
-        lift, q_lifted = r
-        if self._contact_comes_back(lift_scene, lift.q, pairs) is not None or \
-                self._remade_in_fit(lift_scene, lift.q, pairs) is not None:
-            return None
-        return lift, q_lifted, leg
+        for leg in separating_legs(gap, others, self.settings.grasp_margin):
+            r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg)
+            if isinstance(r, PlanningFailure):
+                continue
+            lift, q_lifted = r
+            if held_scene.valid(q_lifted) and self._contact_comes_back(lift_scene, lift.q, pairs) is None and \
+                    self._remade_in_fit(lift_scene, lift.q, pairs) is None:
+                return lift, q_lifted, leg
+        return None
 
     # m around the TCP and the flange within which a voxel the gripper (palm 75 x 140 mm, pads, camera) ran into lies
     TOOL_REACH = 0.08
