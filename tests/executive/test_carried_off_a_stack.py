@@ -16,16 +16,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.executive.assembly import assemble
 from kitchenbot.executive.failures import StepFailed
-from kitchenbot.executive.runner import RunOptions
-from kitchenbot.executive.session import build_runner
 from kitchenbot.executive.verify import (KEPT, NOT_TAKEN, PLACED, UNSEEN, Presence, target_presence,
                                          where_it_went)
 from kitchenbot.perception.types import View
 from kitchenbot.transforms import make_T
 
-from tests.executive.test_nested_plates import _nested_plates
+from tests.executive.test_nested_plates import nested_plates_runner
 
 
 def _looking_down_at(xyz, behind: float) -> View:
@@ -40,24 +37,8 @@ def _looking_down_at(xyz, behind: float) -> View:
 
 @pytest.fixture
 def stacked(small_config, tmp_path):
-    cfg = small_config()
-    world, (lower, upper) = _nested_plates(cfg)
-    robot = assemble(cfg, world=world)
-    runner = build_runner(cfg, "sink-to-dishwasher", 0, robot=robot, oracle_perception=True,
-                          journal_path=tmp_path / "journal.sqlite",
-                          options=RunOptions(poll_period=0.05, confirm_empty_scans=1))
-    perceive = runner.perceiver.perceive
-
-    def one_plate(views):  # the lower plate is under the upper one: seen as one plate while both are there
-        r = perceive(views)
-        T_u, T_l = world.objects[upper].T_base_obj, world.objects[lower].T_base_obj
-        if np.linalg.norm(T_u[:2, 3] - T_l[:2, 3]) < 0.03:
-            r.poses = [p for p in r.poses if p.instance_id != lower]
-        return r
-
-    runner.perceiver.perceive = one_plate
-    for dev in (runner.arm, runner.gripper, runner.camera):
-        dev.connect()
+    runner, world, lower, upper = nested_plates_runner(small_config(), "sink-to-dishwasher",
+                                                       tmp_path / "journal.sqlite", hidden_while_held=True)
     assert [runner._do_scan(), runner._do_perceive(), runner._do_select_grasp()] == ["scanned", "perceived",
                                                                                     "selected"]
     assert runner.item.obj.instance_id == upper  # the pair, seen as one plate, at the upper one's pose

@@ -41,20 +41,21 @@ def _nested_plates(cfg):
     return world, uids
 
 
-@pytest.fixture
-def nested(small_config, tmp_path):
-    cfg = small_config()
+def nested_plates_runner(cfg, task: str, journal, hidden_while_held: bool):
+    """A runner on `_nested_plates` whose (oracle) perception sees the pair as one plate while the upper lies over
+    the lower (within 3 cm across; also while the upper is held there when `hidden_while_held`), devices connected.
+    -> (runner, world, lower uid, upper uid)."""
     world, (lower, upper) = _nested_plates(cfg)
     robot = assemble(cfg, world=world)
-    runner = build_runner(cfg, "sink-pick", 0, robot=robot, oracle_perception=True,
-                          journal_path=tmp_path / "journal.sqlite",
+    runner = build_runner(cfg, task, 0, robot=robot, oracle_perception=True, journal_path=journal,
                           options=RunOptions(poll_period=0.05, confirm_empty_scans=1))
     perceive = runner.perceiver.perceive
 
     def one_plate(views):  # the lower plate is under the upper one: seen as one plate while both are there
         r = perceive(views)
         T_u, T_l = world.objects[upper].T_base_obj, world.objects[lower].T_base_obj
-        if world.held_uid != upper and np.linalg.norm(T_u[:2, 3] - T_l[:2, 3]) < 0.03:
+        over = np.linalg.norm(T_u[:2, 3] - T_l[:2, 3]) < 0.03
+        if over and (hidden_while_held or world.held_uid != upper):
             r.poses = [p for p in r.poses if p.instance_id != lower]
         return r
 
@@ -62,6 +63,11 @@ def nested(small_config, tmp_path):
     for dev in (runner.arm, runner.gripper, runner.camera):
         dev.connect()
     return runner, world, lower, upper
+
+
+@pytest.fixture
+def nested(small_config, tmp_path):
+    return nested_plates_runner(small_config(), "sink-pick", tmp_path / "journal.sqlite", hidden_while_held=False)
 
 
 def _kind(name: str) -> str:
