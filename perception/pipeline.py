@@ -34,8 +34,8 @@ from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.track import best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import (continuation, facing_unclaimed, filled, fine_fit, fine_tolerance, intruded, overhang,
-                                          patch_normals, surface_noise, verify, within_wall)
+from kitchenbot.perception.verify import (continuation, facing_unclaimed, filled, fine_fit, fine_tolerance, intruded,
+                                          overhang, patch_normals, surface_noise, verify, within_wall)
 from kitchenbot.transforms import inv
 
 log = logging.getLogger(__name__)
