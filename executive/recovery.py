@@ -243,8 +243,11 @@ class RecoveryActions:
             for tb0 in boxes:
                 keep &= ~inside(P, F0 @ tb0.T_flange_box, tb0.size)
             out.append(P[keep])
+        dragged = self._dragged_sliver(traj, q, q_ahead, np.concatenate(out) if out else np.zeros((0, 3)))
+        if dragged is not None:
+            out = dragged
         pick = self.item.pick
-        if pick is not None and self._holding():  # the held item's surface where it was about to be
+        if dragged is None and pick is not None and self._holding():  # the held item's surface where it was about to be
             from scipy.spatial import cKDTree
 
             m = self.robot.inventory[pick.grasp.obj.obj_id]
@@ -255,6 +258,44 @@ class RecoveryActions:
             out.append(P1[cKDTree(P0).query(P1)[0] > 0.005])
         pts = np.concatenate(out) if out else np.zeros((0, 3))
         return pts if len(pts) else None
+
+    LEADING_ANGLE = np.radians(45.0)  # rad either side of a slide's direction within which its item leads
+
+    def _dragged_sliver(self, traj: Trajectory, q: np.ndarray, q_ahead: np.ndarray, pads: np.ndarray) -> list | None:
+        """For a stopped press or slide (the closed fingers press on the item and drag it along): the item's
+        surface where it was about to be, and of `_contact_sliver`'s pad points those beside it, not over it. The
+        pads ride on the item, so the space ahead of them over it is the item's own (the next pick of it lifts
+        through there: marked, it blocked every lift of that item until the scene changed); what stopped the
+        slide met the item's leading side, its underside (jammed on what it rests on), or the pads beside it.
+        None for any other motion."""
+        from scipy.spatial import Delaunay
+
+        sl = self.item.slide
+        if sl is None or not any(traj is t for t in (sl.press, sl.slide)):
+            return None
+        robot = self.planner.robot
+        m = self.robot.inventory[sl.target.obj_id]
+        T_obj = np.asarray(sl.target.T_base_obj, float)
+
+        def item_at(qq):  # the item rides with the pads along the slide (as planned); a press leaves it where it is
+            T = T_obj if traj is sl.press else robot.fk_tcp(qq) @ np.linalg.inv(robot.fk_tcp(sl.slide.q[0])) @ T_obj
+            return m.points @ T[:3, :3].T + T[:3, 3], T[:3, 3]
+
+        (P0, _), (P1, c1) = item_at(q), item_at(q_ahead)
+
+        def over(P, Q):  # points of P over the item's points Q (within their footprint seen from above)
+            try:
+                return Delaunay(Q[:, :2]).find_simplex(P[:, :2]) >= 0
+            except Exception:  # noqa: BLE001 - a degenerate footprint (an item on edge): nothing counts as over it
+                return np.zeros(len(P), bool)
+
+        # the slide is level: the item's leading side where it was about to be (outside where it is, within
+        # LEADING_ANGLE of the slide's direction seen from its centre: what a level push meets lies ahead of it)
+        r = P1[:, :2] - c1[:2]
+        lead = r @ np.asarray(sl.direction, float)[:2] >= np.cos(self.LEADING_ANGLE) * np.linalg.norm(r, axis=1)
+        ahead = P1[lead & ~over(P1, P0)]
+        pads = pads[~over(pads, P1)] if len(pads) else pads
+        return [ahead, pads]
 
     def _mark_contact(self, traj: Trajectory) -> None:
         """Mark where the motion `traj`, cut short by a protective stop, met something (see _add_contact_marks)."""
