@@ -73,6 +73,12 @@ REDUNDANT_SHARE = 0.1
 # perceive(..., region=): an instance with this share of its points in the region is fitted (an item whose origin
 # lies in the region may reach well out of it: a plate across its border)
 REGION_SHARE = 0.2
+# Quick (screening) score by which a candidate model may trail the best one and still be refined. Refinement raised
+# a pick's score by at most 0.16 over its quick score on development scenes (and lowered many); a model trailing by
+# more than this never won there (perception_measurements.md, pose25).
+DOMINATED_MARGIN = 0.25
+# Voxels: gravity-aligned starts this close (and turned alike) are one start for the near-upright refinement
+SAME_START = 0.5
 
 
 @dataclass
@@ -877,6 +883,13 @@ class Perceiver:
             return free
         return held
 
+    def _same_start(self, a: np.ndarray, b: np.ndarray, oid: int) -> bool:
+        """Two gravity-aligned poses of model `oid` that are one start for ICP: origins within SAME_START (half
+        of a voxel), the same way up, and (unless the model is a surface of revolution) turned alike within 2 deg."""
+        if np.linalg.norm(a[:3, 3] - b[:3, 3]) > SAME_START * self.settings.voxel_size or a[:3, 2] @ b[:3, 2] < 0.9994:
+            return False
+        return self.inventory[oid].is_rotationally_symmetric or a[:3, 0] @ b[:3, 0] >= 0.9994
+
     def _flip_check(self, query: FusedCloud, best: Hypothesis, scorer: Scorer) -> Hypothesis:
         """The pose turned upside down about its own centre (object x axis), refined: cups, mugs and glasses
         are thin-walled and nearly as wide at the top as at the bottom, and where the rim or the base is hidden
@@ -971,9 +984,12 @@ class Perceiver:
             stack = [h.T_base_obj for h in found if h.obj_id == oid and
                      np.linalg.norm(h.T_base_obj[:3, 3] - query.points.mean(axis=0)) < self.inventory[oid].diameter]
             for sc, name, T in screen_candidate(query, entry, self.inventory[oid], scorers[oid], self.reg_cfg, up,
-                                                stack)[:2]:
+                                                stack, bar=(best_screen - DOMINATED_MARGIN) / w)[:2]:
                 screened.append((sc * w, oid, name, T, w))
                 best_screen = max(best_screen, sc * w)
+        # A model whose quick score trails the leader's by more than refinement has been seen to gain is not
+        # refined (nor yaw-screened above): it cannot win.
+        screened = [t for t in screened if t[0] >= best_screen - DOMINATED_MARGIN]
         screened.sort(key=lambda t: -t[0])
         # Refine the best few overall and the best of every candidate model (so one model's many similar
         # hypotheses cannot crowd out another model).
@@ -999,10 +1015,17 @@ class Perceiver:
             oid = best.obj_id
             w = best.score / max(scorers[oid](best.T_base_obj)[0], 1e-9)
             starts = [best.T_base_obj] + [T for _, o, _, T, _ in screened if o == oid][:3]
+            tried: list[np.ndarray] = []
             for T in starts:
                 if abs(T[:3, 2] @ up_vec) < np.cos(np.radians(35)):
                     continue
-                h = self._near_upright(query, oid, scorers[oid], snap_upright(T, up_vec), best.source, up_vec)
+                T = snap_upright(T, up_vec)
+                # The best pose is a refined screening hypothesis, and hypotheses from several starts converge
+                # onto one: a start that snaps to one already tried (and not taken) would be refined to it again.
+                if any(self._same_start(T, t, oid) for t in tried):
+                    continue
+                tried.append(T)
+                h = self._near_upright(query, oid, scorers[oid], T, best.source, up_vec)
                 h.score *= w
                 # ... and puts about as many points on its surface within 3 mm: in a blob of two items (a cup lying
                 # across one leaning in another) an upright fit between them took points of both and replaced the

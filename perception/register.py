@@ -438,9 +438,11 @@ def _pose(axis: np.ndarray, yaw: float, centre: np.ndarray) -> np.ndarray:
 
 def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, scorer: Scorer,
                      cfg: RegistrationConfig, up: np.ndarray | None = None,
-                     stacked_on: list[np.ndarray] = ()) -> list[tuple[float, str, np.ndarray]]:
+                     stacked_on: list[np.ndarray] = (), bar: float = -math.inf) -> list[tuple[float, str, np.ndarray]]:
     """Hypotheses for one candidate model, each after a quick ICP, with a quick score; best first.
-    `stacked_on`: poses of the same model found nearby; nested/stacked copies along their axis are tried."""
+    `stacked_on`: poses of the same model found nearby; nested/stacked copies along their axis are tried.
+    `bar`: a quick score this model must reach to stay in the running (another model's lead); when no hypothesis
+    of the first round reaches it, the yaw round is skipped (it turns the same hypotheses about their axes)."""
     v = cfg.voxel
     up = np.array([0.0, 0.0, 1.0]) if up is None else up
     qs = query.points[:: max(1, len(query.points) // 150)]  # screening runs on <= ~150 points
@@ -495,7 +497,7 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
         for a in gravity_axes(local, up):
             starts.append(("gravity", _pose(a, 0.0, c), False))
     screen_all()
-    if not model.is_rotationally_symmetric and cfg.n_yaw > 1:
+    if not model.is_rotationally_symmetric and cfg.n_yaw > 1 and max((t[0] for t in scored), default=0.0) >= bar:
         # Yaw matters (a mug's handle): every yaw upright and upside down at the centroid, and around the
         # best-scoring other axis.
         c0 = query.points.mean(axis=0)
