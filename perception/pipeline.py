@@ -74,7 +74,7 @@ REDUNDANT_SHARE = 0.1
 # lies in the region may reach well out of it: a plate across its border)
 REGION_SHARE = 0.2
 # Quick (screening) score by which a candidate model may trail the best one and still be refined. Refinement raised
-# a pick's score by at most 0.16 over its quick score on development scenes (and lowered many); a model trailing by
+# a pick's score by at most 0.18 over its quick score on development scenes (and lowered 3 in 4); a model trailing by
 # more than this never won there (perception_measurements.md, pose25).
 DOMINATED_MARGIN = 0.25
 # Voxels: gravity-aligned starts this close (and turned alike) are one start for the near-upright refinement
