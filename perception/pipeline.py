@@ -489,11 +489,13 @@ class Perceiver:
 
         A prior kept as it was (source KEPT: its surroundings are the points they were, track.unchanged) keeps the
         parts it was verified with; it is checked again only as the neighbour of a pose that fails."""
+        failed: set[int] = set()
+        todo = {k for k, f in enumerate(found) if f[0].source != KEPT}
+        if not todo:  # every pose kept as it was: nothing to check (nor the map's tree and noise to measure)
+            return
         tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
         log.debug("perception: fine tolerance %.1f mm", 1000 * tol)
         tree = cKDTree(m.points)
-        failed: set[int] = set()
-        todo = {k for k, f in enumerate(found) if f[0].source != KEPT}
         while todo:
             alive = [f for k, f in enumerate(found) if k not in failed]
             for k in sorted(todo):
