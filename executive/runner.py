@@ -352,9 +352,10 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self._cmd("perceive", views=len(self.views))
         with self.stages.within("perceive"):
             if isinstance(self.perceiver, Perceiver) and self.belief.poses:
-                # a re-scan: items the belief's poses still explain keep them after a local refinement (pose
-                # tracking, perception/track.py); the rest gets the full estimate
-                res = self.perceiver.perceive(self.views, priors=list(self.belief.poses))
+                # a re-scan: items the belief's poses still explain are tracked (perception/track.py), kept as
+                # they were where the map around them did not change (prior_map); the rest: the full estimate
+                res = self.perceiver.perceive(self.views, priors=list(self.belief.poses),
+                                              prior_map=self.belief.map_base)
             else:
                 res = self.perceiver.perceive(self.views)
         self._check_deadline()  # perception cannot be interrupted: its timeout is checked when it returns
@@ -366,7 +367,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
                     self.robot.cell.sink_interior)
         self._log("result", "perceive", objects=[{"obj_id": p.obj_id, "cls": p.cls, "xyz": p.T_base_obj[:3, 3],
                                                   "score": p.score} for p in poses],
-                  tracked=getattr(res, "tracked", 0))
+                  tracked=getattr(res, "tracked", 0), kept=getattr(res, "kept", 0))
         if self.recorder is not None:
             self.recorder.perception(res, poses, self._sim_now())
         self._verify_pending()

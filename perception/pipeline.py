@@ -32,10 +32,11 @@ from kitchenbot.perception.rgbd import check_view
 from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
-from kitchenbot.perception.track import best_prior, moved
+from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (continuation, facing_unclaimed, filled, fine_fit, fine_tolerance, intruded,
                                           overhang, patch_normals, surface_noise, verify, within_wall)
+from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
 
 log = logging.getLogger(__name__)
@@ -96,6 +97,7 @@ class PerceptionResult:
     cell_check: CellCheck | None = None  # with use_cell="auto": how the configured cell fitted the scan
     surfaces: SurfaceMap | None = None  # the surfaces found in the scan ("data")
     tracked: int = 0  # instances posed from a prior (perceive(priors=), perception/track.py; before the fine check)
+    kept: int = 0  # of those, priors kept as they were, unchecked (perceive(prior_map=): track.unchanged)
 
     @property
     def map_points(self) -> np.ndarray:
@@ -170,13 +172,16 @@ class Perceiver:
         return out
 
     def perceive(self, views: list[View], up: np.ndarray | None = np.array([0.0, 0.0, 1.0]),
-                 region=None, priors: list[ObjectPose] | None = None) -> PerceptionResult:
+                 region=None, priors: list[ObjectPose] | None = None,
+                 prior_map: np.ndarray | None = None) -> PerceptionResult:
         """Object poses from one scan. `up`: the base frame's up (against gravity); None when the views' frame
         has no known gravity (a BOP image without world poses): the dominant plane of each view is then the
         support. `region`: a mask over base-frame points (N, 3) -> (N,) bool; only instances with at least
         REGION_SHARE of their points in it are fitted (incremental perception, perception/region.py).
         `priors`: the poses believed before this scan (a re-scan); an instance one of them still explains keeps
-        it after a local refinement instead of the global search (pose tracking, perception/track.py)."""
+        it after a local refinement instead of the global search (pose tracking, perception/track.py).
+        `prior_map`: the map points the priors were perceived on; a prior whose surroundings are the same points
+        now is kept as it was, with its verification, and not checked again (track.unchanged)."""
         timings: dict[str, float] = {}
 
         cpu: dict[str, float] = {}
@@ -264,7 +269,8 @@ class Perceiver:
                     ids_out[sel] = -1
                     continue
                 t0, c0 = time.perf_counter(), time.process_time()
-                hyp, prior_k = self._track(m.select(sel), views, priors, used) if priors else (None, None)
+                hyp, prior_k = self._track(m.select(sel), views, priors, used, m.points, prior_map) \
+                    if priors else (None, None)
                 if hyp is not None:
                     used.add(prior_k)
                 else:
@@ -429,7 +435,8 @@ class Perceiver:
         m = InstanceMap(m.points, ids_out, m.view, m.pixel, m.cam_centres)
         source = "cell" if self._active_cell is not None else ("data" if self._surfaces is not None else "plane")
         return PerceptionResult(poses, m, dets, timings, pose_ms, rejected, list(views), cpu, pose_cpu_ms,
-                                source, check, self._surfaces, len(used))
+                                source, check, self._surfaces, len(used),
+                                sum(1 for h, _, _ in found if h.source == KEPT) if priors else 0)
 
     def _overlapping(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Whether two poses could be one object fitted twice: one model (axes within 30 deg, centres under half a
@@ -484,12 +491,17 @@ class Perceiver:
         Only poses that pass the verification explain anything: the checks are repeated for the neighbours of
         poses that fail, without them, until no more fail. (A bottle fitted by two cups along its body: the
         second cup "explained" where the bottle goes on past the first one's rim, and was then rejected itself;
-        the first one passed on the strength of a pose that was not kept.)"""
+        the first one passed on the strength of a pose that was not kept.)
+
+        A prior kept as it was (source KEPT: its surroundings are the points they were, track.unchanged) keeps the
+        parts it was verified with; it is checked again only as the neighbour of a pose that fails."""
+        failed: set[int] = set()
+        todo = {k for k, f in enumerate(found) if f[0].source != KEPT}
+        if not todo:  # every pose kept as it was: nothing to check (nor the map's tree and noise to measure)
+            return
         tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
         log.debug("perception: fine tolerance %.1f mm", 1000 * tol)
         tree = cKDTree(m.points)
-        failed: set[int] = set()
-        todo = set(range(len(found)))
         while todo:
             alive = [f for k, f in enumerate(found) if k not in failed]
             for k in sorted(todo):
@@ -1100,17 +1112,23 @@ class Perceiver:
                                    free, st.voxel_size)
         return best
 
-    def _track(self, inst: InstanceMap, views: list[View], priors: list[ObjectPose],
-               used: set[int]) -> tuple[Hypothesis | None, int | None]:
+    def _track(self, inst: InstanceMap, views: list[View], priors: list[ObjectPose], used: set[int],
+               map_points: np.ndarray | None = None,
+               prior_map: np.ndarray | None = None) -> tuple[Hypothesis | None, int | None]:
         """Pose tracking (perception/track.py): the prior (not in `used`) that puts most of the instance's points
         on its surface, refined by a few ICP iterations from its pose, if it did not move and passes the checks
         every pose must pass (`_accepted`); with the prior's index. (None, None): the instance gets the full
-        estimate."""
+        estimate. With `prior_map` (the map the priors were perceived on) and this scan's `map_points`, a prior
+        whose surroundings did not change is kept as it was (`_kept`)."""
         vox = self.settings.voxel_size
         k = best_prior(inst.points, priors, self.database, used, 1.5 * vox)
         if k is None:
             return None, None
         prior = priors[k]
+        if prior_map is not None and map_points is not None:
+            kept = self._kept(prior, map_points, prior_map)
+            if kept is not None:
+                return kept, k
         query = self._query(inst, views, point_features=False)  # registered and scored only: no FPFH
         if len(query.points) < 8:
             return None, None
@@ -1125,6 +1143,23 @@ class Perceiver:
         h = self._accepted(query, h, scorer)
         return (h, k) if h is not None else (None, None)
 
+    def _kept(self, prior: ObjectPose, map_points: np.ndarray, prior_map: np.ndarray) -> Hypothesis | None:
+        """`prior` as it was (pose, score, visible fraction, verification parts; source KEPT), if the map points
+        within its model's diameter of its origin (what its checks and its neighbours' read) are the points they
+        were when it was perceived (track.unchanged) and it carries its verification's parts; else None."""
+        names = Verification.__dataclass_fields__.keys() - {"normals_segment"}
+        if not names <= prior.checks.keys():
+            return None
+        if not unchanged(map_points, prior_map, prior.T_base_obj[:3, 3], self.inventory[prior.obj_id].diameter):
+            return None
+        h = Hypothesis(prior.obj_id, prior.T_base_obj.copy(), prior.score, visible_fraction=prior.visible_fraction,
+                       source=KEPT)
+        h.verification = Verification(**{n: prior.checks[n] for n in names})
+        return h
+
+
+#: Hypothesis.source of a prior kept as it was (Perceiver._kept)
+KEPT = "kept"
 
 # By how much a vessel's pose turned over after a rejection may explain its points less well (`fine`, `explained`,
 # `normals`, `free_space`; verification parts are shares) and replace it (Perceiver._retry_turned_over).

@@ -15,12 +15,21 @@ they were. Per segment instead:
 
 A segment no prior explains (an item uncovered or dropped, one that moved away, one whose tracked pose fails the
 checks) gets the full estimate, and so does what a tracked pose leaves of its segment (pipeline: the remainder is
-fitted again as after any pose). Base frame, metres.
+fitted again as after any pose).
+
+Kept as it was (`unchanged`): where the caller also hands the map the priors were perceived on
+(`perceive(prior_map=)`), a prior whose surroundings (the map points within its model's diameter of its origin:
+what its own checks and its neighbours' read) are the same points as then, within the sensor's noise both ways,
+is the same item in the same scene: its pose, score and verification are kept as they were, with no refinement
+and no fine check (the fine check of every pose was most of a re-scan's pose stage). A pick, a slip or a knock
+near it changes those points (an item gone leaves a hole, one moved or added puts points where there were none),
+and then the prior is tracked and checked as above. Base frame, metres.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from kitchenbot.perception.database import CadDatabase
 from kitchenbot.perception.register import on_surface
@@ -31,6 +40,12 @@ PRIOR_SHARE = 0.5
 #: m / rad: a refined pose farther than this from its prior is an item that moved
 MOVE_TOL = 0.01
 TURN_TOL = np.radians(8.0)
+#: m: a point of one scan's map "is still there" in the other's when one lies this close (stereo noise ~1-2 mm)
+KEEP_TOL = 0.004
+#: share of the surroundings' points, each way, that must still be there for a prior to be kept as it was
+KEEP_SHARE = 0.95
+#: fewest map points around a prior for the comparison to mean anything
+KEEP_MIN_POINTS = 50
 
 
 def best_prior(points: np.ndarray, priors: list[ObjectPose], database: CadDatabase, used: set[int],
@@ -62,3 +77,21 @@ def moved(T_prior: np.ndarray, T_now: np.ndarray, symmetric: bool) -> bool:
     else:
         c = float(np.clip((np.trace(T_prior[:3, :3].T @ T_now[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
     return bool(np.arccos(c) > TURN_TOL)
+
+
+def unchanged(now: np.ndarray, before: np.ndarray, centre: np.ndarray, radius: float,
+              tol: float = KEEP_TOL, share: float = KEEP_SHARE) -> bool:
+    """Whether the map points within `radius` of `centre` are the same in this scan's map (`now`) as in the map
+    the prior was perceived on (`before`): at least `share` of each side's points have one of the other's within
+    `tol` (both ways: a hole where an item was taken away and points where one came both count)."""
+    def within(P: np.ndarray, r: float) -> np.ndarray:
+        return P[np.sum((P - centre) ** 2, axis=1) <= r ** 2]
+
+    a, b = within(now, radius), within(before, radius)
+    if len(a) < KEEP_MIN_POINTS or len(b) < KEEP_MIN_POINTS:
+        return False
+    # each side's points against the other's out to the radius plus the tolerance (no loss at the border)
+    for P, Q in ((a, within(before, radius + tol)), (b, within(now, radius + tol))):
+        if len(Q) == 0 or np.isfinite(cKDTree(Q).query(P, distance_upper_bound=tol)[0]).mean() < share:
+            return False
+    return True

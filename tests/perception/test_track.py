@@ -9,7 +9,7 @@ import pytest
 from kitchenbot.perception import pipeline
 from kitchenbot.perception.metrics import adi
 from kitchenbot.perception.synthetic import render, resting_pose, scan_poses
-from kitchenbot.perception.track import moved
+from kitchenbot.perception.track import moved, unchanged
 from kitchenbot.transforms import make_T
 
 
@@ -135,3 +135,76 @@ def test_a_tracked_query_computes_no_point_features_and_gives_the_same_poses(per
     for p, q in zip(sorted(r.poses, key=key), sorted(r2.poses, key=key)):
         assert p.obj_id == q.obj_id and np.array_equal(p.T_base_obj, q.T_base_obj)
         assert p.score == q.score and p.verification == q.verification
+
+
+@pytest.fixture
+def fine_checked(monkeypatch):
+    """Counts the fine check's per-pose work (Perceiver._fine_parts), by model id."""
+    calls = []
+    real = pipeline.Perceiver._fine_parts
+
+    def counted(self, m, tree, tol, hyp, own, found):
+        calls.append(hyp.obj_id)
+        return real(self, m, tree, tol, hyp, own, found)
+
+    monkeypatch.setattr(pipeline.Perceiver, "_fine_parts", counted)
+    return calls
+
+
+def test_a_scene_scanned_again_unchanged_keeps_its_poses_as_they_were_unchecked(perceiver, inventory, cell,
+                                                                                screens, fine_checked):
+    """With the map the priors were perceived on, a re-scan of an unchanged scene keeps every prior as it was:
+    the same pose, score and verification, no refinement, no fine check (before: each was refined and checked)."""
+    placed = _scene(inventory, cell)
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    first = perceiver.perceive(views)
+    assert len(first.poses) == 3
+    again, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
+    screens.clear()
+    fine_checked.clear()
+    r = perceiver.perceive(again, priors=first.poses, prior_map=first.map_points)
+    assert screens == [] and fine_checked == []
+    assert r.tracked == 3 and r.kept == 3
+    for p in r.poses:
+        q = next(q for q in first.poses if q.obj_id == p.obj_id)
+        assert np.array_equal(p.T_base_obj, q.T_base_obj)
+        assert p.score == q.score and p.verification == q.verification and p.checks == q.checks
+    # without the map (as before this change) every pose is refined and checked again
+    r2 = perceiver.perceive(again, priors=first.poses)
+    assert r2.tracked == 3 and r2.kept == 0 and sorted(fine_checked) == sorted(p.obj_id for p in r2.poses)
+
+
+def test_after_an_item_is_taken_away_only_the_poses_around_its_place_are_checked_again(perceiver, inventory, cell,
+                                                                                       screens, fine_checked):
+    """The mug is taken away (a pick): the side plate, whose surroundings held the mug, is tracked and checked
+    again; the cup, far from the mug, is kept as it was. No global search for either."""
+    placed = _scene(inventory, cell)
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    first = perceiver.perceive(views)
+    assert len(first.poses) == 3
+    after = [it for it in placed if it[0] != 5]
+    priors = [p for p in first.poses if p.obj_id != 5]  # the belief after the pick
+    again, _ = render(inventory, after, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
+    screens.clear()
+    fine_checked.clear()
+    r = perceiver.perceive(again, priors=priors, prior_map=first.map_points)
+    assert screens == [] and r.tracked == 2 and r.kept == 1
+    assert fine_checked == [2]  # the side plate only
+    cup = next(p for p in r.poses if p.obj_id == 4)
+    assert np.array_equal(cup.T_base_obj, next(q for q in first.poses if q.obj_id == 4).T_base_obj)
+    assert sorted(p.obj_id for p in r.poses) == [2, 4]
+    assert max(_match(r.poses, after, inventory)) < 0.01
+
+
+def test_surroundings_are_unchanged_within_the_noise_and_changed_by_a_hole_or_new_points():
+    rng = np.random.default_rng(0)
+    g = np.stack(np.meshgrid(np.arange(0, 0.2, 0.002), np.arange(0, 0.2, 0.002)), -1).reshape(-1, 2)
+    before = np.column_stack([g, np.zeros(len(g))])
+    noisy = before + rng.normal(0, 0.001, before.shape)
+    centre, r = np.array([0.1, 0.1, 0.0]), 0.08
+    assert unchanged(noisy, before, centre, r)
+    hole = noisy[np.linalg.norm(noisy[:, :2] - [0.1, 0.13], axis=1) > 0.03]  # an item taken away
+    assert not unchanged(hole, before, centre, r)
+    added = np.vstack([noisy, before[np.linalg.norm(before[:, :2] - [0.1, 0.13], axis=1) < 0.03] + [0, 0, 0.02]])
+    assert not unchanged(added, before, centre, r)  # something put there
+    assert unchanged(hole, before, np.array([0.02, 0.02, 0.0]), 0.03)  # far from the change
