@@ -139,6 +139,9 @@ class Belief:
     drops_found: int = 0  # of those, seen again: fallen back into the sink (the scans see it) or found where it fell
     first_total: int | None = None  # the task's items in the first perception
     seen_staged: set = field(default_factory=set)  # instance ids of staged records whose pose a view gave
+    # contact marks that stand for an item that fell where no view recognised it: (its class, those marks); they go
+    # once a perception recognises an item of that class among them (Belief.seen_where_marked)
+    unseen_items: list = field(default_factory=list)
     _next_id: int = 0
 
     # ---- what is still to do ------------------------------------------------------------------------------------
@@ -174,6 +177,7 @@ class Belief:
         c, e = self.map.contact_points, self.map.contact_epochs
         old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
         self.map.keep_contacts(~old)
+        self.seen_where_marked(poses)
 
     def picked_away(self, obj: ObjectPose, pending: list) -> None:
         """The perceived item `obj` was picked and placed, and no new perception followed (the placement view
@@ -201,6 +205,29 @@ class Belief:
         self.unplannable = []
         self.pending_items = _items(pending)
         self.map.set_base(map_points)
+        self.seen_where_marked(poses)
+
+    # How far (m) outside the box of an unseen item's marks a recognised item of its class may have its centre and
+    # still be taken for it (the marks are 2 cm voxels of its surface as a view saw it, or the keep-out around
+    # where it fell)
+    UNSEEN_REACH = 0.05
+
+    def seen_where_marked(self, poses: list[ObjectPose]) -> int:
+        """Marks that stood for an item fallen where no view recognised it (`mark_contact(..., unseen_cls=...)`)
+        go once `poses` (a perception) hold an item of its class among them: the item is recognised there now, its
+        model stands for it, and the marks of it would cage it (no object explains marks: every grasp of it, its
+        lift, met its own marks, and it stayed there). Returns how many marks went."""
+        gone = 0
+        keep = []
+        for cls, pts in self.unseen_items:
+            lo, hi = pts.min(axis=0) - self.UNSEEN_REACH, pts.max(axis=0) + self.UNSEEN_REACH
+            if any(p.cls == cls and np.all(p.T_base_obj[:3, 3] >= lo) and np.all(p.T_base_obj[:3, 3] <= hi)
+                   for p in poses):
+                gone += self.drop_contacts(near=pts, radius=1e-6)
+            else:
+                keep.append((cls, pts))
+        self.unseen_items = keep
+        return gone
 
     @property
     def map_points(self) -> np.ndarray | None:
@@ -219,12 +246,17 @@ class Belief:
         """Replace the perceived map points (e.g. less those an item picked away explained)."""
         self.map.set_base(points)
 
-    def mark_contact(self, pts: np.ndarray | None) -> int:
+    def mark_contact(self, pts: np.ndarray | None, unseen_cls: str | None = None) -> int:
         """Keep `pts` as map points no object explains (a contact sliver, a keep-out under a drop site); marks in
-        the sink last until the scene has changed and the sink been perceived again. Returns how many."""
+        the sink last until the scene has changed and the sink been perceived again. `unseen_cls`: they stand for
+        a fallen item of that class that no view recognised (they go when one is: seen_where_marked). Returns how
+        many."""
         if pts is None or not len(pts):
             return 0
+        pts = np.asarray(pts, float).reshape(-1, 3)
         self.map.add_contacts(pts, self.scene_epoch)
+        if unseen_cls is not None:
+            self.unseen_items.append((unseen_cls, pts.copy()))
         return len(pts)
 
     def drop_contacts(self, near: np.ndarray | None = None, radius: float = 0.0, where: np.ndarray | None = None) -> int:

@@ -301,12 +301,13 @@ class RecoveryActions:
         """Mark where the motion `traj`, cut short by a protective stop, met something (see _add_contact_marks)."""
         self._add_contact_marks(self._contact_sliver(traj))
 
-    def _add_contact_marks(self, pts: np.ndarray | None) -> None:
+    def _add_contact_marks(self, pts: np.ndarray | None, unseen_cls: str | None = None) -> None:
         """Keep `pts` (a contact sliver) as map points no object explains, so plans keep clear of it as of any
         unknown obstacle: the same world model would otherwise plan into the same contact (a cup recorded where it
         did not settle; a neighbour in a pile perceived a few mm off, which the next scan perceives the same way).
-        Marks in the sink last until the scene has changed (Belief.mark_contact)."""
-        if self.belief.mark_contact(pts):
+        Marks in the sink last until the scene has changed (Belief.mark_contact); `unseen_cls`: they stand for a
+        fallen item of that class no view recognised, and go when a perception recognises one among them."""
+        if self.belief.mark_contact(pts, unseen_cls):
             self._log("note", "marked where the stopped motion met something", points=len(pts),
                       centre=pts.mean(axis=0))
 
@@ -396,7 +397,7 @@ class RecoveryActions:
             if unseen and keep_out is not None:
                 # the item lies somewhere under there, unseen: plans keep clear of it for the rest of the run
                 # (what is in the sink is dropped once an item has been placed: the scans see the sink)
-                self._add_contact_marks(keep_out)
+                self._add_contact_marks(keep_out, cls)
         if unseen_rec is not None and unseen_rec.target.kind != "stage" and self._seen_at_its_target(view, unseen_rec):
             return
         with self.stages.within("perceive"):
@@ -413,7 +414,7 @@ class RecoveryActions:
             # still lies about there, unseen by the sink scans; what the view shows inside the keep-out that
             # neither the cell nor a believed item explains is where it lies: plans keep clear of it
             # (the whole cylinder: the item's top may stand right under where the tool was when it fell)
-            self._add_contact_marks(self._unexplained_in(view, self._keep_out(site, cls, clear_of_tool=False)))
+            self._add_contact_marks(self._unexplained_in(view, self._keep_out(site, cls, clear_of_tool=False)), cls)
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
         if unseen_rec is None:

@@ -229,8 +229,13 @@ class StageForRegrasp(Strategy):
             stage = [t for t in stage if is_lying(t.T_base_obj)]
             if not stage:
                 return None
-        # only where the next pick can carry it on to a target (planning.regrasp)
-        stage = req.planner.onward_staging(req.joints(), stage, req.obj, req.targets, req.scene_objs,
+        # only where the next pick can carry it on to a target (planning.regrasp): the targets the task gives it
+        # resting there (how it lies decides them: a bowl standing goes on its rim, one mouth-down mouth-down)
+        def targets_there(there: ObjectPose) -> list:
+            t = req.task.targets(there, req.belief)
+            return [] if isinstance(t, NoFreeSlot) else list(t)
+
+        stage = req.planner.onward_staging(req.joints(), stage, req.obj, targets_there, req.scene_objs,
                                            map_points=req.belief.map_points)
         if not stage:
             req.note("note", "no staging spot from which a grasp reaches a target", cls=req.obj.cls)

@@ -1163,10 +1163,11 @@ class Planner:
                           then_pickable=then_pickable, off=off)
 
     def onward_staging(self, q_current: np.ndarray, stage: Sequence[PlaceTarget], obj: ObjectPose,
-                       targets: Sequence[PlaceTarget], objects: Sequence[ObjectPose] = (), *,
+                       targets, objects: Sequence[ObjectPose] = (), *,
                        map_points: np.ndarray | None = None) -> list[PlaceTarget]:
         """The staging targets from which the item, set down there, offers a grasp that reaches one of `targets`
-        (turn fixed where it matters): see planning.regrasp."""
+        (a list, or a function of the item resting there giving its targets there; turn fixed where it matters):
+        see planning.regrasp."""
         from kitchenbot.planning.regrasp import onward_staging
 
         return onward_staging(self, stage, obj, targets, objects, map_points, np.asarray(q_current, float))

@@ -11,11 +11,18 @@ item's own axis (those the planner would try, ``Planner._place_turns``) at which
 offers a grasp that the grasp filter accepts for the final targets (``Planner.select_grasps`` with
 ``place_target``: IK, collisions, a reachable release pose and its pre-place pose). Each becomes a target with
 that turn fixed. A round item's grasps are the same at every turn, so it is checked at one.
+
+The targets checked are those the item will have there (``targets`` a function of the item resting at the staging
+pose: the executive passes the task's targets for it), not those it has where it lies: a task gives an item targets
+by how it lies (a bowl mouth-down goes into the lower rack mouth-down, one standing on its rim), and the staged
+item is planned for the targets of its staged pose. Checked against the targets of where it lay, a bowl lying
+tilted mouth-down on two plates (its one free grasp a tilted rim pinch) found no staging spot: standing upright on
+the counter no grasp turns it mouth-down, though one stands it on its rim in the lower rack, its targets there.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -48,13 +55,17 @@ def reaches_from(planner, obj: ObjectPose, T_rest: np.ndarray, targets: Sequence
     return isinstance(res, list) and len(res) > 0
 
 
-def onward_staging(planner, stage: Sequence[PlaceTarget], obj: ObjectPose, targets: Sequence[PlaceTarget],
+Targets = Sequence[PlaceTarget] | Callable[[ObjectPose], Sequence[PlaceTarget]]
+
+
+def onward_staging(planner, stage: Sequence[PlaceTarget], obj: ObjectPose, targets: Targets,
                    objects: Sequence[ObjectPose], map_points: np.ndarray | None, q: np.ndarray,
                    max_checks: int = MAX_CHECKS) -> list[PlaceTarget]:
     """The staging targets of `stage` (in order), each with its turn fixed to one from which the item, resting
-    there, offers a grasp reaching one of `targets`; those with no such turn are left out. `objects`: the other
-    items (not `obj`). At most `max_checks` grasp-filter queries in all; targets left unchecked then are left out
-    too (a staging that cannot be shown to lead on is not made)."""
+    there, offers a grasp reaching one of `targets` (a list, or a function of the item resting there giving its
+    targets there); those with no such turn are left out. `objects`: the other items (not `obj`). At most
+    `max_checks` grasp-filter queries in all; targets left unchecked then are left out too (a staging that cannot
+    be shown to lead on is not made)."""
     model = planner.inventory.models.get(obj.obj_id)
     if model is None or not targets:
         return []
@@ -71,7 +82,8 @@ def onward_staging(planner, stage: Sequence[PlaceTarget], obj: ObjectPose, targe
                 return out
             checks += 1
             T = np.asarray(t.T_base_obj, float) @ R
-            if reaches_from(planner, obj, _resting(T), targets, others, map_points, q):
+            onward = targets(ObjectPose(obj.obj_id, obj.cls, _resting(T), 1.0)) if callable(targets) else targets
+            if onward and reaches_from(planner, obj, _resting(T), onward, others, map_points, q):
                 # a round item keeps its free turn (any of them leads on); another one is set down at this turn
                 out.append(t if round_ else replace(t, T_base_obj=T, free_yaw=False, flip_ok=False))
                 break
