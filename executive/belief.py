@@ -103,6 +103,12 @@ class BeliefMap:
     def set_base(self, points: np.ndarray | None) -> None:
         self.base, self._cache = points, None
 
+    @property
+    def marks(self) -> np.ndarray:
+        """The points no perception put there: contact marks and the keep-out, as one (N, 3) array."""
+        parts = [p for p in (self.contact_points, self.keep_out) if p is not None and len(p)]
+        return np.vstack(parts) if parts else np.zeros((0, 3))
+
     def add_contacts(self, pts: np.ndarray, epoch: int) -> None:
         self.contact_points = np.vstack([self.contact_points, pts])
         self.contact_epochs = np.concatenate([self.contact_epochs, np.full(len(pts), epoch)])
@@ -241,6 +247,10 @@ class Belief:
     @property
     def contact_points(self) -> np.ndarray:
         return self.map.contact_points
+
+    @property
+    def marks(self) -> np.ndarray:
+        return self.map.marks
 
     def set_map_base(self, points: np.ndarray | None) -> None:
         """Replace the perceived map points (e.g. less those an item picked away explained)."""
@@ -381,8 +391,8 @@ class Belief:
 
     def record_pinned(self, obj: ObjectPose, on_it: list[ObjectPose]) -> None:
         """`obj` cannot be lifted while `on_it` lie on it as they do (its pick failed pinned by them): it is not
-        planned again until one of them (or it) moves, or the map around it gains points (executive/waiting.py)."""
-        self.waits.record(obj, on_it, self.map_points)
+        planned again until one of them (or it) moves, or marks appear around it (executive/waiting.py)."""
+        self.waits.record(obj, on_it, self.map.marks)
         t = self.attempts_for(obj, create=True)
         why = self.waits.reason(obj)
         if why not in t.reasons:

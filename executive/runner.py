@@ -402,7 +402,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         first = next((p for p in b.poses if prefer is not None and prefer >= 0 and p.instance_id == prefer), None)
         usable = lambda p: any(p is q for q in cands) or (self.task.in_sink(p) and (fresh(p) or p is first) and (  # noqa: E731
             not b.exhausted(p) or aside_targets(self.task, b, p) is not None))
-        return Chains(b.waits, b.scene_objects(), b.map_points, usable).order(cands, first)
+        return Chains(b.waits, b.scene_objects(), b.marks, usable).order(cands, first)
 
     def _do_select_grasp(self) -> str:
         b = self.belief

@@ -167,3 +167,28 @@ def test_a_ring_of_waits_ends_with_each_item_reported(make_runner):
     assert runner._candidates() == []
     msg = runner._why_left([X, Y])
     assert msg.count("pinned by the plate lying on it") == 2, msg
+
+
+def test_a_rescan_that_finds_the_pinned_item_and_what_pins_it_where_they_were_keeps_it_waiting(make_runner):
+    """A full re-scan replaces the perceived map with one of several times the points (sink-pick: 14k -> 49k points
+    within 20 cm of a leaning plate pinned by the plate its lower rim is tucked under), and new pose objects within
+    a millimetre of the old ones. The pinned verdict depends on the poses alone, so X keeps waiting and its chain
+    (Y) is tried; before, the denser map ended the wait and X was planned again, to fail pinned by Y again. A new
+    contact mark around it still ends the wait (the test above)."""
+    runner, X, Y, Z = _setup(make_runner)
+    b = runner.belief
+    rng = np.random.default_rng(0)
+    c = np.asarray(X.T_base_obj[:3, 3], float)
+    b.set_map_base(c + rng.uniform(-0.15, 0.15, (1000, 3)) * (1.0, 1.0, 0.1))
+    assert _select(runner) is X
+    _pinned(runner, Y)
+    assert _select(runner) is Y
+    runner.belief.record_unplannable(Y)  # Y failed in this scene (no blocker named): X waits, nothing to try there
+    again = []
+    for p in (X, Y, Z):  # the re-scan's poses: new objects, 0.4 mm off
+        T = np.array(p.T_base_obj, float)
+        T[:3, 3] += (0.0004, -0.0002, 0.0001)
+        again.append(ObjectPose(p.obj_id, p.cls, T, 1.0, instance_id=p.instance_id))
+    lo_hi = tuple(np.asarray(v, float) for v in runner.robot.cell.sink_interior)
+    b.perceived(again, c + rng.uniform(-0.15, 0.15, (4000, 3)) * (1.0, 1.0, 0.1), [], lo_hi)
+    assert _select(runner) is again[1]  # Y (what pins X), not X
