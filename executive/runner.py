@@ -352,8 +352,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self._cmd("perceive", views=len(self.views))
         with self.stages.within("perceive"):
             if isinstance(self.perceiver, Perceiver) and self.belief.poses:
-                # a re-scan: items the belief's poses still explain are tracked (perception/track.py), kept as
-                # they were where the map around them did not change (prior_map); the rest: the full estimate
+                # a re-scan: poses tracked (perception/track.py), kept where their map did not change; rest: full
                 res = self.perceiver.perceive(self.views, priors=list(self.belief.poses),
                                               prior_map=self.belief.map_base)
             else:
