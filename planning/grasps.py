@@ -31,9 +31,9 @@ from kitchenbot.planning.types import (
     NoIK,
     PlanningFailure,
 )
-from kitchenbot.transforms import make_T, trans
+from kitchenbot.transforms import make_T, rot_y, trans
 from kitchenbot.world.gripper import PAD_DEPTH
-from kitchenbot.world.inventory import Inventory, grasp_base_name, tilted_name
+from kitchenbot.world.inventory import GraspSpec, Inventory, grasp_base_name, tilted_name
 
 
 def too_hidden(o: ObjectPose, settings) -> bool:
@@ -61,6 +61,7 @@ class GraspStats:
     observed_in_tool: int = 0  # feasible, but observed points lie where a pad or the palm would be (ranked last)
     empty_grip: int = 0  # feasible, but none of the item's observed points lies between the pads (ranked last)
     pad_contact: int = 0  # feasible with the pads brushing a neighbour within their give (ranked after clear ones)
+    swivelled: int = 0  # collision-free only swivelled about its closing axis (second pass, SWIVELS)
     # perceived objects (names) the rejected grasps collided with or took in, and how often; filled only when no
     # grasp is feasible (what crowds the item: Planner.plan_pick names the most frequent one as its blocker)
     crowded_by: dict = field(default_factory=dict)
@@ -270,10 +271,12 @@ def _crowded_by(scenes: dict, names: list[str], collided: list, taken: list, obj
     return out
 
 
-def _taken_in(T: np.ndarray, spec, gripper, others, scene: Scene, req) -> ObjectPose | None:
+def _taken_in(T: np.ndarray, spec, gripper, others, scene: Scene, req, shrink: float = 0.0) -> ObjectPose | None:
     """The first other object (``others``: (pose, model) pairs) where a pad of grasp `spec` at `T` sweeps while
-    closing (it would be pushed or taken in with the target), or None."""
-    sweeps = [(vol, coal_transform(T @ T_v)) for vol, T_v in
+    closing (it would be pushed or taken in with the target), or None. `shrink`: each sweep box that much smaller
+    on every side (an object found only without it overlaps a sweep by less than `shrink`)."""
+    sweeps = [(vol if shrink <= 0.0 else coal.Box(*np.maximum(2.0 * (np.asarray(vol.halfSide) - shrink), 1e-4)),
+               coal_transform(T @ T_v)) for vol, T_v in
               pad_sweeps(spec.opening, spec.width, gripper.pad_width, gripper.pad_root, gripper.pad_tip)]
     for po, pm in others:
         if np.linalg.norm(po.T_base_obj[:3, 3] - T[:3, 3]) > pm.diameter / 2 + 0.15:
@@ -282,6 +285,39 @@ def _taken_in(T: np.ndarray, spec, gripper, others, scene: Scene, req) -> Object
                for vol, T_vol in sweeps):
             return po
     return None
+
+
+# Swivels (radians) about a grasp's closing axis tried when no grasp of an item fits as given, on the grasps that
+# missed narrowly (select_grasps' second pass), and how narrowly: a pad sweep overlapping a neighbour by less than
+# NEAR_MISS (m) on every side, or only the tool (pads, palm, camera) meeting a neighbour or the map.
+SWIVELS = tuple(np.radians(a) for a in (3.0, -3.0, 6.0, -6.0))
+NEAR_MISS = 0.002
+MAX_MISSES = 4  # rejections of one grasp kept to tell whether it missed narrowly
+TOOL_PARTS = ("pad_a", "pad_b", "palm", "camera")
+_swivel_checks: dict[int, tuple] = {}
+
+
+def _tool_only(pairs) -> bool:
+    """Whether every colliding pair is a tool part against a perceived object or the map's voxels."""
+    return bool(pairs) and all(
+        (a in TOOL_PARTS and b.startswith(("obj:", "voxels"))) or (b in TOOL_PARTS and a.startswith(("obj:", "voxels")))
+        for a, b in pairs)
+
+
+def _swivel_fits(model, spec, T_obj_tcp: np.ndarray) -> bool:
+    """Whether the open pads of grasp `spec` swivelled to `T_obj_tcp` keep out of the item's own mesh (the planner
+    lets the pads touch their target, so a swivel through a handle or a wall would pass unchecked)."""
+    from kitchenbot.planning import grasp_synthesis as synth
+
+    if model.mesh is None or not len(model.mesh.triangles):
+        return True
+    hit = _swivel_checks.get(id(model))
+    if hit is None or hit[0] is not model:
+        if len(_swivel_checks) > 256:
+            _swivel_checks.clear()
+        hit = (model, _surface_samples(np.asarray(model.mesh.vertices), np.asarray(model.mesh.triangles)))
+        _swivel_checks[id(model)] = hit
+    return synth._pads_clear(hit[1], T_obj_tcp, spec.opening)
 
 
 def select_grasps(
@@ -360,17 +396,17 @@ def select_grasps(
     collided: list = []  # (object index, q, opening) of rejected grasps: what crowds the item, if nothing fits
     taken: list = []  # objects a pad would take in
     observed: dict[int, np.ndarray] = {}  # object index -> observed points (base frame) around it
-    for k, o, spec, T in pending:
-        if limit is not None and len(out) >= limit:
-            break
+    near: list = []  # (k, o, spec, T, misses) of rejected grasps (those that missed narrowly: second pass)
+
+    def fit(k, o, spec, T, misses: list | None = None):
+        """(q_grasp, q_pre, T at the bite taken, pad contacts, first colliding branch, first object taken in,
+        reached); `misses` gets ("taken", T at the bite) and ("hit", q) of the first few rejections."""
         if k not in scenes:
             scenes[k] = scene.for_grasp(names[k])
         grasp_scene = scenes[k]
         others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
                   if j != k and objects[j].obj_id in inventory.models]
         grasp_scene.set_opening(spec.opening)
-        q_grasp = None
-        brush: tuple = ()
         first_hit = None  # the first IK branch whose gripper collided (what crowds the item)
         first_taken = None  # the first object a pad's closing sweep would take in
         reached = False
@@ -386,6 +422,8 @@ def select_grasps(
             taken_by = _taken_in(Tb, spec, gripper, others, scene, req)
             if taken_by is not None:
                 first_taken = first_taken or taken_by
+                if misses is not None and len(misses) < MAX_MISSES:
+                    misses.append(("taken", Tb, others))
                 continue
             branches = robot.ik_all(Tb, q_current)
             if q_rest is not None:
@@ -405,36 +443,41 @@ def select_grasps(
                                         settings.approach_distance, settings.pad_give)
                     if give is None:
                         first_hit = first_hit or (k, qb, spec.opening)
+                        if misses is not None and len(misses) < MAX_MISSES:
+                            misses.append(("hit", qb, None))
                         continue
                 q_pre = robot.ik(Tb @ trans(0.0, 0.0, -settings.approach_distance), qb, max_seeds=0).q
                 if q_pre is None or not scene.valid(q_pre):
                     continue  # this branch's pre-grasp is unreachable or blocked: try the next branch
-                q_grasp, T, brush = qb, Tb, tuple(give or ())
-                break
-            if q_grasp is not None:
-                break
-        if q_grasp is None and first_taken is not None:
-            taken.append(first_taken)  # what crowds the item, if nothing fits
-            if not reached:  # every bite takes in a neighbour (or is unreachable): a multi-object grasp
-                st.multi_object += 1
-                continue
-        if q_grasp is None:
-            if first_hit is not None and len(collided) < MAX_CROWD_CHECKS:
-                collided.append(first_hit)
-            if reached:
-                st.in_collision += 1
+                return qb, q_pre, Tb, tuple(give or ()), first_hit, first_taken, reached
+        return None, None, T, (), first_hit, first_taken, reached
+
+    def narrow(k, spec, misses) -> bool:
+        """Whether a rejected grasp missed narrowly: a pad sweep overlapping a neighbour by less than NEAR_MISS, or
+        only the tool meeting a neighbour or the map (at some bite and IK branch)."""
+        for kind, x, others in misses:
+            if kind == "taken":
+                if _taken_in(x, spec, gripper, others, scene, req, shrink=NEAR_MISS) is None:
+                    return True
             else:
-                st.no_ik += 1
-            continue
+                scenes[k].set_opening(spec.opening)
+                if _tool_only(scenes[k].colliding_pairs(x)):
+                    return True
+        return False
+
+    def accept(k, o, spec, T, q_grasp, q_pre, brush, made_from=None) -> bool:
+        """Rank a collision-free grasp and keep it (False: its placement is unreachable); `made_from`: the grasp a
+        swivelled one was made from (it ranks as that one)."""
+        grasp_scene = scenes[k]
         T_pre = T @ trans(0.0, 0.0, -settings.approach_distance)
         if grasp_filter is not None and not grasp_filter(o, spec, T):
             st.no_placement += 1
-            continue
+            return False
         clearance = grasp_scene.min_distance(q_grasp, ("palm", "pad_a", "pad_b", "camera"), exclude=(f"obj:{names[k]}",))
         motion = float(np.max(np.abs(q_pre - q_current)))
         down = -T[2, 2]  # 1 = straight down
         score = min(clearance, 0.05) / 0.05 - 0.25 * motion / np.pi + 0.2 * down
-        if is_fallback(inventory[o.obj_id], spec):
+        if is_fallback(inventory[o.obj_id], made_from or spec):
             score -= FALLBACK_PENALTY
         if brush:  # after every grasp whose pads keep clear of the neighbours
             score -= PAD_GIVE_PENALTY
@@ -455,6 +498,52 @@ def select_grasps(
             st.empty_grip += 1
         out.append(Grasp(spec, o, T, q_grasp, q_pre, T_pre, float(score), float(clearance), pad_contacts=brush))
         st.feasible += 1
+        return True
+
+    for k, o, spec, T in pending:
+        if limit is not None and len(out) >= limit:
+            break
+        misses: list = []
+        q_grasp, q_pre, Tg, brush, first_hit, first_taken, reached = fit(k, o, spec, T, misses)
+        if q_grasp is None and misses:
+            near.append((k, o, spec, T, misses))
+        if q_grasp is None and first_taken is not None:
+            taken.append(first_taken)  # what crowds the item, if nothing fits
+            if not reached:  # every bite takes in a neighbour (or is unreachable): a multi-object grasp
+                st.multi_object += 1
+                continue
+        if q_grasp is None:
+            if first_hit is not None and len(collided) < MAX_CROWD_CHECKS:
+                collided.append(first_hit)
+            if reached:
+                st.in_collision += 1
+            else:
+                st.no_ik += 1
+            continue
+        accept(k, o, spec, Tg, q_grasp, q_pre, brush)
+    # Second pass, only where no grasp fits as given: the grasps that missed narrowly (a pad's sweep grazing a
+    # neighbour, or only the tool meeting one) swivelled a few degrees about their closing axis (SWIVELS). The
+    # pads close on the same two contacts, the tool comes in from a slightly different direction: within what a
+    # predefined grasp's placement already leaves to chance, so where the item's one or two grasps sit at the edge
+    # of a check, a sub-millimetre change of its fitted pose no longer decides between some grasp and none.
+    if not out:
+        for k, o, spec, T, misses in near:
+            if limit is not None and len(out) >= limit:
+                break
+            if not narrow(k, spec, misses):
+                continue
+            model = inventory[o.obj_id]
+            for a in SWIVELS:
+                T_obj_tcp = spec.T_obj_tcp @ rot_y(a)
+                Ts = T @ rot_y(a)
+                if Ts[2, 2] > settings.max_approach_up or not _swivel_fits(model, spec, T_obj_tcp):
+                    continue
+                swivelled = GraspSpec(tilted_name(spec.name, a), T_obj_tcp, spec.opening, spec.width)
+                q_grasp, q_pre, Tg, brush, _, _, _ = fit(k, o, swivelled, Ts)
+                if q_grasp is not None:
+                    st.swivelled += 1
+                    if accept(k, o, swivelled, Tg, q_grasp, q_pre, brush, made_from=spec):
+                        break
     if out:
         out.sort(key=lambda g: -g.score)
         return out
