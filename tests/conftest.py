@@ -159,6 +159,37 @@ def write_own_dishware_c(folder):
     return _save_own_set(folder, specs)
 
 
+def write_own_dishware_d(folder):
+    """A fourth models/ folder of unseen dishware, sized from retail catalogues: a small side plate (19 cm, a foot
+    ring and a raised rim), a rimmed pasta plate (27 cm, a deep well inside a wide sloping rim), a shallow cereal
+    bowl (16 cm, 5.5 cm tall, a foot ring), a tall latte glass (a thick base, 14 cm), a mug with a large ear handle
+    and a handle-less stackable tea cup (tapered: class cup, what cup-stacking takes). Meshes (mm) and diameters
+    only. Returns {obj_id: (name, expected class)}."""
+    from kitchenbot.world.dishware import _profile_closed, lathe, tube
+
+    def vessel(outer, thickness, foot=None):
+        return lathe(_profile_closed(np.array(outer, float), thickness, foot=foot), segments=96)
+
+    side = vessel([(0, 0.004), (0.045, 0.004), (0.050, 0.006), (0.072, 0.011), (0.082, 0.014), (0.090, 0.018),
+                   (0.095, 0.021)], 0.004, foot=(0.044, 0.004, 0.004))
+    pasta = vessel([(0, 0.005), (0.060, 0.005), (0.064, 0.008), (0.078, 0.024), (0.088, 0.032), (0.105, 0.036),
+                    (0.125, 0.041), (0.135, 0.044)], 0.0045, foot=(0.058, 0.005, 0.005))
+    cereal = vessel([(0, 0.007), (0.036, 0.007), (0.040, 0.009), (0.058, 0.020), (0.070, 0.033), (0.077, 0.045),
+                     (0.080, 0.055)], 0.004, foot=(0.035, 0.005, 0.007))
+    latte = vessel([(0, 0.010), (0.031, 0.010)] + [(0.032 + 0.0055 * z / 0.140, z) for z in np.linspace(0.016, 0.140, 8)],
+                   0.0028, foot=(0.031, 0.029, 0.010))  # a heavy solid base, 1 cm
+    mug = vessel([(0, 0), (0.037, 0), (0.041, 0.003)] + [(0.042, z) for z in np.linspace(0.010, 0.095, 7)], 0.0045)
+    s = np.linspace(-np.pi / 2 + 0.3, np.pi / 2 - 0.3, 24)
+    mug += tube(np.stack([0.038 + 0.036 * np.cos(s), np.zeros_like(s), 0.050 + 0.036 * np.sin(s)], 1), 0.0065)
+    tea = vessel([(0, 0), (0.024, 0), (0.027, 0.003)] + [(0.027 + 0.013 * (z / 0.080) ** 0.9, z)
+                                                         for z in np.linspace(0.010, 0.080, 8)], 0.003)
+    specs = [("side_plate", "plate", side, (0.96, 0.95, 0.90)), ("pasta_plate_rimmed", "plate", pasta,
+                                                                  (0.90, 0.88, 0.82)),
+             ("cereal_bowl", "bowl", cereal, (0.70, 0.20, 0.25)), ("latte_glass", "glass", latte, (0.84, 0.90, 0.94)),
+             ("big_handle_mug", "mug", mug, (0.25, 0.45, 0.35)), ("tea_cup", "cup", tea, (0.95, 0.92, 0.80))]
+    return _save_own_set(folder, specs)
+
+
 @pytest.fixture(scope="session")
 def own_dishware(tmp_path_factory):
     """(models_dir, {obj_id: (name, expected class)}) of dishware this project has never seen."""
@@ -178,3 +209,10 @@ def own_dishware_c(tmp_path_factory):
     """(models_dir, {obj_id: (name, expected class)}) of the third set (`write_own_dishware_c`)."""
     folder = tmp_path_factory.mktemp("own_dishware_c") / "models"
     return folder, write_own_dishware_c(folder)
+
+
+@pytest.fixture(scope="session")
+def own_dishware_d(tmp_path_factory):
+    """(models_dir, {obj_id: (name, expected class)}) of the fourth set (`write_own_dishware_d`)."""
+    folder = tmp_path_factory.mktemp("own_dishware_d") / "models"
+    return folder, write_own_dishware_d(folder)

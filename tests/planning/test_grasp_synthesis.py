@@ -243,6 +243,21 @@ def test_a_third_set_of_unseen_shapes_is_classed_and_held(own_dishware_c, tmp_pa
         sim_holds(inventory, m, m.grasps[::15])
 
 
+def test_a_fourth_set_sized_from_catalogues_is_classed_and_held(own_dishware_d, tmp_path_factory, sim_holds):
+    """Set D (a side plate and a rimmed pasta plate with foot rings, a shallow cereal bowl, a latte glass with a heavy
+    base, a mug with a large ear handle, a handle-less tea cup): the class from the shape is the intended one, the
+    round ones get the symmetry about z, and every item gets grasps from above that the simulated Fin-Ray holds."""
+    folder, expected = own_dishware_d
+    inventory = ensure_grasps(Inventory.load(folder), tmp_path_factory.mktemp("grasp_cache_d"))
+    for m in inventory:
+        name, cls = expected[m.obj_id]
+        assert m.cls == cls, name
+        assert m.is_rotationally_symmetric == (name != "big_handle_mug"), name
+        assert len(m.grasps) >= 40, name
+        assert any(g.T_obj_tcp[2, 2] < -0.7 for g in m.grasps), name
+        sim_holds(inventory, m, m.grasps[::15])
+
+
 def test_an_upside_down_flared_bowl_is_gripped_level_across_its_sloped_wall(sim_holds):
     """A bowl whose straight wall flares by 20 degrees, upside down (rim on the floor): the only grips from above are
     across its body. Pairs along a sample's normal cross the body at 20 degrees and meet the far wall 40 degrees
