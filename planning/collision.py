@@ -211,6 +211,15 @@ def _owners(P: np.ndarray, instance_points: Sequence[np.ndarray | None], n: int)
 # its real surface lies up to 3.5 cm from the fitted one); farther out they are something else the instance took in
 OWN_REACH = 0.04
 _SURFACES: dict[int, tuple] = {}  # id(mesh) -> (mesh, open3d RaycastingScene)
+# How far from the grasp target's (the held item's) fitted surface map points are its own, from how closely its model
+# fits its own points: FIT_SPREAD x the 90th percentile of their distances to it, kept within [FIT_RADIUS_MIN,
+# explain radius] (and [FIT_RADIUS_MIN, OWN_REACH] for its own points), in FIT_RADIUS_STEP steps (the memo's grids
+# are per radius). A model that fits its points to a couple of millimetres is not 1.5 or 4 cm off: points farther
+# out are something else (a bowl nested under it, covered by it), or a part of it where its fit put none (a mug's
+# handle turned about its axis); the pads and the lift must keep clear of them.
+FIT_SPREAD = 3.0
+FIT_RADIUS_MIN = 0.005
+FIT_RADIUS_STEP = 0.001
 
 
 def _surface_distance(model: ObjectModel, P_obj: np.ndarray) -> np.ndarray:
@@ -391,6 +400,22 @@ class _ExplainMemo:
             hit = self._cell[key] = (cell, P, keep)
         return hit[1], hit[2]
 
+    def fit_radii(self, o: SceneObject, ip, explain_radius: float, reach: float) -> tuple[float, float]:
+        """(explain radius, own reach) of an object whose observed points are `ip`: FIT_SPREAD x the 90th percentile
+        of their distances to its fitted surface, within [FIT_RADIUS_MIN, `explain_radius`] and [FIT_RADIUS_MIN,
+        `reach`], rounded up to FIT_RADIUS_STEP (see FIT_SPREAD)."""
+        ip = np.asarray(ip, float).reshape(-1, 3)
+        T = np.asarray(o.T_base_obj, float)
+        key = ("fit", _digest(ip), id(o.model.mesh), T.tobytes())
+        hit = self._near.get(key)
+        if hit is None or hit[0] is not o.model.mesh:
+            d = _surface_distance(o.model, (ip - T[:3, 3]) @ T[:3, :3])
+            if len(self._near) > 64:
+                self._near.clear()
+            hit = self._near[key] = (o.model.mesh, FIT_SPREAD * float(np.percentile(d, 90)))
+        spread = max(FIT_RADIUS_MIN, np.ceil(hit[1] / FIT_RADIUS_STEP - 1e-9) * FIT_RADIUS_STEP)
+        return min(explain_radius, spread), min(reach, spread)
+
     def own_points_near(self, o: SceneObject, ip, lo: np.ndarray, hi: np.ndarray, reach: float) -> np.ndarray:
         """The instance's points `ip` (base frame) within `reach` of the object's model surface."""
         ip = np.asarray(ip, float).reshape(-1, 3)
@@ -570,30 +595,36 @@ class CollisionWorld:
         inst = []
         for k, o in enumerate(objects):
             ob = memo.object(o, explain_radius)
+            ip = instance_points[k] if k < len(instance_points) else None
+            radius, reach = explain_radius, instance_reach
+            if self_explaining is not None and own_ok[k] and ip is not None and len(ip):
+                # the grasp target / held item named by the query: only as far out as its fit may be off
+                radius, reach = _EXPLAIN_MEMO.fit_radii(o, ip, explain_radius, instance_reach)
             # any point on (near) this model's surface; the box only bounds the search (a hollow's box is mostly
             # air: an unperceived item nested in it is there, not explained)
             cand = np.flatnonzero(ob.in_box & ~hit)
             if len(cand):
-                hit[cand[ob.near(cand, explain_radius)]] = True
+                hit[cand[ob.near(cand, radius)]] = True
             if own_ok[k]:
                 # its own points near its own fitted model (within instance_reach of the surface)
                 mine = np.flatnonzero((owner == k) & ~hit)
                 if len(mine):
-                    hit[mine[ob.near(mine, instance_reach)]] = True
-                ip = instance_points[k] if k < len(instance_points) else None
+                    hit[mine[ob.near(mine, reach)]] = True
                 if ip is not None and len(ip):
-                    near = _EXPLAIN_MEMO.own_points_near(o, ip, ob.lo, ob.hi, instance_reach)
+                    near = _EXPLAIN_MEMO.own_points_near(o, ip, ob.lo, ob.hi, reach)
                     if len(near):
-                        inst.append(near)
+                        inst.append((near, radius))
         if inst and not hit.all():
             from scipy.spatial import cKDTree
 
             # an instance's points near its model explain points of no instance beside them
             may = ~hit & (owner < 0)
             if may.any():
-                d, _ = cKDTree(np.vstack(inst)).query(P[may], distance_upper_bound=explain_radius)
                 idx = np.flatnonzero(may)
-                hit[idx[np.isfinite(d)]] = True
+                for r in sorted({r for _, r in inst}):
+                    pts = np.vstack([near for near, rr in inst if rr == r])
+                    d, _ = cKDTree(pts).query(P[idx], distance_upper_bound=r)
+                    hit[idx[np.isfinite(d)]] = True
         return hit
 
     # ---- per-query scene -------------------------------------------------------------------------------------

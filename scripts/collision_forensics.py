@@ -48,10 +48,10 @@ def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, o
         arm, cls = runner.robot.arm, type(runner)
         run_traj, move_joints, event, note = cls._run_trajectory, cls._move_joints, arm._event, cls._log
 
-        def _run_trajectory(self, traj, carrying=False, guarded=False):
+        def _run_trajectory(self, traj, *args, **kwargs):
             moving["name"] = getattr(traj, "name", "?")
             moving["traj"] = traj
-            return run_traj(self, traj, carrying, guarded)
+            return run_traj(self, traj, *args, **kwargs)
 
         def _move_joints(self, q, what):
             moving["name"] = f"move_joints: {what}"
