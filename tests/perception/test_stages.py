@@ -39,6 +39,16 @@ def _main_masks(dets, lab, n):
     return out
 
 
+def turned_about_body(T: np.ndarray, deg: float, c: np.ndarray) -> np.ndarray:
+    """`T` turned `deg` about the model's body axis (z through the model point `c`, x-y): a mug's handle moved."""
+    a = np.radians(deg)
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    t = np.eye(4)
+    t[:3, :3] = R
+    t[:2, 3] = c - R[:2, :2] @ c
+    return T @ t
+
+
 def test_geometric_segmentation_finds_each_item(scene, cell):
     placed, views, labels = scene
     seg = GeometricSegmenter(cell)
@@ -238,12 +248,7 @@ def test_a_mug_fitted_with_its_handle_turned_off_is_turned_to_where_the_handle_i
     scorer = Scorer(perceiver.database[5], pts[::3], views, 0.01, depths=clean_depths(views))
 
     def turned(deg):
-        a = np.radians(deg)
-        R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        t = np.eye(4)
-        t[:3, :3] = R
-        t[:2, 3] = c - R[:2, :2] @ c
-        return T_mug @ t
+        return turned_about_body(T_mug, deg, c)
 
     for deg in (60, 90, 150):
         T_off = turned(deg)
@@ -287,12 +292,7 @@ def test_a_mug_rejected_with_its_handle_turned_off_or_its_axis_reversed_is_retri
     over = make_T(np.diag([1.0, -1.0, -1.0]), np.zeros(3))  # the mug's origin is its bounding box's middle
 
     def turned(T, deg):
-        a = np.radians(deg)
-        R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        t = np.eye(4)
-        t[:3, :3] = R
-        t[:2, 3] = c - R[:2, :2] @ c
-        return T @ t
+        return turned_about_body(T, deg, c)
 
     def angle(a, b):
         return np.degrees(np.arccos(np.clip(a @ b, -1, 1)))
