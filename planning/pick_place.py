@@ -537,7 +537,11 @@ class Planner:
         side = {p: lift_scene.penetration(q_grasp, p) for p in start_contacts
                 if any(x in by_name for x in p) and not any(x in by_name and self._lies_on(g.obj, by_name[x]) for x in p)}
         deeper = {p: -(d + LIFT_DEEPEN_TOL) for p, d in side.items()}
-        free_start = [p for p in start_contacts if p not in side]
+        # A basin wall the held item is clear of at the grasp (by WALL_GAP_MIN or more: not leaning on it) is no
+        # contact to leave: in the first LIFT_CONTACT_TRAVEL the lift may not close that gap (_wall_gaps' margin)
+        # either. Unchecked there, a lift tilted a little towards the wall drove a plate standing 1 mm off it into it.
+        deeper.update({p: m for p, m in walls.items() if p in start_contacts})
+        free_start = [p for p in start_contacts if p not in side and p not in walls]
         start_scene = lift_scene.allowing(free_start).with_pair_margins(deeper)
         # The fingers too start within the transport margin of what lies next to or under the item (the plate
         # below in a stack): grasp_in checked them with the grasp margin. Lifting straight up (or along the
