@@ -348,6 +348,13 @@ class Belief:
         if grasp not in t.missed:
             t.missed.append(grasp)
 
+    def doubt(self, obj: ObjectPose) -> None:
+        """A grasp of `obj` missed: its pose is in doubt. Its verification's parts are dropped, so the next
+        perception does not keep it unchecked where the map around it did not change (Perceiver._kept: a grasp
+        that closes on air changes no map point, and a pose 4 cm off was kept scan after scan while every grasp
+        of its ring missed); it is tracked and verified again, or estimated afresh."""
+        obj.checks.clear()
+
     def record_taken(self, obj: ObjectPose) -> None:
         """`obj` was taken from where it lay (its placement verified): the attempts recorded there were on it, not
         on what is seen there now (the plate it was nested on, which it hid: seen as one plate, the grasps that

@@ -88,6 +88,8 @@ class RecoveryActions:
             self.belief.record_plan_failure(obj, f.details.get("planning_kind", f.kind))
         elif f.state in ("execute", "verify"):  # counted when executed
             self.belief.record_failure(obj, f.kind)
+            if f.kind == "grasp_missed":
+                self.belief.doubt(obj)
             if f.kind == "grasp_missed" and self.item.pick is not None:
                 for name in self._missed_alike(f, obj, self.item.pick.grasp.spec.name):
                     self.belief.record_missed_grasp(obj, name)
