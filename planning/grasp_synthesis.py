@@ -116,7 +116,7 @@ PAD_BOX_THICKNESS = PAD_ENVELOPE.thickness
 PAD_BOX_Z = (PAD_ENVELOPE.root, PAD_ENVELOPE.tip)
 
 
-def _pads_clear(points: np.ndarray, T_obj_tcp: np.ndarray, opening: float, tol: float = 0.001) -> bool:
+def pads_clear(points: np.ndarray, T_obj_tcp: np.ndarray, opening: float, tol: float = 0.001) -> bool:
     """Whether the open pads (at `opening`) keep out of the item: no surface point deeper than `tol` inside
     either pad box. The planner lets the pads touch the target they grasp, so a predefined grasp whose pads
     would pass through the item's own wall (an inner pad sweeping through a lying cup's side) must not exist."""
@@ -154,7 +154,7 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
     - foot-ring pinch (items with a foot ring, bowls): approach along +z (from below the upright item, from
       above an upside-down one), one pad inside the ring, one outside, the tips short of the recessed bottom.
     Expected widths are measured on the mesh; grasps wider than the gripper, and grasps whose open pads would
-    cut into the item (see `_pads_clear`), are dropped.
+    cut into the item (see `pads_clear`), are dropped.
     """
     V = np.asarray(model.mesh.vertices)
     z_top = V[:, 2].max()
@@ -277,9 +277,9 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
                 continue  # the slanted line across the ring leaves its wall (through the chamfered edge)
             slack = 0.016 if kind.startswith(("rimlean", "rimnarrow", "foot")) else 0.03
             opening = min(MAX_OPENING, w + slack)
-            if surface is not None and not _pads_clear(surface, T, opening):
+            if surface is not None and not pads_clear(surface, T, opening):
                 continue
-            if kind.startswith(UNDERSIDE) and not _pads_clear(under_surface, T, opening):
+            if kind.startswith(UNDERSIDE) and not pads_clear(under_surface, T, opening):
                 continue  # mirrored, a pad would cut into the plate's well (checked on the mesh, not assumed)
             out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=opening, width=w))
             break
@@ -297,7 +297,7 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
 # face, so the lip pinches that lean in from outside (`rimtilt`, `rimlean`) are mirrored through the lip's
 # mid-surface: the gripper outside the rim, one pad on the underside, the other under the (now lower) edge. Each
 # is kept only where its pads close across the lip (`pad_span`) and the open pads keep out of the plate's mesh
-# (`_pads_clear`: the reflected band slopes the other way, so that is checked, not assumed). Fallbacks
+# (`pads_clear`: the reflected band slopes the other way, so that is checked, not assumed). Fallbacks
 # (planning.grasps.FALLBACK_GRASPS): an upright plate's grasps are unchanged, and these come from below for it.
 UNDERSIDE = "rimunder"
 UNDERSIDE_FROM = ("rimtilt", "rimlean")

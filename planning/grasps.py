@@ -152,7 +152,7 @@ _expanded: dict[int, tuple] = {}
 
 def _steep_tilt_fits(model, spec, T_obj_tcp: np.ndarray, checks: dict) -> bool:
     """Whether a side grasp of a non-round item tilted steeply about its closing axis still closes on the body
-    only: its open pads keep out of the item's own mesh (the handle; planning.grasp_synthesis._pads_clear on
+    only: its open pads keep out of the item's own mesh (the handle; planning.grasp_synthesis.pads_clear on
     surface samples) and the pads close across the untilted grasp's width (nothing else between them).
 
     The planner lets the pads touch the target they grasp, so these are checked on the model here, once per
@@ -163,14 +163,29 @@ def _steep_tilt_fits(model, spec, T_obj_tcp: np.ndarray, checks: dict) -> bool:
         import open3d as o3d
 
         mesh = model.mesh
-        checks["surface"] = _surface_samples(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+        checks["surface"] = _model_surface(model)
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
         checks["scene"] = scene
-    if not synth._pads_clear(checks["surface"], T_obj_tcp, spec.opening):
+    if not synth.pads_clear(checks["surface"], T_obj_tcp, spec.opening):
         return False
     w = synth.pad_span(model, T_obj_tcp, scene=checks["scene"])
     return w is not None and abs(w - spec.width) <= STEEP_WIDTH_TOL
+
+
+_surfaces: dict[int, tuple] = {}  # id(model) -> (model, its surface samples)
+
+
+def _model_surface(model) -> np.ndarray:
+    """The surface samples of `model`'s mesh (`_surface_samples`), once per model: the pads-clear checks of
+    steep tilts and of swivels read the same ones."""
+    hit = _surfaces.get(id(model))
+    if hit is None or hit[0] is not model:
+        if len(_surfaces) > 256:
+            _surfaces.clear()
+        hit = _surfaces[id(model)] = (model, _surface_samples(np.asarray(model.mesh.vertices),
+                                                              np.asarray(model.mesh.triangles)))
+    return hit[1]
 
 
 def _surface_samples(V: np.ndarray, F: np.ndarray, n: int = 30000) -> np.ndarray:
@@ -294,7 +309,6 @@ SWIVELS = tuple(np.radians(a) for a in (3.0, -3.0, 6.0, -6.0))
 NEAR_MISS = 0.002
 MAX_MISSES = 4  # rejections of one grasp kept to tell whether it missed narrowly
 TOOL_PARTS = ("pad_a", "pad_b", "palm", "camera")
-_swivel_checks: dict[int, tuple] = {}
 
 
 def _tool_only(pairs) -> bool:
@@ -311,13 +325,7 @@ def _swivel_fits(model, spec, T_obj_tcp: np.ndarray) -> bool:
 
     if model.mesh is None or not len(model.mesh.triangles):
         return True
-    hit = _swivel_checks.get(id(model))
-    if hit is None or hit[0] is not model:
-        if len(_swivel_checks) > 256:
-            _swivel_checks.clear()
-        hit = (model, _surface_samples(np.asarray(model.mesh.vertices), np.asarray(model.mesh.triangles)))
-        _swivel_checks[id(model)] = hit
-    return synth._pads_clear(hit[1], T_obj_tcp, spec.opening)
+    return synth.pads_clear(_model_surface(model), T_obj_tcp, spec.opening)
 
 
 def select_grasps(

@@ -73,7 +73,7 @@ def test_bowl_has_a_foot_ring_and_foot_ring_pinches(inventory):
 def test_no_grasp_drives_its_open_pads_through_the_item(inventory):
     """Every vessel grasp keeps the open pads out of the item (the pads may touch their target in the planner,
     so a pad inside a lying cup's wall would go unchecked); the check itself catches a pad cut into a wall."""
-    from kitchenbot.planning.grasp_synthesis import _pads_clear
+    from kitchenbot.planning.grasp_synthesis import pads_clear
     from kitchenbot.transforms import rot_y
 
     # Open3D samples from its global generator: seeded, so the check does not depend on the tests run before in the
@@ -85,12 +85,12 @@ def test_no_grasp_drives_its_open_pads_through_the_item(inventory):
             continue
         P = np.asarray(m.mesh.sample_points_uniformly(40000).points)
         for g in m.grasps:
-            assert _pads_clear(P, g.T_obj_tcp, g.opening, tol=0.0015), (m.name, g.name)
+            assert pads_clear(P, g.T_obj_tcp, g.opening, tol=0.0015), (m.name, g.name)
     cup = inventory.by_name("cup")
     P = np.asarray(cup.mesh.sample_points_uniformly(40000).points)
     rim = next(g for g in cup.grasps if g.name == "rim_00")
     # rolled 90 degrees (approach along the rim's tangent) the inner pad runs through the cup's wall
-    assert not _pads_clear(P, rim.T_obj_tcp @ rot_y(np.pi / 2), rim.opening)
+    assert not pads_clear(P, rim.T_obj_tcp @ rot_y(np.pi / 2), rim.opening)
     names = {g.name.rsplit("_", 1)[0] for g in cup.grasps}
     assert {"rim", "rimroll+45", "rimroll-45", "side", "side30", "side80", "base"} <= names
     for g in cup.grasps:
@@ -102,7 +102,7 @@ def test_bowl_foot_ring_pinches_pitched_in_from_outside(inventory):
     """A bowl lying tilted offers its foot ring at a slant: the foot-ring pinch also comes pitched 10 and 20
     degrees about the ring's tangent, leaning in from outside the ring, closing across the ring wall, its open
     pads clear of the bowl (the outer pad's tip stops at the body's underside)."""
-    from kitchenbot.planning.grasp_synthesis import FOOT_PITCHES, _pads_clear
+    from kitchenbot.planning.grasp_synthesis import FOOT_PITCHES, pads_clear
     from kitchenbot.world.dishware import BOWL_FOOT
 
     bowl = inventory.by_name("bowl")
@@ -120,7 +120,7 @@ def test_bowl_foot_ring_pinches_pitched_in_from_outside(inventory):
             assert T[:2, 2] @ T[:2, 3] < 0 and abs(radial[:2] @ T[:2, 3]) / np.linalg.norm(radial[:2]) / tcp_r > 0.9
             assert g.width == pytest.approx(w, abs=0.002) and g.opening < 0.025
             assert ro - w - 0.004 < tcp_r < ro + 0.004
-            assert _pads_clear(surface, T, g.opening)
+            assert pads_clear(surface, T, g.opening)
 
 
 # ---- grasps synthesised from meshes (dishware this project has never seen) ------------------------------------
