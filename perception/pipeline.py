@@ -1234,15 +1234,7 @@ def turn_clear(scorer: Scorer, T_base_obj: np.ndarray, model_points: np.ndarray)
     score, _, seen, free, _ = scorer(T_base_obj)
     if free <= 0:
         return None
-    c = np.median(model_points[:, :2], axis=0)
-    turns = []
-    for a in np.radians(np.arange(TURN_STEP, 360, TURN_STEP)):
-        R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        turn = np.eye(4)
-        turn[:3, :3] = R
-        turn[:2, 3] = c - R[:2, :2] @ c  # about the axis through c
-        turns.append(T_base_obj @ turn)
-    Ts = np.array(turns)
+    Ts = np.array([T_base_obj @ _body_turn(model_points, a) for a in np.radians(np.arange(TURN_STEP, 360, TURN_STEP))])
     score_t, _, seen_t, free_t, _ = scorer.batch(Ts)
     ok = (seen_t >= seen) & (score_t >= score) & (free_t <= FREE_SPACE_CLEARED * free)
     if not ok.any():
