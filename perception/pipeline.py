@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import open3d as o3d
@@ -377,6 +377,12 @@ class Perceiver:
             # its cavity holds what it rests on or its own wall: it gets one more fit, turned over.
             if self._retry_turned_over(m, views, found):
                 self._fine_check(m, found)
+            # A pose rejected only for what lies around it unexplained (past a vessel's ends, in its cavity) points
+            # at an item no pose explains yet (a glass nested in it, one standing under a glass lying across it):
+            # what is unexplained there is fitted once more, as an item of its own, and the checks repeated.
+            for hyp, own in self._fit_around_rejected(m, views, found):
+                found.append((hyp, next_id, own))
+                next_id += 1
             verified = []
             for f in found:
                 ver = f[0].verification
@@ -595,6 +601,57 @@ class Perceiver:
             return None
         best.score *= self._colour_weight(query, best, 1.0)
         return self._accepted(query, best, scorer)
+
+    def _fit_around_rejected(self, m: InstanceMap, views: list[View],
+                             found: list[tuple[Hypothesis, int, np.ndarray]]) -> list[tuple[Hypothesis, np.ndarray]]:
+        """New poses for what poses rejected only by their surroundings leave unexplained; the fine check is
+        repeated with them (every pose judged again) where there are any.
+
+        A pose is rejected by its surroundings when it would pass without `continued` and `filled`, the map points
+        past its ends or in its cavity that no pose explains. Those points may be an item the search missed (its
+        segment held several items and was fitted wrong, and that fit was rejected): a glass nested in a glass
+        fills the lower one's cavity and goes on past the end of a glass lying across it. The map points within
+        the rejected pose's reach (CONTEXT_REACH diameters) that no pose explains (neither those that pass nor
+        those rejected by their surroundings alone) are clustered, and each cluster is estimated as an instance of
+        its own, with the poses found as stacking starts. A fit must pass every check as any pose does; a new
+        pose that explains the points lets the pose that pointed at them pass."""
+        thr = self.settings.verify_threshold
+
+        def failed(h: Hypothesis) -> bool:
+            return h.verification is not None and h.verification.score < thr
+
+        def by_context(h: Hypothesis) -> bool:
+            return failed(h) and replace(h.verification, continued=0.0, filled=0.0).score >= thr
+
+        ctx = [f for f in found if by_context(f[0])]
+        if not ctx:
+            return []
+        explaining = [f[0] for f in found if not failed(f[0]) or by_context(f[0])]
+        tree = cKDTree(m.points)
+        near: set[int] = set()
+        for h, _, _ in ctx:
+            near.update(tree.query_ball_point(h.T_base_obj[:3, 3], CONTEXT_REACH * self.inventory[h.obj_id].diameter))
+        idx = np.array(sorted(near), int)
+        idx = idx[m.ids[idx] >= 0]
+        left = np.ones(len(idx), bool)
+        for h in explaining:
+            close = np.linalg.norm(m.points[idx] - h.T_base_obj[:3, 3], axis=1) < \
+                (CONTEXT_REACH + 0.5) * self.inventory[h.obj_id].diameter
+            if close.any():
+                left[close] &= ~self._explained(h, m.points[idx[close]])
+        idx = idx[left]
+        if len(idx) < CONTEXT_MIN_POINTS:
+            return []
+        vox = self.settings.voxel_size
+        new = []
+        for part in _clusters(m.points[idx], 1.5 * vox, CONTEXT_MIN_POINTS, vox / 2):
+            sel = idx[part]
+            hyp, _query = self.estimate(m.select(sel), views, explaining)
+            if hyp is not None:
+                new.append((hyp, sel[self._explained(hyp, m.points[sel])]))
+        if new:
+            self._fine_check(m, found + [(h, -1, own) for h, own in new])
+        return new
 
     def _near_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Whether one pose can explain points the checks of the other look at (within their two diameters)."""
@@ -1164,6 +1221,11 @@ KEPT = "kept"
 # By how much a vessel's pose turned over after a rejection may explain its points less well (`fine`, `explained`,
 # `normals`, `free_space`; verification parts are shares) and replace it (Perceiver._retry_turned_over).
 TURNED_MARGIN = 0.02
+# `_fit_around_rejected`: the map points within this many diameters of a pose rejected by its surroundings alone
+# are looked at for an item no pose explains; clusters of fewer points than CONTEXT_MIN_POINTS are not fitted
+# (the size of a remainder refitted after a pose).
+CONTEXT_REACH = 1.0
+CONTEXT_MIN_POINTS = 60
 # ... and, for a model with a part off its body turned about its axis, by how much it may explain fewer of the
 # points the rejected fit explained (a mug: its handle is ~5 % of the model's surface, up to twice that of a fit's
 # points where the handle faced the cameras; the known table failures reproduced: a right turn 0.03-0.11 lower).
