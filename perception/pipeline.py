@@ -74,6 +74,10 @@ REDUNDANT_SHARE = 0.1
 # perceive(..., region=): an instance with this share of its points in the region is fitted (an item whose origin
 # lies in the region may reach well out of it: a plate across its border)
 REGION_SHARE = 0.2
+# Of the model's height: two copies of a tall vessel on one axis, turned opposite ways, with their centres closer
+# than this along it overlap along it by a fifth of the height or more: their walls pass through each other
+# (Perceiver._through_each_other; copies rim to rim or base to base, touching, are one height apart).
+TURNED_OVERLAP = 0.8
 # Quick (screening) score by which a candidate model may trail the best one and still be refined. Refinement raised
 # a pick's score by at most 0.18 over its quick score on development scenes (and lowered 3 in 4); a model trailing by
 # more than this never won there (perception_measurements.md, pose25).
@@ -666,6 +670,9 @@ class Perceiver:
             return
         db = self.database
         reach = self.inventory[hyp.obj_id].diameter
+        # A pose that cannot be there together with this one (`_through_each_other`) explains nothing for it:
+        # of two such fits at most one is right, and each must not pass on the strength of the other.
+        found = [f for f in found if f[0] is hyp or not self._through_each_other(hyp, f[0])]
         others = [(db[h.obj_id], h.T_base_obj) for h, _, _ in found if h is not hyp and
                   np.linalg.norm(h.T_base_obj[:3, 3] - hyp.T_base_obj[:3, 3]) <
                   0.5 * (reach + self.inventory[h.obj_id].diameter)]
@@ -689,6 +696,23 @@ class Perceiver:
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
             hyp.verification.overhang = self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
             hyp.verification.intruded = self._intruded(m, tree, tol, hyp, found, T_fine)
+
+    def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
+        """Whether two poses of one tall vessel (cup, mug, glass) lie on one axis turned opposite ways, their
+        lengths overlapping along it (centres under `TURNED_OVERLAP` of the height apart along the axis, under
+        half a diameter across): rigid copies can nest or stack only facing the same way (one rests in or on the
+        other); turned the other way and overlapping, their walls pass through each other. Two glasses fitted rim
+        into rim along a lying bottle's body are such a pair: each explained where the bottle went on past the
+        other's end, and both passed."""
+        if a.obj_id != b.obj_id or self.inventory[a.obj_id].cls not in FLIP_CLASSES:
+            return False
+        z = a.T_base_obj[:3, 2]
+        if z @ b.T_base_obj[:3, 2] > -np.cos(np.radians(30)):
+            return False
+        model = self.inventory[a.obj_id]
+        d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
+        return bool(abs(d @ z) < TURNED_OVERLAP * model.extents[2] and
+                    np.linalg.norm(d - (d @ z) * z) < 0.5 * model.diameter)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
