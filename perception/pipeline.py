@@ -80,6 +80,11 @@ REGION_SHARE = 0.2
 DOMINATED_MARGIN = 0.25
 # Voxels: gravity-aligned starts this close (and turned alike) are one start for the near-upright refinement
 SAME_START = 0.5
+# Candidate models (by appearance similarity) screened for every instance; one ranked lower is screened only when
+# those before it left no hypothesis whose quick score reaches the overlap gate (settings.min_overlap). On the
+# development traces of pose25 and pose26 the winner was the first or the second candidate in every estimate with
+# a pose, and the third candidate's screening cost 13-15 % of the estimate CPU (perception_measurements.md, pose26).
+SCREENED_CANDIDATES = 2
 
 
 @dataclass
@@ -1008,9 +1013,11 @@ class Perceiver:
         screened = []
         scorers = {}
         best_screen, best_sim = 0.0, cands[0][1] if cands else 0.0
-        for oid, sim, img_sim in cands:
+        for rank, (oid, sim, img_sim) in enumerate(cands):
             if best_screen >= 0.9 and sim < best_sim - 0.15:
                 continue  # a clear fit already, and this candidate looks clearly less alike: not worth the time
+            if rank >= SCREENED_CANDIDATES and best_screen >= st.min_overlap:
+                break  # a fit that may pass already, from a candidate that looks more alike
             entry = self.database[oid]
             scorers[oid] = Scorer(entry, query.points, views, st.voxel_size, inside_solid=self._inside_solid(up),
                                   depths=self._depths, covered=covered)
