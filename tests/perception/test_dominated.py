@@ -117,3 +117,15 @@ def test_a_third_candidate_is_screened_when_the_first_two_cannot_fit(perceiver, 
     after, cut = _run(perceiver, cup_views, monkeypatch, [(DINNER_PLATE, 0.9), (SIDE_PLATE, 0.88), (CUP, 0.86)])
     assert CUP in cut["screened"]
     assert [o for o, _ in after] == [CUP]
+
+
+def test_a_third_candidate_is_screened_for_a_segment_of_several_items(perceiver, inventory, cell, monkeypatch):
+    # Two cups touching, segmented as one: the segment is larger than the leading model (a cup), so it may hold
+    # items of other models, and the third candidate is screened although the cup's fit reaches the gate.
+    d = inventory[CUP].extents[0]
+    views = render(inventory, [(CUP, resting_pose(inventory, CUP, 0.45, 0.05, 0.0, cell)),
+                               (CUP, resting_pose(inventory, CUP, 0.45 + d + 0.002, 0.05, 0.0, cell))],
+                   scan_poses(cell), cell, noise=0.002)[0]
+    after, cut = _run(perceiver, views, monkeypatch, [(CUP, 0.9), (GLASS, 0.88), (MUG, 0.86)])
+    assert MUG in cut["screened"]
+    assert [o for o, _ in after] == [CUP, CUP]
