@@ -1,6 +1,7 @@
 """Work the pose search no longer does, on hand-made scenes: a candidate model that trails the leader's quick score by
-more than refinement can gain is neither refined nor yaw-screened, and a near-upright start that snaps onto one
-already tried is not refined again; the estimates stay the same."""
+more than refinement can gain is neither refined nor yaw-screened, a near-upright start that snaps onto one
+already tried is not refined again, and a third candidate model is not screened when the first two already hold a fit
+that may pass; the estimates stay the same."""
 
 from __future__ import annotations
 
@@ -12,10 +13,10 @@ import kitchenbot.perception.register as rg
 from kitchenbot.perception.synthetic import render, resting_pose, scan_poses
 from kitchenbot.transforms import from_rotvec
 
-CUP, DINNER_PLATE, SIDE_PLATE, MUG = 4, 1, 2, 5
+CUP, DINNER_PLATE, SIDE_PLATE, BOWL, MUG, GLASS = 4, 1, 2, 3, 5, 6
 
 
-def _run(perceiver, views, monkeypatch, cands, margin=None, same_start=None):
+def _run(perceiver, views, monkeypatch, cands, margin=None, same_start=None, screened_candidates=None):
     """Poses of the scan and what the search did: refined model ids, screened hypotheses per model, near-upright
     starts. `cands`: the proposal forced (model id, similarity), e.g. a close second model."""
     log = {"refined": [], "screened": {}, "upright": []}
@@ -24,6 +25,8 @@ def _run(perceiver, views, monkeypatch, cands, margin=None, same_start=None):
         monkeypatch.setattr(pl, "DOMINATED_MARGIN", margin, raising=False)
     if same_start is not None:
         monkeypatch.setattr(pl, "SAME_START", same_start, raising=False)
+    if screened_candidates is not None:
+        monkeypatch.setattr(pl, "SCREENED_CANDIDATES", screened_candidates, raising=False)
 
     def refine(query, entry, *a, **k):
         log["refined"].append(entry.obj_id)
@@ -95,3 +98,34 @@ def test_a_near_upright_start_is_tried_once(perceiver, inventory, cell, monkeypa
     starts = cut["upright"]
     assert all(np.linalg.norm(a[:3, 3] - b[:3, 3]) > 0.005 for i, a in enumerate(starts) for b in starts[:i])
     assert _same(before, after)
+
+
+def test_a_third_candidate_is_not_screened_after_a_passing_fit(perceiver, cup_views, monkeypatch):
+    # A cup, proposed as cup, glass, bowl: the cup's screening holds a fit over the overlap gate, so the third
+    # candidate (the bowl) is not screened; before, every proposed model was.
+    cands = [(CUP, 0.9), (GLASS, 0.88), (BOWL, 0.86)]
+    before, full = _run(perceiver, cup_views, monkeypatch, cands, screened_candidates=99)
+    assert BOWL in full["screened"]
+    after, cut = _run(perceiver, cup_views, monkeypatch, cands)
+    assert set(cut["screened"]) == {CUP, GLASS}
+    assert [o for o, _ in after] == [CUP] and _same(before, after)
+
+
+def test_a_third_candidate_is_screened_when_the_first_two_cannot_fit(perceiver, cup_views, monkeypatch):
+    # The same cup proposed as dinner plate, side plate, cup: no plate hypothesis reaches the overlap gate, so the
+    # third candidate is screened and the cup is found.
+    after, cut = _run(perceiver, cup_views, monkeypatch, [(DINNER_PLATE, 0.9), (SIDE_PLATE, 0.88), (CUP, 0.86)])
+    assert CUP in cut["screened"]
+    assert [o for o, _ in after] == [CUP]
+
+
+def test_a_third_candidate_is_screened_for_a_segment_of_several_items(perceiver, inventory, cell, monkeypatch):
+    # Two cups touching, segmented as one: the segment is larger than the leading model (a cup), so it may hold
+    # items of other models, and the third candidate is screened although the cup's fit reaches the gate.
+    d = inventory[CUP].extents[0]
+    views = render(inventory, [(CUP, resting_pose(inventory, CUP, 0.45, 0.05, 0.0, cell)),
+                               (CUP, resting_pose(inventory, CUP, 0.45 + d + 0.002, 0.05, 0.0, cell))],
+                   scan_poses(cell), cell, noise=0.002)[0]
+    after, cut = _run(perceiver, views, monkeypatch, [(CUP, 0.9), (GLASS, 0.88), (MUG, 0.86)])
+    assert MUG in cut["screened"]
+    assert [o for o, _ in after] == [CUP, CUP]
