@@ -7,7 +7,8 @@ a :class:`Scene` with its own GeometryData, collision pairs and per-pair securit
 
 Margins: every pair is checked with ``margin`` (conservative, 1 cm by default: the simulator's FakeArm stops on
 contact with its own geometry, a real cell has calibration error), except the gripper near the grasp: a scene
-variant made with :meth:`Scene.for_grasp` checks the gripper with ``grasp_margin`` and lets the finger pads touch
+variant made with :meth:`Scene.for_grasp` checks the gripper (the camera only against the cell and the arm: it
+keeps ``margin`` from items and voxels) with ``grasp_margin`` and lets the finger pads touch
 the grasped object (the allowed-contact set of that query) while the TCP is within ``pad_contact_radius`` (2.5 cm)
 of that object's surface, i.e. while closing around it; farther out a pad touching it would push or hit it (the
 simulator, fakes/collision.py, allows finger contacts within 3 cm: the planner stays the more conservative).
@@ -443,6 +444,11 @@ TOOL_PARTS = ("palm", "pad_a", "pad_b", "camera")
 PADS = ("pad_a", "pad_b")
 
 
+def _camera_near_item(a: str, b: str) -> bool:
+    """A (camera, item or voxels) pair: it keeps the full margin in the grasp and release scenes too."""
+    return (a == "camera" and b.startswith(("obj:", "voxels"))) or (b == "camera" and a.startswith(("obj:", "voxels")))
+
+
 @dataclass
 class SceneObject:
     """A perceived object for the collision world: its model, pose and a name used in allowed-contact sets."""
@@ -707,8 +713,11 @@ class Scene:
         self._q_box = tuple(zip(self._q_lo.tolist(), self._q_hi.tolist()))
         self._ws_box = tuple(zip(self._ws_lo.tolist(), self._ws_hi.tolist()))
         self.pair_names = [(self.names[i], self.names[j]) for i, j in pairs]
-        # pairs with the gripper or the held item (their margin is the grasp margin in for_grasp's variants)
-        self._gripper_pair = [a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held" for a, b in self.pair_names]
+        # pairs with the gripper or the held item (their margin is the grasp margin in for_grasp's variants); not
+        # the camera against items and voxels: it never has to come close to them, and what they stand for is
+        # known only to a few millimetres (a record of an item put down, to half its height search's step)
+        self._gripper_pair = [(a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held")
+                              and not _camera_near_item(a, b) for a, b in self.pair_names]
         self._zone: tuple[Scene, int, float] | None = None  # (strict variant, target geometry, radius): for_grasp
         self._set_margins({}, world.margin)
 
