@@ -35,12 +35,20 @@ def _found(inventory, poses, placed) -> list[float]:
 
 
 def test_a_bowl_leaning_steeply_in_a_bowl_leaves_the_lower_one_its_pose(perceiver, inventory, cell, leaning):
+    """Whichever of the two scores higher: the duplicate test goes through the poses best first, and in the traced
+    run the re-scan's tracked upper bowl scored above the lower one (here the executive's re-scan: the belief's poses
+    and map as priors, the surroundings unchanged, so each keeps its pose and score; before, the lower bowl was
+    dropped when the upper one led, and kept when it led itself)."""
+    from dataclasses import replace
+
     views, _ = render(inventory, leaning, scan_poses(cell), cell, noise=0.002)
     first = perceiver.perceive(views)
-    print("first:", [(p.cls, np.round(p.T_base_obj[:3, 3], 3).tolist(), round(p.score, 3)) for p in first.poses])
-    assert max(_found(inventory, first.poses, leaning)) < 0.1, _found(inventory, first.poses, leaning)
-    # the re-scan, as the executive runs it: the belief's poses and map as priors
-    again = perceiver.perceive(views, priors=first.poses, prior_map=first.map_points)
-    print("again:", [(p.cls, np.round(p.T_base_obj[:3, 3], 3).tolist(), round(p.score, 3)) for p in again.poses])
-    assert max(_found(inventory, again.poses, leaning)) < 0.1, _found(inventory, again.poses, leaning)
-    assert len(again.poses) == 2
+    err = _found(inventory, first.poses, leaning)
+    assert max(err) < 0.1, err
+    d = inventory[BOWL].diameter
+    upper = min(first.poses, key=lambda p: adi(p.T_base_obj, leaning[1][1], inventory[BOWL].points) / d)
+    for upper_score, lower_score in ((0.99, 0.9), (0.9, 0.99)):
+        priors = [replace(p, score=upper_score if p is upper else lower_score) for p in first.poses]
+        again = perceiver.perceive(views, priors=priors, prior_map=first.map_points)
+        err = _found(inventory, again.poses, leaning)
+        assert max(err) < 0.1 and len(again.poses) == 2, (upper_score, err, len(again.poses))
