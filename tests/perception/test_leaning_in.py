@@ -28,10 +28,15 @@ def leaning(inventory, cell):
     return [(BOWL, lower), (BOWL, upper)]
 
 
-def _found(inventory, poses, placed) -> list[float]:
+def _found(inventory, poses, placed) -> float:
+    """ADI / diameter of the bowl poses matched one-to-one to the two bowls placed, the worse of the two (9 when
+    there are not two bowl poses: ADI alone forgives the upper bowl's pose as the lower one's, 0.085)."""
+    bowls = [po for po in poses if po.obj_id == BOWL]
+    if len(bowls) != 2:
+        return 9.0
     d = inventory[BOWL].diameter
-    return [min([adi(po.T_base_obj, T, inventory[BOWL].points) / d for po in poses if po.obj_id == BOWL] or [9.0])
-            for _, T in placed]
+    E = np.array([[adi(po.T_base_obj, T, inventory[BOWL].points) / d for po in bowls] for _, T in placed])
+    return float(min(max(E[0, 0], E[1, 1]), max(E[0, 1], E[1, 0])))
 
 
 def test_a_bowl_leaning_steeply_in_a_bowl_leaves_the_lower_one_its_pose(perceiver, inventory, cell, leaning):
@@ -43,12 +48,11 @@ def test_a_bowl_leaning_steeply_in_a_bowl_leaves_the_lower_one_its_pose(perceive
 
     views, _ = render(inventory, leaning, scan_poses(cell), cell, noise=0.002)
     first = perceiver.perceive(views)
-    err = _found(inventory, first.poses, leaning)
-    assert max(err) < 0.1, err
+    assert _found(inventory, first.poses, leaning) < 0.1
     d = inventory[BOWL].diameter
     upper = min(first.poses, key=lambda p: adi(p.T_base_obj, leaning[1][1], inventory[BOWL].points) / d)
     for upper_score, lower_score in ((0.99, 0.9), (0.9, 0.99)):
         priors = [replace(p, score=upper_score if p is upper else lower_score) for p in first.poses]
         again = perceiver.perceive(views, priors=priors, prior_map=first.map_points)
-        err = _found(inventory, again.poses, leaning)
-        assert max(err) < 0.1 and len(again.poses) == 2, (upper_score, err, len(again.poses))
+        # before (upper first): one pose, the upper bowl's
+        assert _found(inventory, again.poses, leaning) < 0.1 and len(again.poses) == 2, upper_score
