@@ -44,6 +44,9 @@ log = logging.getLogger(__name__)
 # Classes whose items nest / stack on copies of themselves (a plate on a plate, a bowl in a bowl, a cup in a
 # cup): what a pose of one of them leaves over is re-fitted at the tight tolerance.
 NESTING_CLASSES = ("plate", "bowl", "cup")
+# rad: the least angle between the axes of two nesting items for one to lean in the other (Perceiver._leaning_in):
+# below it they are stacked or rest one in the other (`_stacked`, `_resting_in`), which use 30 deg
+LEAN_IN_MIN = np.radians(30.0)
 # How far a fit started upright (or upside down) may lean and still count as "near upright" (settled stacks in
 # the simulator lean up to ~30 deg; beyond that the gravity prior is no prior).
 MAX_REST_TILT = np.radians(30)
@@ -432,7 +435,10 @@ class Perceiver:
                     # So does an item of another nesting model resting in or on it (a side plate in a dinner
                     # plate's well, both leaning in a pile): at 1.5 voxels the upper plate "took" the lower
                     # one's visible ring, which lies a few millimetres under the upper one's plane.
-                    if self._stacked(k[0], hyp) or self._resting_in(k[0], hyp):
+                    # So does an item leaning in another one at a steeper angle (a bowl resting 35 deg tilted in a
+                    # bowl): the lower one's visible rim and outer wall lie within 1.5 voxels of the upper one's
+                    # surface, and the lower bowl, fitted and verified, was dropped as the upper one's duplicate.
+                    if self._stacked(k[0], hyp) or self._resting_in(k[0], hyp) or self._leaning_in(k[0], hyp):
                         taken |= self._explained(k[0], P, SURFACE_TOL, self._map_normals(m, own))
                     else:
                         taken |= self._explained(k[0], P)
@@ -957,6 +963,21 @@ class Perceiver:
             return False
         d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
         return float(np.linalg.norm(d - (d @ z) * z)) < 0.5 * min(ma.diameter, mb.diameter)
+
+    def _leaning_in(self, a: Hypothesis, b: Hypothesis) -> bool:
+        """Two poses of nesting classes (plates, bowls, cups; one model or two) whose axes are LEAN_IN_MIN or more
+        apart, where `_stacked` and `_resting_in` do not look, and one of whose centres lies under half the smaller
+        diameter from the other's axis: one leans in the other (a bowl resting 35 deg tilted in a bowl, a cup
+        lying in a bowl). Whether one is a second fit of the other is judged by the points, as for those."""
+        ma, mb = self.inventory[a.obj_id], self.inventory[b.obj_id]
+        if ma.cls not in NESTING_CLASSES or mb.cls not in NESTING_CLASSES:
+            return False
+        za, zb = a.T_base_obj[:3, 2], b.T_base_obj[:3, 2]
+        if abs(za @ zb) >= np.cos(LEAN_IN_MIN):
+            return False
+        d = b.T_base_obj[:3, 3] - a.T_base_obj[:3, 3]
+        across = min(float(np.linalg.norm(d - (d @ z) * z)) for z in (za, zb))
+        return across < 0.5 * min(ma.diameter, mb.diameter)
 
     def _explained(self, hyp: Hypothesis, points: np.ndarray, voxels: float = 1.5,
                    normals: np.ndarray | None = None) -> np.ndarray:
