@@ -340,6 +340,27 @@ def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: 
     return traj, Q[-1], T_end, T1
 
 
+def _leaning_over(planner, target: ObjectPose, others: list[ObjectPose]) -> list[ObjectPose]:
+    """The leaning items (tilted within LEANING) touching `target` (within NEAR_GAP) whose base stands higher."""
+    z = float(np.asarray(target.T_base_obj, float)[2, 3])
+    out = []
+    for o in others:
+        T = np.asarray(o.T_base_obj, float)
+        if o.obj_id not in planner.inventory.models or T[2, 3] <= z:
+            continue
+        if not LEANING[0] <= np.arccos(min(abs(T[2, 2]), 1.0)) <= LEANING[1]:
+            continue
+        if _gap(planner, target, o) <= NEAR_GAP:
+            out.append(o)
+    return out
+
+
+def _gap(planner, a: ObjectPose, b: ObjectPose) -> float:
+    return float(coal.distance(planner.world.bvh(planner.inventory[a.obj_id]), coal_transform(a.T_base_obj),
+                               planner.world.bvh(planner.inventory[b.obj_id]), coal_transform(b.T_base_obj),
+                               coal.DistanceRequest(), coal.DistanceResult()))
+
+
 def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: ObjectPose, *,
                map_points: np.ndarray | None = None, distance: float = 0.06,
                then_pickable: bool = True, off=()) -> SlidePlan | PlanningFailure:
@@ -361,6 +382,13 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
         # simulator stops the arm): the item on top goes first (the middle plate of a stack is slid after the top one)
         f = CartesianPathFailed(f"slide: the {on_it[0].cls} lies on the item", {"segment": "slide"})
         planner._report_blocking(f, target, objects, on_it)
+        return f
+    leaned = _leaning_over(planner, target, others)
+    if leaned:
+        # two leaning items that touch: which one carries the other is not resolved by their fitted poses (the
+        # higher one may rest on this one), and a loaded item is not pushed
+        f = CartesianPathFailed(f"slide: the {leaned[0].cls} leaning on it may rest on it", {"segment": "slide"})
+        planner._report_blocking(f, target, objects, leaned)
         return f
     presses = press_points(model, target.T_base_obj, planner.cell.sink_interior)
     if not presses:
