@@ -172,12 +172,17 @@ def _nested(T_base_a: np.ndarray, T_base_b: np.ndarray) -> bool:
     return float(T_base_a[:3, 2] @ T_base_b[:3, 2]) >= np.cos(NESTED_AXES)
 
 
+def _leaning(T_base_obj: np.ndarray) -> bool:
+    """Whether the item's axis is tilted within LEANING (either way up)."""
+    return bool(LEANING[0] <= np.arccos(min(abs(float(T_base_obj[2, 2])), 1.0)) <= LEANING[1])
+
+
 def slide_directions(planner, target: ObjectPose, others: list, distance: float) -> list[tuple[np.ndarray, float]]:
     """(unit direction, clearance) of each of 8 horizontal directions the item can slide `distance` along:
     it stays inside the sink (WALL_ROOM from each wall; from a wall it already lies nearer than that, no nearer than
     it starts: a slide along that wall, the only way out for an item wedged between the wall and a neighbour),
-    touches nothing it does not already touch and ends farther from the centre of each item it lies nested on. Most
-    room first."""
+    touches nothing it does not already touch and ends farther from the centre of each item it lies on (a leaning
+    item: each it lies nested on). Most room first."""
     model = planner.inventory[target.obj_id]
     T0 = np.asarray(target.T_base_obj, float)
     V = np.asarray(model.mesh.vertices) @ T0[:3, :3].T + T0[:3, 3]
@@ -197,12 +202,13 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
     # it lies on than it starts. Those items are passed over by the contact test above, so without this a slide
     # back towards the middle of the plate below passed as "free" (a second slide undid the first and left the
     # plate squarely nested again).
-    # Only the items it lies NESTED on (the same way up, axes within NESTED_AXES): a plate leaning on the rim of a
-    # flat one is not nested on it, and the slide that frees it (along its lean, level) may pass nearer that one's
-    # centre (before, such a plate had no direction left: every way out went nearer the centre of one item or
-    # another it touched).
+    # A LEANING item (tilted within LEANING) keeps this only for the items it lies NESTED on (the same way up, axes
+    # within NESTED_AXES): a plate leaning on the rim of a flat one is not nested on it, and the slide that frees it
+    # (along its lean, level) may pass nearer that one's centre (before, such a plate had no direction left: every
+    # way out went nearer the centre of one item or another it touched). Every other item keeps it for all it lies
+    # on: a cup lying across a plate's rim slid towards that plate's centre climbs its rim.
     under = [np.asarray(o.T_base_obj, float)[:2, 3] for o in others
-             if planner._lies_on(target, o) and _nested(T0, np.asarray(o.T_base_obj, float))]
+             if planner._lies_on(target, o) and not (_leaning(T0) and not _nested(T0, np.asarray(o.T_base_obj, float)))]
     sides0 = _wall_rooms(V, lo, hi)
     out = []
     for a in np.radians(np.arange(0, 360, 45)):
@@ -348,7 +354,7 @@ def _leaning_over(planner, target: ObjectPose, others: list[ObjectPose]) -> list
         T = np.asarray(o.T_base_obj, float)
         if o.obj_id not in planner.inventory.models or T[2, 3] <= z:
             continue
-        if not LEANING[0] <= np.arccos(min(abs(T[2, 2]), 1.0)) <= LEANING[1]:
+        if not _leaning(T):
             continue
         if _gap(planner, target, o) <= NEAR_GAP:
             out.append(o)
