@@ -52,12 +52,15 @@ def press_point(model, T_base_obj: np.ndarray) -> np.ndarray | None:
 PRESS_SHIFTS = (0.02, 0.035)  # m off the centre, along the item's level axes, where the fingers may press too
 PRESS_LEVEL = 0.008  # m: such a point is on the item's top, at most this far below the centre's
 PRESS_FARTHER, PRESS_EXTRA = 0.01, 2  # m farther from the walls than the centre, and how many such points at most
+LEANING = np.radians((15.0, 75.0))  # rad: an item whose axis is tilted this much leans (a plate against a wall)
 
 
 def press_points(model, T_base_obj: np.ndarray, sink_lo_hi=None) -> list[np.ndarray]:
     """Top surface points (base frame) to press on: where the vertical line through the item's centre meets it,
     then (for a lying cup whose centre is too near a wall for the palm above it) points PRESS_SHIFTS along each of
-    its axes that lies about level, on its top as high as the centre's (within PRESS_LEVEL); with `sink_lo_hi`,
+    its axes that lies about level, on its top as high as the centre's (within PRESS_LEVEL), and (for a leaning
+    item, tilted within LEANING) points PRESS_SHIFTS down its slope, lower than the centre: above its centre the
+    palm meets what leans on the wall behind it (the plate it leans on); with `sink_lo_hi`,
     only those PRESS_FARTHER or more farther from the basin's walls than the centre, farthest first, at most
     PRESS_EXTRA. [] when the centre's line misses the item."""
     scene = o3d.t.geometry.RaycastingScene()
@@ -74,12 +77,20 @@ def press_points(model, T_base_obj: np.ndarray, sink_lo_hi=None) -> list[np.ndar
             continue
         a /= np.linalg.norm(a)
         xy += [c[:2] + sgn * r * a[:2] for r in PRESS_SHIFTS for sgn in (1.0, -1.0)]
+    n_up = T[:3, 2] if T[2, 2] >= 0.0 else -T[:3, 2]
+    down = np.array([n_up[0], n_up[1]])  # level, down the slope of its top
+    leaning = LEANING[0] <= np.arccos(np.clip(n_up[2], -1.0, 1.0)) <= LEANING[1]
+    if leaning:
+        xy += [c[:2] + r * down / np.linalg.norm(down) for r in PRESS_SHIFTS]
+    n_slope = len(PRESS_SHIFTS) if leaning else 0
     rays = np.array([[x, y, c[2] + 0.3, 0.0, 0.0, -1.0] for x, y in xy], np.float32)
     t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
     if not np.isfinite(t[0]):
         return []
-    pts = [np.array([x, y, c[2] + 0.3 - ti]) for (x, y), ti in zip(xy, t) if np.isfinite(ti)]
-    out, rest = pts[:1], [p for p in pts[1:] if p[2] >= pts[0][2] - PRESS_LEVEL]
+    hits = [(k >= len(xy) - n_slope, np.array([x, y, c[2] + 0.3 - ti]))
+            for k, ((x, y), ti) in enumerate(zip(xy, t)) if np.isfinite(ti)]
+    out = [hits[0][1]]
+    rest = [p for slope, p in hits[1:] if slope or p[2] >= out[0][2] - PRESS_LEVEL]
     if sink_lo_hi is None:
         return out + rest
 
@@ -153,12 +164,25 @@ def _wall_rooms(V: np.ndarray, lo, hi) -> np.ndarray:
                            np.asarray(hi, float)[:2] - np.max(V[:, :2], axis=0)])
 
 
+NESTED_AXES = np.radians(30.0)  # rad: an item lying on another with axes this close lies nested on it
+
+
+def _nested(T_base_a: np.ndarray, T_base_b: np.ndarray) -> bool:
+    """Whether the items at these poses are the same way up, their axes within NESTED_AXES (a stack's plates)."""
+    return float(T_base_a[:3, 2] @ T_base_b[:3, 2]) >= np.cos(NESTED_AXES)
+
+
+def _leaning(T_base_obj: np.ndarray) -> bool:
+    """Whether the item's axis is tilted within LEANING (either way up)."""
+    return bool(LEANING[0] <= np.arccos(min(abs(float(T_base_obj[2, 2])), 1.0)) <= LEANING[1])
+
+
 def slide_directions(planner, target: ObjectPose, others: list, distance: float) -> list[tuple[np.ndarray, float]]:
     """(unit direction, clearance) of each of 8 horizontal directions the item can slide `distance` along:
     it stays inside the sink (WALL_ROOM from each wall; from a wall it already lies nearer than that, no nearer than
     it starts: a slide along that wall, the only way out for an item wedged between the wall and a neighbour),
-    touches nothing it does not already touch and ends farther from the centre of each item it lies on. Most room
-    first."""
+    touches nothing it does not already touch and ends farther from the centre of each item it lies on (a leaning
+    item: each it lies nested on). Most room first."""
     model = planner.inventory[target.obj_id]
     T0 = np.asarray(target.T_base_obj, float)
     V = np.asarray(model.mesh.vertices) @ T0[:3, :3].T + T0[:3, 3]
@@ -178,7 +202,13 @@ def slide_directions(planner, target: ObjectPose, others: list, distance: float)
     # it lies on than it starts. Those items are passed over by the contact test above, so without this a slide
     # back towards the middle of the plate below passed as "free" (a second slide undid the first and left the
     # plate squarely nested again).
-    under = [np.asarray(o.T_base_obj, float)[:2, 3] for o in others if planner._lies_on(target, o)]
+    # A LEANING item (tilted within LEANING) keeps this only for the items it lies NESTED on (the same way up, axes
+    # within NESTED_AXES): a plate leaning on the rim of a flat one is not nested on it, and the slide that frees it
+    # (along its lean, level) may pass nearer that one's centre (before, such a plate had no direction left: every
+    # way out went nearer the centre of one item or another it touched). Every other item keeps it for all it lies
+    # on: a cup lying across a plate's rim slid towards that plate's centre climbs its rim.
+    under = [np.asarray(o.T_base_obj, float)[:2, 3] for o in others
+             if planner._lies_on(target, o) and not (_leaning(T0) and not _nested(T0, np.asarray(o.T_base_obj, float)))]
     sides0 = _wall_rooms(V, lo, hi)
     out = []
     for a in np.radians(np.arange(0, 360, 45)):
@@ -316,6 +346,27 @@ def _slide_path(planner, scene, q_press, T_press, target, d, distance, support: 
     return traj, Q[-1], T_end, T1
 
 
+def _leaning_over(planner, target: ObjectPose, others: list[ObjectPose]) -> list[ObjectPose]:
+    """The leaning items (tilted within LEANING) touching `target` (within NEAR_GAP) whose base stands higher."""
+    z = float(np.asarray(target.T_base_obj, float)[2, 3])
+    out = []
+    for o in others:
+        T = np.asarray(o.T_base_obj, float)
+        if o.obj_id not in planner.inventory.models or T[2, 3] <= z:
+            continue
+        if not _leaning(T):
+            continue
+        if _gap(planner, target, o) <= NEAR_GAP:
+            out.append(o)
+    return out
+
+
+def _gap(planner, a: ObjectPose, b: ObjectPose) -> float:
+    return float(coal.distance(planner.world.bvh(planner.inventory[a.obj_id]), coal_transform(a.T_base_obj),
+                               planner.world.bvh(planner.inventory[b.obj_id]), coal_transform(b.T_base_obj),
+                               coal.DistanceRequest(), coal.DistanceResult()))
+
+
 def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: ObjectPose, *,
                map_points: np.ndarray | None = None, distance: float = 0.06,
                then_pickable: bool = True, off=()) -> SlidePlan | PlanningFailure:
@@ -337,6 +388,13 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
         # simulator stops the arm): the item on top goes first (the middle plate of a stack is slid after the top one)
         f = CartesianPathFailed(f"slide: the {on_it[0].cls} lies on the item", {"segment": "slide"})
         planner._report_blocking(f, target, objects, on_it)
+        return f
+    leaned = _leaning_over(planner, target, others)
+    if leaned:
+        # two leaning items that touch: which one carries the other is not resolved by their fitted poses (the
+        # higher one may rest on this one), and a loaded item is not pushed
+        f = CartesianPathFailed(f"slide: the {leaned[0].cls} leaning on it may rest on it", {"segment": "slide"})
+        planner._report_blocking(f, target, objects, leaned)
         return f
     presses = press_points(model, target.T_base_obj, planner.cell.sink_interior)
     if not presses:
