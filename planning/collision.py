@@ -405,33 +405,32 @@ class _ExplainMemo:
         """(explain radius, own reach) of an object whose observed points are `ip`: FIT_SPREAD x the 90th percentile
         of their distances to its fitted surface, within [FIT_RADIUS_MIN, `explain_radius`] and [FIT_RADIUS_MIN,
         `reach`], rounded up to FIT_RADIUS_STEP (see FIT_SPREAD)."""
+        d = self._own_distances(o, ip)[1]
+        spread = max(FIT_RADIUS_MIN, np.ceil(FIT_SPREAD * float(np.percentile(d, 90)) / FIT_RADIUS_STEP - 1e-9)
+                     * FIT_RADIUS_STEP)
+        return min(explain_radius, spread), min(reach, spread)
+
+    def _own_distances(self, o: SceneObject, ip) -> tuple[np.ndarray, np.ndarray]:
+        """(points in the object frame, distances to its model surface) of an instance's points `ip` (base frame),
+        kept per (points, model, pose): the fit radii and the own points near the model at every reach read the
+        same distances (each point's own query: the same number as computed alone or with others)."""
         ip = np.asarray(ip, float).reshape(-1, 3)
         T = np.asarray(o.T_base_obj, float)
-        key = ("fit", _digest(ip), id(o.model.mesh), T.tobytes())
+        key = ("dist", _digest(ip), id(o.model.mesh), T.tobytes())
         hit = self._near.get(key)
         if hit is None or hit[0] is not o.model.mesh:
-            d = _surface_distance(o.model, (ip - T[:3, 3]) @ T[:3, :3])
+            il = (ip - T[:3, 3]) @ T[:3, :3]
             if len(self._near) > 64:
                 self._near.clear()
-            hit = self._near[key] = (o.model.mesh, FIT_SPREAD * float(np.percentile(d, 90)))
-        spread = max(FIT_RADIUS_MIN, np.ceil(hit[1] / FIT_RADIUS_STEP - 1e-9) * FIT_RADIUS_STEP)
-        return min(explain_radius, spread), min(reach, spread)
+            hit = self._near[key] = (o.model.mesh, il, _surface_distance(o.model, il) if len(il) else np.zeros(0))
+        return hit[1], hit[2]
 
     def own_points_near(self, o: SceneObject, ip, lo: np.ndarray, hi: np.ndarray, reach: float) -> np.ndarray:
         """The instance's points `ip` (base frame) within `reach` of the object's model surface."""
         ip = np.asarray(ip, float).reshape(-1, 3)
-        T = np.asarray(o.T_base_obj, float)
-        key = (_digest(ip), id(o.model.mesh), T.tobytes(), float(reach))
-        hit = self._near.get(key)
-        if hit is None or hit[0] is not o.model.mesh:
-            il = (ip - T[:3, 3]) @ T[:3, :3]
-            inb = np.all((il >= lo - reach) & (il <= hi + reach), axis=1)
-            ip, il = ip[inb], il[inb]
-            near = ip[_surface_distance(o.model, il) <= reach] if len(ip) else ip
-            if len(self._near) > 64:
-                self._near.clear()
-            hit = self._near[key] = (o.model.mesh, near)
-        return hit[1]
+        il, d = self._own_distances(o, ip)
+        inb = np.all((il >= lo - reach) & (il <= hi + reach), axis=1)  # farther than `reach` from the surface
+        return ip[inb & (d <= reach)]
 
 
 _EXPLAIN_MEMO = _ExplainMemo()

@@ -158,8 +158,10 @@ class Planner:
         points were mapped where they were before the pick). `own`: the only objects whose observed points
         explain themselves where their fitted model does not cover them (the grasp target, the held item;
         None: every object, see CollisionWorld.explained); a neighbour's points off its model stay obstacles."""
-        explainers = list(objects) + [o for o in (exclude, held.obj if held is not None else None)
-                                      if o is not None and not any(o is x for x in objects)]
+        explainers = list(objects)
+        for o in (exclude, held.obj if held is not None else None):  # each once: the held item is often `exclude`
+            if o is not None and not any(o is x for x in explainers):
+                explainers.append(o)
         known = [o for o in explainers if o.obj_id in self.inventory.models]
         voxels = self._voxels(map_points, known, own)
         objs = self._scene_objects(objects, exclude=exclude)
