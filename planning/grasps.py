@@ -31,9 +31,9 @@ from kitchenbot.planning.types import (
     NoIK,
     PlanningFailure,
 )
-from kitchenbot.transforms import make_T, rot_y, trans
+from kitchenbot.transforms import from_rotvec, make_T, rot_y, trans
 from kitchenbot.world.gripper import PAD_DEPTH
-from kitchenbot.world.inventory import GraspSpec, Inventory, grasp_base_name, tilted_name
+from kitchenbot.world.inventory import GraspSpec, Inventory, grasp_base_name, spun_name, tilted_name
 
 
 def too_hidden(o: ObjectPose, settings) -> bool:
@@ -62,6 +62,7 @@ class GraspStats:
     empty_grip: int = 0  # feasible, but none of the item's observed points lies between the pads (ranked last)
     pad_contact: int = 0  # feasible with the pads brushing a neighbour within their give (ranked after clear ones)
     swivelled: int = 0  # collision-free only swivelled about its closing axis (second pass, SWIVELS)
+    spun: int = 0  # found only with the grasps turned about a round item's axis between their copies (SPIN_STEPS)
     # perceived objects (names) the rejected grasps collided with or took in, and how often; filled only when no
     # grasp is feasible (what crowds the item: Planner.plan_pick names the most frequent one as its blocker)
     crowded_by: dict = field(default_factory=dict)
@@ -254,6 +255,56 @@ def _expansion(model) -> tuple[list, frozenset]:
     return out, frozenset(steep)
 
 
+# Turns about a round item's axis, as fractions of the angle between neighbouring copies of its grasps, tried in
+# turn when no grasp of it fits as given (select_grasps' last pass): half way between the copies, then a quarter
+# either side.
+SPIN_STEPS = (0.5, 0.25, -0.25)
+_spins: dict[int, tuple] = {}  # id(model) -> (model, angle between neighbouring grasp copies)
+
+
+def copy_spacing(model) -> float:
+    """The largest angle (rad) about a round model's symmetry axis between neighbouring azimuths of its grasps
+    (each grasp's TCP point about the axis; its closing direction for one on the axis): the predefined copies of a
+    pinch sit this far apart round the rim (0 for a model with no grasps)."""
+    hit = _spins.get(id(model))
+    if hit is not None and hit[0] is model:
+        return hit[1]
+    sym = model.symmetries_continuous[0]
+    a = np.asarray(sym["axis"], float)
+    a /= np.linalg.norm(a)
+    c = np.asarray(sym.get("offset", (0.0, 0.0, 0.0)), float)
+    u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(a, u)
+    az = []
+    for g in model.grasps:
+        p = g.T_obj_tcp[:3, 3] - c
+        p = p - (p @ a) * a
+        if np.linalg.norm(p) < 0.01:
+            p = g.T_obj_tcp[:3, 1]
+        az.append(np.arctan2(p @ v, p @ u) % (2 * np.pi))
+    az = np.unique(np.round(np.sort(az), 3))
+    gap = float(np.max(np.diff(np.append(az, az[0] + 2 * np.pi)))) if len(az) > 1 else 0.0
+    if len(_spins) > 256:
+        _spins.clear()
+    _spins[id(model)] = (model, gap)
+    return gap
+
+
+def spun_grasps(model, frac: float) -> list:
+    """expand_grasps(model) turned about the round model's symmetry axis by `frac` of copy_spacing (the item
+    turned under them: perception cannot tell a round item's turn about its axis, so where its grasp copies sit
+    round the rim is arbitrary, and a free gap between neighbours narrower than their spacing may hold none)."""
+    angle = frac * copy_spacing(model)
+    if angle == 0.0:
+        return []
+    sym = model.symmetries_continuous[0]
+    a = np.asarray(sym["axis"], float)
+    c = np.asarray(sym.get("offset", (0.0, 0.0, 0.0)), float)
+    S = trans(*c) @ from_rotvec(a / np.linalg.norm(a) * angle) @ trans(*-c)
+    return [GraspSpec(spun_name(g.name, angle), S @ g.T_obj_tcp, g.opening, g.width) for g in expand_grasps(model)]
+
+
 def _observed_near(o: ObjectPose, objects: Sequence[ObjectPose], reach: float = 0.25) -> np.ndarray:
     """The observed points (base frame) of `o` and of every perceived object within `reach` of it."""
     c = np.asarray(o.T_base_obj, float)[:3, 3]
@@ -342,6 +393,7 @@ def select_grasps(
     limit: int | None = None,
     avoid: Sequence[str] = (),
     q_rest: np.ndarray | None = None,
+    spin: float = 0.0,
 ) -> list[Grasp] | PlanningFailure:
     """Ranked feasible grasps (best first), or the failure that explains why there are none.
 
@@ -353,6 +405,8 @@ def select_grasps(
     with their tilted variants (expand_grasps): a grasp that closed on nothing closes on nothing tilted by 5 degrees.
     `q_rest`: where the arm comes back to after the item (RobotModel.wrap_round_trip): each IK branch's joints
     turned by whole turns for the shortest way out from `q_current` and back there.
+    `spin`: only round items, their grasps turned about the axis by this fraction of their spacing (spun_grasps;
+    the last pass, where none fits as given, tries SPIN_STEPS).
     """
     st = stats or GraspStats()
     gripper = scene.world.gripper
@@ -378,7 +432,7 @@ def select_grasps(
             model = inventory[o.obj_id]
         except KeyError:
             continue
-        specs = expand_grasps(model)
+        specs = expand_grasps(model) if not spin else spun_grasps(model, spin) if model.is_rotationally_symmetric else []
         if not specs:
             continue
         any_model = True
@@ -555,6 +609,19 @@ def select_grasps(
     if out:
         out.sort(key=lambda g: -g.score)
         return out
+    # Last pass, only where nothing fits even swivelled: a round item's grasps turned about its axis between their
+    # copies (spun_grasps), every check run again. Its turn about the axis is unobservable, so which rim positions
+    # its copies land on is chance; where a neighbour leaves a free window narrower than their spacing, it holds a
+    # copy only for some turns. The failure reported stays that of the grasps as given.
+    if not spin and any(inventory.models.get(o.obj_id) is not None and inventory.models[o.obj_id].is_rotationally_symmetric
+                        and not too_hidden(o, settings) for _, o in cands):
+        for frac in SPIN_STEPS:
+            res = select_grasps(robot, scene, inventory, objects, q_current, settings=settings, target=target,
+                                grasp_filter=grasp_filter, limit=limit, avoid=avoid, q_rest=q_rest, spin=frac)
+            if not isinstance(res, PlanningFailure):
+                st.spun += 1
+                st.feasible += len(res)
+                return res
     st.crowded_by = _crowded_by(scenes, names, collided, taken, objects)
     details = st.__dict__.copy()
     if not any_model or st.considered == 0:

@@ -47,8 +47,10 @@ class GraspSpec:
 
 
 # A grasp's name says where it came from: ``kind_NN`` is copy NN of one grasp turned about a round item's axis (the
-# same pinch, elsewhere round the rim), and ``<grasp>_tilt+15`` is a grasp tilted about its closing axis by planning.
+# same pinch, elsewhere round the rim), ``<grasp>_tilt+15`` is a grasp tilted about its closing axis by planning, and
+# ``<grasp>_spin+15`` one turned about a round item's axis by planning (between the copies).
 TILT_TAG = "_tilt"
+SPIN_TAG = "_spin"
 
 
 def tilted_name(name: str, tilt: float) -> str:
@@ -56,9 +58,14 @@ def tilted_name(name: str, tilt: float) -> str:
     return f"{name}{TILT_TAG}{np.degrees(tilt):+.0f}"
 
 
+def spun_name(name: str, spin: float) -> str:
+    """The name of grasp `name` turned by `spin` (radians) about its round item's axis."""
+    return f"{name}{SPIN_TAG}{np.degrees(spin):+.0f}"
+
+
 def grasp_base_name(name: str) -> str:
-    """The grasp a tilted variant was made from (`name` itself when it is not tilted)."""
-    return name.split(TILT_TAG)[0]
+    """The grasp a tilted or spun variant was made from (`name` itself when it is neither)."""
+    return name.split(TILT_TAG)[0].split(SPIN_TAG)[0]
 
 
 def grasp_kind(name: str) -> str | None:

@@ -47,14 +47,16 @@ def test_simulated_gripper_holds_the_plate_with_a_narrow_pinch(name, grasps_hold
     grasps_hold(name, "rimnarrow", 5)
 
 
-def test_a_plate_leaning_on_a_basin_wall_is_picked_with_a_narrow_pinch(planner, home):
+def test_a_plate_leaning_on_a_basin_wall_is_picked_with_a_narrow_pinch(planner, home, monkeypatch):
     plate = _leaning(planner, "side_plate", 0.43, 67.0)
     pick = planner.plan_pick(home, [plate], target=plate)
     assert pick.ok, str(pick)
     assert pick.grasp.spec.name.startswith("rimnarrow"), pick.grasp.spec.name
     checker = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
     assert all(r.ok for _, r in verify_pick(checker, planner, pick, [plate], step=0.003))
-    # without the narrow pinches every grasp collides with the wall (the cause)
+    # without the narrow pinches every grasp as given collides with the wall (the cause; without the last pass,
+    # which turns a round item's grasps between their copies where none fits)
+    monkeypatch.setattr(grasps_mod, "SPIN_STEPS", ())
     m = planner.inventory.by_name("side_plate")
     saved = m.grasps
     try:
