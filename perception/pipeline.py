@@ -35,7 +35,8 @@ from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (continuation, facing_unclaimed, filled, fine_fit, fine_tolerance, intruded,
-                                          overhang, patch_normals, surface_noise, verify, within_wall)
+                                          overhang, overhang_area, patch_normals, surface_noise, verify,
+                                          within_wall)
 from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
 
@@ -705,7 +706,8 @@ class Perceiver:
             near = self._explained_near(m, tree, hyp, found)
             hyp.verification.filled = self._filled(near, hyp, own)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
-            hyp.verification.overhang = self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
+            hyp.verification.overhang, hyp.verification.overhang_area = \
+                self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
             hyp.verification.intruded = self._intruded(m, tree, tol, hyp, found, T_fine)
 
     def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
@@ -794,17 +796,20 @@ class Perceiver:
             return 0.0
         return filled(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
 
-    def _overhang(self, near: tuple[np.ndarray, np.ndarray], hyp: Hypothesis, own: np.ndarray) -> float:
-        """verify.overhang for a pose of a tall vessel that does not stand on its base (axis over 45 deg from
-        up): map points in its base's plane just past its edge that no pose explains (`near`:
-        `_explained_near`). A standing vessel's base rests on something (a plate, a board), whose surface goes
-        on past the edge."""
+    def _overhang(self, near: tuple[np.ndarray, np.ndarray], hyp: Hypothesis,
+                  own: np.ndarray) -> tuple[float, float]:
+        """verify.overhang and verify.overhang_area for a pose of a tall vessel that does not stand on its base
+        (axis over 45 deg from up): map points in its base's plane just past its edge that no pose explains
+        (`near`: `_explained_near`), per point of its own and as the area they cover. A standing vessel's base
+        rests on something (a plate, a board), whose surface goes on past the edge."""
         up = self._up()
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
         P, explained = near
         if hyp.T_base_obj[:3, 2] @ up >= np.cos(np.radians(45)) or len(P) == 0:
-            return 0.0
-        return overhang(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
+            return 0.0, 0.0
+        model_points = self.inventory[hyp.obj_id].points
+        return (overhang(P, model_points, hyp.T_base_obj, explained, len(own)),
+                overhang_area(P, model_points, hyp.T_base_obj, explained))
 
     def _intruded(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis,
                   found: list[tuple[Hypothesis, int, np.ndarray]], T_fine: np.ndarray | None = None) -> float:

@@ -463,3 +463,35 @@ def test_two_vessels_turned_opposite_ways_through_each_other_vouch_for_nothing(p
         perceiver._fine_check(m, [(a, 0, own_a), (b, 1, own_b)])
         assert (a.verification.score >= thr) == both_pass, (both_pass, a.verification)
         assert (b.verification.score >= thr) == both_pass, (both_pass, b.verification)
+
+
+def test_a_lid_seen_at_a_slant_past_a_lying_glass_base_rejects_it(perceiver, inventory):
+    """A glass fitted lying along a drink can wider than its base: the can's side gives the glass thousands of
+    points of its own, and the can's lid, a flat disc 12 mm wider than the glass's base in the base's plane, seen
+    at a slant from a camera facing the base end, a few hundred spread over the ring past the base's edge. Per
+    point of its own the overhang is small (under 0.15: the pose passed); the area it covers is most of the
+    base's area, and the pose is rejected. The same glass with only a neighbour's edge on one side of its base
+    (a patch of the ring, 2 cm wide) passes."""
+    from kitchenbot.perception.map import InstanceMap
+    from kitchenbot.perception.register import Hypothesis
+    from kitchenbot.perception.verify import Verification
+
+    model = inventory[6]  # the glass
+    T = make_T(rot_x(np.pi / 2)[:3, :3], np.array([0.4, 0.0, 0.05]))  # lying: axis along -y
+    own, _ = _cup_surface(perceiver.database[6], T, 0.0005)
+    z0 = model.points[:, 2].min()
+    r_base = np.linalg.norm(model.points[model.points[:, 2] < z0 + 0.005, :2]
+                            - np.median(model.points[:, :2], axis=0), axis=1).max()
+    lid = _disk(r_base + 0.012, z0, n=400)
+    lid = lid[np.linalg.norm(lid[:, :2], axis=1) > r_base]  # the lid's part past the glass's base
+    edge = _disk(r_base + 0.012, z0, n=3000)
+    edge = edge[(edge[:, 0] > r_base) & (np.abs(edge[:, 1]) < 0.01)]  # a neighbour's edge on one side only
+    for extra, passes in ((lid, False), (edge, True), (np.zeros((0, 3)), True)):
+        points = np.vstack([own, extra @ T[:3, :3].T + T[:3, 3]])
+        ids = np.r_[np.zeros(len(own), int), np.ones(len(extra), int)]
+        m = InstanceMap(points, ids, np.zeros(len(points), int), np.zeros((len(points), 2), int),
+                        np.array([[0.4, -0.6, 0.3]]))
+        h = Hypothesis(6, T, verification=Verification(seen=0.9, explained=1.0, free_space=0.0, normals=1.0))
+        perceiver._fine_check(m, [(h, 0, np.nonzero(ids == 0)[0])])
+        assert h.verification.overhang < 0.15, h.verification  # per point of its own: too little to reject
+        assert (h.verification.score >= perceiver.settings.verify_threshold) == passes, (len(extra), h.verification)
