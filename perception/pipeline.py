@@ -526,8 +526,13 @@ class Perceiver:
         tree = cKDTree(m.points)
         while todo:
             alive = [f for k, f in enumerate(found) if k not in failed]
+            # A pose rejected by `overhang_area` alone (a glass fitted along a drink can: its side and its ends
+            # where the model's are, a lid wider than the base) still puts the surface of an item of its length
+            # where it lies: it explains that surface for its neighbours' `continued` (a glass lying against the
+            # can's end is not continued by it), and nothing else.
+            along = [f for k, f in enumerate(found) if k in failed and self._lid_only(f[0])]
             for k in sorted(todo):
-                self._fine_parts(m, tree, tol, found[k][0], found[k][2], alive)
+                self._fine_parts(m, tree, tol, found[k][0], found[k][2], alive, along)
             newly = {k for k, (h, _, _) in enumerate(found) if k not in failed and h.verification is not None
                      and h.verification.score < self.settings.verify_threshold}
             failed |= newly
@@ -674,10 +679,17 @@ class Perceiver:
         return bool(np.linalg.norm(a.T_base_obj[:3, 3] - b.T_base_obj[:3, 3]) <
                     self.inventory[a.obj_id].diameter + self.inventory[b.obj_id].diameter)
 
+    def _lid_only(self, h: Hypothesis) -> bool:
+        """Whether a pose fails the verification by `overhang_area` alone."""
+        v = h.verification
+        return v is not None and v.score < self.settings.verify_threshold and \
+            replace(v, overhang_area=0.0).score >= self.settings.verify_threshold
+
     def _fine_parts(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis, own: np.ndarray,
-                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> None:
+                    found: list[tuple[Hypothesis, int, np.ndarray]],
+                    along: list[tuple[Hypothesis, int, np.ndarray]] = ()) -> None:
         """The `fine`, `continued` and `filled` parts of one pose, with `found` the poses that may explain
-        points near it."""
+        points near it (and `along` those that explain points for `continued` only: `_fine_check`)."""
         if hyp.verification is None or len(own) == 0:
             return
         db = self.database
@@ -700,7 +712,8 @@ class Perceiver:
         hyp.verification.fine, T_fine = fine_fit(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol,
                                                  others, self.inventory[hyp.obj_id].is_rotationally_symmetric)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
-            hyp.verification.continued = self._continued(m, tree, hyp, own, found)
+            hyp.verification.continued = self._continued(m, tree, hyp, own,
+                                                         found + [f for f in along if f[0] is not hyp])
         near = None  # map points near the pose and which of them a pose explains (for filled and overhang)
         if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
             near = self._explained_near(m, tree, hyp, found)
