@@ -35,7 +35,8 @@ from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (continuation, facing_unclaimed, filled, fine_fit, fine_tolerance, intruded,
-                                          overhang, patch_normals, surface_noise, verify, within_wall)
+                                          overhang, overhang_area, patch_normals, surface_noise, verify,
+                                          within_wall)
 from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
 
@@ -525,8 +526,13 @@ class Perceiver:
         tree = cKDTree(m.points)
         while todo:
             alive = [f for k, f in enumerate(found) if k not in failed]
+            # A pose rejected by `overhang_area` alone (a glass fitted along a drink can: its side and its ends
+            # where the model's are, a lid wider than the base) still puts the surface of an item of its length
+            # where it lies: it explains that surface for its neighbours' `continued` (a glass lying against the
+            # can's end is not continued by it), and nothing else.
+            along = [f for k, f in enumerate(found) if k in failed and self._lid_only(f[0])]
             for k in sorted(todo):
-                self._fine_parts(m, tree, tol, found[k][0], found[k][2], alive)
+                self._fine_parts(m, tree, tol, found[k][0], found[k][2], alive, along)
             newly = {k for k, (h, _, _) in enumerate(found) if k not in failed and h.verification is not None
                      and h.verification.score < self.settings.verify_threshold}
             failed |= newly
@@ -673,10 +679,17 @@ class Perceiver:
         return bool(np.linalg.norm(a.T_base_obj[:3, 3] - b.T_base_obj[:3, 3]) <
                     self.inventory[a.obj_id].diameter + self.inventory[b.obj_id].diameter)
 
+    def _lid_only(self, h: Hypothesis) -> bool:
+        """Whether a pose fails the verification by `overhang_area` alone."""
+        v = h.verification
+        return v is not None and v.score < self.settings.verify_threshold and \
+            replace(v, overhang_area=0.0).score >= self.settings.verify_threshold
+
     def _fine_parts(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis, own: np.ndarray,
-                    found: list[tuple[Hypothesis, int, np.ndarray]]) -> None:
+                    found: list[tuple[Hypothesis, int, np.ndarray]],
+                    along: list[tuple[Hypothesis, int, np.ndarray]] = ()) -> None:
         """The `fine`, `continued` and `filled` parts of one pose, with `found` the poses that may explain
-        points near it."""
+        points near it (and `along` those that explain points for `continued` only: `_fine_check`)."""
         if hyp.verification is None or len(own) == 0:
             return
         db = self.database
@@ -699,13 +712,15 @@ class Perceiver:
         hyp.verification.fine, T_fine = fine_fit(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol,
                                                  others, self.inventory[hyp.obj_id].is_rotationally_symmetric)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
-            hyp.verification.continued = self._continued(m, tree, hyp, own, found)
+            hyp.verification.continued = self._continued(m, tree, hyp, own,
+                                                         found + [f for f in along if f[0] is not hyp])
         near = None  # map points near the pose and which of them a pose explains (for filled and overhang)
         if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
             near = self._explained_near(m, tree, hyp, found)
             hyp.verification.filled = self._filled(near, hyp, own)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
-            hyp.verification.overhang = self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
+            hyp.verification.overhang, hyp.verification.overhang_area = \
+                self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
             hyp.verification.intruded = self._intruded(m, tree, tol, hyp, found, T_fine)
 
     def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
@@ -794,17 +809,20 @@ class Perceiver:
             return 0.0
         return filled(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
 
-    def _overhang(self, near: tuple[np.ndarray, np.ndarray], hyp: Hypothesis, own: np.ndarray) -> float:
-        """verify.overhang for a pose of a tall vessel that does not stand on its base (axis over 45 deg from
-        up): map points in its base's plane just past its edge that no pose explains (`near`:
-        `_explained_near`). A standing vessel's base rests on something (a plate, a board), whose surface goes
-        on past the edge."""
+    def _overhang(self, near: tuple[np.ndarray, np.ndarray], hyp: Hypothesis,
+                  own: np.ndarray) -> tuple[float, float]:
+        """verify.overhang and verify.overhang_area for a pose of a tall vessel that does not stand on its base
+        (axis over 45 deg from up): map points in its base's plane just past its edge that no pose explains
+        (`near`: `_explained_near`), per point of its own and as the area they cover. A standing vessel's base
+        rests on something (a plate, a board), whose surface goes on past the edge."""
         up = self._up()
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
         P, explained = near
         if hyp.T_base_obj[:3, 2] @ up >= np.cos(np.radians(45)) or len(P) == 0:
-            return 0.0
-        return overhang(P, self.inventory[hyp.obj_id].points, hyp.T_base_obj, explained, len(own))
+            return 0.0, 0.0
+        model_points = self.inventory[hyp.obj_id].points
+        return (overhang(P, model_points, hyp.T_base_obj, explained, len(own)),
+                overhang_area(P, model_points, hyp.T_base_obj, explained))
 
     def _intruded(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis,
                   found: list[tuple[Hypothesis, int, np.ndarray]], T_fine: np.ndarray | None = None) -> float:

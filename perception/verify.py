@@ -23,10 +23,13 @@ The checks, each a share in [0, 1]:
   Read at the pose `fine_fit` nudged onto the vessel's own points: one resting on its rim, fitted a few
   millimetres off, would otherwise put the surface it rests on inside its wall near the rim.
 - overhang (cups, mugs, glasses not standing): measured points in the plane of the model's base just past its edge
-  that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base.
+  that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base; and the area
+  they cover, over the base's area (`overhang_area`): a lid seen from a camera facing the base end covers the ring
+  all round, however many points the can's side gives the pose.
 
 verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
-1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - intruded / INTRUDED_FULL). Coverage both ways at one
+1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - overhang_area / OVERHANG_AREA_FULL,
+1 - intruded / INTRUDED_FULL). Coverage both ways at one
 voxel (seen, explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
 query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
 evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
@@ -94,6 +97,14 @@ OVERHANG_FULL = 1.0
 # and the depth of its plane (the noise) where a surface going on counts as overhang.
 OVERHANG_BAND = (0.004, 0.02)
 OVERHANG_PLANE = 0.005
+# The overhang area (see `overhang_area`: the base's plane covered in that band, in OVERHANG_VOXEL squares, over
+# the base's area) at which a pose scores 0 (linear from 0 at none); with the threshold 0.85 a pose is rejected
+# above 0.4. Right cups, mugs and glasses not standing: 0-0.32 (an upside-down cup with a neighbour's rim in the
+# plane of its base); glasses fitted lying or upside down on drink cans 0.42-1.02, whose per-point overhang was
+# 0.01-0.14 (the can's side gives thousands of own points, its lid, seen at a slant, a few hundred; development
+# and reproduction scenes with distractors, docs/perception_measurements.md "twenty-sixth session: can26").
+OVERHANG_AREA_FULL = 0.4 / 0.15
+OVERHANG_VOXEL = 0.005
 # Inside the wall by this much (metres; the wall's thickness and the fit's error) counts as the vessel's cavity.
 CAVITY_MARGIN = 0.006
 # The intruded share (see `intruded`: the area of other surfaces inside the cavity over the opening's area) at
@@ -119,13 +130,14 @@ class Verification:
     filled: float = 0.0  # set by the pipeline on the final poses of open vessels (filled)
     overhang: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang)
     intruded: float = 0.0  # set by the pipeline on the final poses of tall vessels not facing up (intruded)
+    overhang_area: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang_area)
     normals_segment: float | None = None  # `normals` as judged on the whole segment (the pipeline's fine check
     # may raise `normals` to its value over the points no other pose explains: facing_unclaimed)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
                 "fine": self.fine, "continued": self.continued, "filled": self.filled, "overhang": self.overhang,
-                "intruded": self.intruded}
+                "intruded": self.intruded, "overhang_area": self.overhang_area}
 
     @property
     def score(self) -> float:
@@ -133,7 +145,8 @@ class Verification:
         through = self.free_space / judged if judged > 0 else 1.0
         return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL,
                             1.0 - self.continued / CONTINUED_FULL, 1.0 - self.filled / FILLED_FULL,
-                            1.0 - self.overhang / OVERHANG_FULL, 1.0 - self.intruded / INTRUDED_FULL))
+                            1.0 - self.overhang / OVERHANG_FULL, 1.0 - self.overhang_area / OVERHANG_AREA_FULL,
+                            1.0 - self.intruded / INTRUDED_FULL))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
@@ -372,11 +385,36 @@ def overhang(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarra
     on past the edge in the same plane: the segment is wider there than the model."""
     if n_own == 0 or len(points) == 0:
         return 0.0
+    return float(_overhang_ring(points, model_points, T_base_obj, explained, band, plane)[0].sum() / n_own)
+
+
+def overhang_area(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
+                  band: tuple[float, float] = OVERHANG_BAND, plane: float = OVERHANG_PLANE,
+                  voxel: float = OVERHANG_VOXEL) -> float:
+    """The points `overhang` counts, as the area they cover in the base's plane (`voxel` squares across the
+    axis), over the base's area. Per point of the pose's own, a drink can's lid wider than a glass's base is
+    diluted by the can's side, which the glass explains (thousands of points), while the lid, seen at a slant
+    from a camera facing the base end, gives a few hundred; but it covers the ring past the base's edge all
+    round, where beside a real vessel's base there is empty space or, on one side, a neighbour."""
+    ring, q = _overhang_ring(points, model_points, T_base_obj, explained, band, plane)
+    if not ring.any():
+        return 0.0
+    axis = np.median(model_points[:, :2], axis=0)
+    r0 = np.linalg.norm(model_points[model_points[:, 2] < model_points[:, 2].min() + 0.005, :2] - axis, axis=1).max()
+    cells = len(np.unique(np.floor(q[ring, :2] / voxel).astype(np.int64), axis=0))
+    return float(cells * voxel ** 2 / (np.pi * r0 ** 2))
+
+
+def _overhang_ring(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
+                   band: tuple[float, float], plane: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which unexplained points (`q`: those of `points` not `explained`, in the object frame) lie in the plane of
+    the model's base (within `plane`) `band` past its edge, radially; and `q`."""
     q, axis, r_model, z0, _ = _unexplained_along_axis(points, model_points, T_base_obj, explained)
+    if len(q) == 0:
+        return np.zeros(0, bool), q
     r0 = r_model[model_points[:, 2] < z0 + 0.005].max()
     r_q = np.linalg.norm(q[:, :2] - axis, axis=1)
-    ring = (np.abs(q[:, 2] - z0) < plane) & (r_q > r0 + band[0]) & (r_q < r0 + band[1])
-    return float(ring.sum() / n_own)
+    return (np.abs(q[:, 2] - z0) < plane) & (r_q > r0 + band[0]) & (r_q < r0 + band[1]), q
 
 
 def within_wall(q: np.ndarray, model_points: np.ndarray, margin: float) -> np.ndarray:
