@@ -1,5 +1,6 @@
 """Shared fixtures for the planning tests: one Planner (robot + collision world) per session; a check that the
-simulated gripper holds a model with its predefined grasps."""
+simulated gripper holds a model with its predefined grasps; a check of a selected grasp by the independent
+python-fcl checker."""
 
 from __future__ import annotations
 
@@ -8,7 +9,9 @@ import pytest
 
 from kitchenbot.executive.config import CellConfig
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.fcl_check import FclChecker
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
+from kitchenbot.planning.grasps import object_name
 from kitchenbot.planning.pick_place import Planner
 from kitchenbot.world.inventory import Inventory
 
@@ -26,6 +29,20 @@ def inventory() -> Inventory:
 @pytest.fixture(scope="session")
 def planner(cfg, inventory) -> Planner:
     return Planner.from_config(cfg, inventory)
+
+
+@pytest.fixture(scope="session")
+def grasp_check(planner, inventory):
+    """check(grasp, objects, target_index) -> the independent python-fcl checker's verdict on the grasp's pre-grasp
+    and grasp at zero margin, the pads allowed to touch only objects[target_index]."""
+    checker = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
+
+    def check(g, objects, target_index):
+        named = [(object_name(o, k), inventory[o.obj_id], o.T_base_obj) for k, o in enumerate(objects)]
+        pads = [(p, f"obj:{named[target_index][0]}") for p in ("pad_a", "pad_b")]
+        return checker.check_path(np.stack([g.q_pregrasp, g.q]), objects=named, opening=g.spec.opening, allowed=pads)
+
+    return check
 
 
 @pytest.fixture(scope="session")

@@ -15,8 +15,7 @@ import pytest
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning import grasps as grasps_mod
-from kitchenbot.planning.fcl_check import FclChecker
-from kitchenbot.planning.grasps import GraspStats, object_name
+from kitchenbot.planning.grasps import GraspStats
 from kitchenbot.transforms import from_rotvec, rot_z
 
 # (model name, instance id, pose as fitted: rotation vector, position), base frame; B last
@@ -53,7 +52,7 @@ def test_before_the_plates_grasp_depends_on_its_turn(planner, inventory, spin_de
 
 
 @pytest.mark.parametrize("spin_deg", [0.0, 30.0, -60.0])
-def test_the_plate_has_a_free_grasp_at_any_turn(planner, inventory, spin_deg):
+def test_the_plate_has_a_free_grasp_at_any_turn(planner, inventory, spin_deg, grasp_check):
     objects, b = _pile(inventory, spin_deg)
     st = GraspStats()
     out = planner.select_grasps(Q, objects, target=b, stats=st)
@@ -65,10 +64,7 @@ def test_the_plate_has_a_free_grasp_at_any_turn(planner, inventory, spin_deg):
     base = grasps_mod.grasp_base_name(g.spec.name)
     assert base in {s.name for s in m.grasps}
     # the independent python-fcl checker (zero margin): pre-grasp and grasp free, the pads touching only the plate
-    checker = FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
-    named = [(object_name(o, k), inventory[o.obj_id], o.T_base_obj) for k, o in enumerate(objects)]
-    pads = [(p, f"obj:{named[2][0]}") for p in ("pad_a", "pad_b")]
-    res = checker.check_path(np.stack([g.q_pregrasp, g.q]), objects=named, opening=g.spec.opening, allowed=pads)
+    res = grasp_check(g, objects, 2)
     assert res.ok, str(res)
 
 
