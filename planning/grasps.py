@@ -262,6 +262,13 @@ SPIN_STEPS = (0.5, 0.25, -0.25)
 _spins: dict[int, tuple] = {}  # id(model) -> (model, angle between neighbouring grasp copies)
 
 
+def _symmetry_axis(model) -> tuple[np.ndarray, np.ndarray]:
+    """(unit axis, a point on it) of a round model's continuous symmetry, in its object frame (BOP models_info)."""
+    sym = model.symmetries_continuous[0]
+    a = np.asarray(sym["axis"], float)
+    return a / np.linalg.norm(a), np.asarray(sym.get("offset", (0.0, 0.0, 0.0)), float)
+
+
 def copy_spacing(model) -> float:
     """The largest angle (rad) about a round model's symmetry axis between neighbouring azimuths of its grasps
     (each grasp's TCP point about the axis; its closing direction for one on the axis): the predefined copies of a
@@ -269,10 +276,7 @@ def copy_spacing(model) -> float:
     hit = _spins.get(id(model))
     if hit is not None and hit[0] is model:
         return hit[1]
-    sym = model.symmetries_continuous[0]
-    a = np.asarray(sym["axis"], float)
-    a /= np.linalg.norm(a)
-    c = np.asarray(sym.get("offset", (0.0, 0.0, 0.0)), float)
+    a, c = _symmetry_axis(model)
     u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
     v = np.cross(a, u)
@@ -298,10 +302,8 @@ def spun_grasps(model, frac: float) -> list:
     angle = frac * copy_spacing(model)
     if angle == 0.0:
         return []
-    sym = model.symmetries_continuous[0]
-    a = np.asarray(sym["axis"], float)
-    c = np.asarray(sym.get("offset", (0.0, 0.0, 0.0)), float)
-    S = trans(*c) @ from_rotvec(a / np.linalg.norm(a) * angle) @ trans(*-c)
+    a, c = _symmetry_axis(model)
+    S = trans(*c) @ from_rotvec(a * angle) @ trans(*-c)
     return [GraspSpec(spun_name(g.name, angle), S @ g.T_obj_tcp, g.opening, g.width) for g in expand_grasps(model)]
 
 
@@ -432,7 +434,10 @@ def select_grasps(
             model = inventory[o.obj_id]
         except KeyError:
             continue
-        specs = expand_grasps(model) if not spin else spun_grasps(model, spin) if model.is_rotationally_symmetric else []
+        if not spin:
+            specs = expand_grasps(model)
+        else:
+            specs = spun_grasps(model, spin) if model.is_rotationally_symmetric else []
         if not specs:
             continue
         any_model = True
@@ -613,7 +618,7 @@ def select_grasps(
     # copies (spun_grasps), every check run again. Its turn about the axis is unobservable, so which rim positions
     # its copies land on is chance; where a neighbour leaves a free window narrower than their spacing, it holds a
     # copy only for some turns. The failure reported stays that of the grasps as given.
-    if not spin and any(inventory.models.get(o.obj_id) is not None and inventory.models[o.obj_id].is_rotationally_symmetric
+    if not spin and any(getattr(inventory.models.get(o.obj_id), "is_rotationally_symmetric", False)
                         and not too_hidden(o, settings) for _, o in cands):
         for frac in SPIN_STEPS:
             res = select_grasps(robot, scene, inventory, objects, q_current, settings=settings, target=target,
