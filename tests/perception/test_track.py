@@ -95,8 +95,8 @@ def test_a_tracked_pose_the_fine_check_rejects_is_estimated_afresh(perceiver, in
     assert len(first.poses) == 3
     real = pipeline.Perceiver._fine_parts
 
-    def rejects_tracked(self, m, tree, tol, hyp, own, found):
-        real(self, m, tree, tol, hyp, own, found)
+    def rejects_tracked(self, m, tree, tol, hyp, own, found, along=()):
+        real(self, m, tree, tol, hyp, own, found, along)
         if hyp.verification is not None and hyp.source.startswith("track"):
             hyp.verification.fine = 0.0
 
@@ -143,9 +143,9 @@ def fine_checked(monkeypatch):
     calls = []
     real = pipeline.Perceiver._fine_parts
 
-    def counted(self, m, tree, tol, hyp, own, found):
+    def counted(self, m, tree, tol, hyp, own, found, along=()):
         calls.append(hyp.obj_id)
-        return real(self, m, tree, tol, hyp, own, found)
+        return real(self, m, tree, tol, hyp, own, found, along)
 
     monkeypatch.setattr(pipeline.Perceiver, "_fine_parts", counted)
     return calls
