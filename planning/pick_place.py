@@ -29,7 +29,7 @@ from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_legs, sidesteps
 from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
-from kitchenbot.planning.resting import ORDER_BY, clear_travel, lies_on
+from kitchenbot.planning.resting import clear_travel, lies_on
 from kitchenbot.planning.robot import RobotModel
 from kitchenbot.planning.settings import PlanningSettings
 from kitchenbot.planning.timing import time_parameterise
@@ -530,9 +530,6 @@ class Planner:
         # the way up (a plate lifted along a glass leaning on it, with perceived poses: a protective stop)
         by_name = {f"obj:{object_name(o, j)}": o for j, o in enumerate(objects)}
         on_it = {x for p in at_grasp if "held" in p for x in p if x in by_name and self._lies_on(by_name[x], g.obj)}
-        # ... and so is an item the held one overlaps too deeply at the grasp for the fits to say which of the two
-        # rests on which (_unjudged_overlaps): the lift may not leave it unchecked as a support
-        on_it |= self._unjudged_overlaps(lift_scene, q_grasp, at_grasp, by_name, g.obj)
         start_contacts = [p for p in at_grasp if "held" in p and not on_it.intersection(p)]
         # ... and a neighbour it does not rest on (one beside it, or interlocked with it: a plate's rim in a lying
         # glass's mouth) may keep its overlap but not get deeper: where the estimated poses overlap, the real
@@ -707,37 +704,6 @@ class Planner:
             d = scene.clearance(q_grasp, p, self.settings.grasp_margin)
             if d >= self.WALL_GAP_MIN:
                 out[tuple(p)] = max(d - LIFT_CLEARANCE_TOL, self.WALL_GAP_MIN / 2)
-        return out
-
-    # m: how deep the held item may overlap a neighbour at the grasp (fitted poses) for the lift to take that
-    # neighbour as its support on the models' word alone; the lift's contact checks (signed gaps) see no deeper
-    DEEP_OVERLAP = 0.003
-
-    def _unjudged_overlaps(self, scene: Scene, q_grasp: np.ndarray, pairs, by_name: dict,
-                           held: ObjectPose) -> set[str]:
-        """Names (``obj:...``) of the items among `pairs` (those within the margin at the grasp) that the held item
-        overlaps by more than DEEP_OVERLAP at the grasp while neither clearly rests on the other (planning.resting's
-        ORDER_BY, as for the pick order). Fitted poses are good to a few tenths of a millimetre; an overlap ten
-        times that says one of the two is off by as much, and each one's lift then runs into the other about as
-        long (a plate leaning with its rim under a mug lying on its side, the mug perceived 1.8 cm and 48 degrees
-        off: 9 mm of overlap; the plate's lift ran into the mug for 30 mm, the mug's into the plate for 35 mm). A
-        support is left unchecked for the lift's first centimetres and its gap profile is clipped at GAP_SPAN: the
-        lift drove the plate into the mug. Such an item is treated like one lying on the held item (_pinned_by)."""
-        out = set()
-        for p in pairs:
-            if "held" not in p:
-                continue
-            for x in p:
-                o = by_name.get(x)
-                if o is None or scene.penetration(q_grasp, p) <= self.DEEP_OVERLAP:
-                    continue
-                mo, mh = self.inventory.models.get(o.obj_id), self.inventory.models.get(held.obj_id)
-                if mo is None or mh is None:
-                    continue
-                bo, bh = self.world.bvh(mo), self.world.bvh(mh)
-                if not (lies_on(bh, held.T_base_obj, bo, o.T_base_obj, ORDER_BY)
-                        or lies_on(bo, o.T_base_obj, bh, held.T_base_obj, ORDER_BY)):
-                    out.add(x)
         return out
 
     @staticmethod
