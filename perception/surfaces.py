@@ -115,11 +115,22 @@ class Surface:
             if self.feet is not None and len(self.feet):
                 corners = np.concatenate([corners, self.feet])
             self._hull = _hull_of(corners, self)
+            self._disc = _inner_disc(self._hull, corners, self)
         return self._hull
 
     def under_hull(self, P: np.ndarray) -> np.ndarray:
-        """Which points (N, 3) project into the convex hull of the footprint (grown by one cell)."""
-        return _in(self.hull(), P, self)
+        """Which points (N, 3) project into the convex hull of the footprint (grown by one cell). Points inside
+        a disc within the hull are inside without testing every edge of the hull: the objects on a table stand
+        mostly well inside its footprint, and the test of every point against every edge was a third of the
+        segmentation of a table scan."""
+        eq = self.hull()
+        if eq is None or len(P) == 0:
+            return _in(eq, P, self)
+        (cu, cv), r = self._disc
+        inner = (P @ self.u - cu) ** 2 + (P @ self.v - cv) ** 2 < r * r
+        rest = np.nonzero(~inner)[0]
+        inner[rest] = _in(eq, P[rest], self)
+        return inner
 
     def closed(self, P: np.ndarray) -> np.ndarray:
         """Which points (N, 3) project into the footprint, or into a hole of it within its hull that the scan
@@ -466,6 +477,18 @@ def _hull_of(corners: np.ndarray, s: Surface) -> np.ndarray | None:
         return ConvexHull(np.stack([corners @ s.u, corners @ s.v], axis=1)).equations
     except (QhullError, ValueError):
         return None
+
+
+def _inner_disc(eq: np.ndarray | None, corners: np.ndarray, s: Surface) -> tuple[tuple[float, float], float]:
+    """A disc (centre in plane coordinates, radius) inside the convex hull `eq` of `corners`: around the corners'
+    mean (inside their hull), as wide as its distance to the nearest edge (Qhull's edge normals are unit), less a
+    micrometre so that rounding never puts a point of the disc outside the hull. Radius 0: no disc."""
+    if eq is None or len(corners) == 0:
+        return (0.0, 0.0), 0.0
+    c = corners.mean(axis=0)
+    cu, cv = float(c @ s.u), float(c @ s.v)
+    r = float(-np.max(eq[:, 0] * cu + eq[:, 1] * cv + eq[:, 2])) - 1e-6
+    return (cu, cv), max(r, 0.0)
 
 
 def hull_depth(eq: np.ndarray | None, P: np.ndarray, s: Surface) -> np.ndarray:
