@@ -17,22 +17,20 @@ from kitchenbot.perception.types import View
 
 
 def projected_iou(src: View, src_dets: list[Detection], dst: View, dst_dets: list[Detection],
-                  depth_tol: float = 0.02, stride: int = 2) -> np.ndarray:
-    """IoU[a, b] between mask a of `src` projected into `dst` and mask b of `dst`."""
+                  depth_tol: float = 0.02, stride: int = 2, src_prep: dict | None = None,
+                  dst_prep: dict | None = None) -> np.ndarray:
+    """IoU[a, b] between mask a of `src` projected into `dst` and mask b of `dst`. `src_prep` / `dst_prep`:
+    `_prepared(view, dets, stride)` of either side, made once per view when it takes part in several pairs."""
     na, nb = len(src_dets), len(dst_dets)
     iou = np.zeros((na, nb))
     if na == 0 or nb == 0:
         return iou
     h, w = dst.depth.shape
-    dst_lab = np.full((h, w), -1, np.int64)
-    for j, d in enumerate(dst_dets):
-        dst_lab[d.mask & (dst_lab < 0)] = j
-    dst_area = np.array([d.mask.sum() for d in dst_dets], float)
-    dd = np.nan_to_num(np.asarray(dst.depth, np.float64), nan=0.0)
-    pm = point_map(src, stride)
+    dp = dst_prep or _prepared(dst, dst_dets, stride)
+    sp = src_prep or _prepared(src, src_dets, stride)
+    dst_lab, dst_area, dd = dp["lab"], dp["area"], dp["depth"]
     for i, d in enumerate(src_dets):
-        pts = pm[d.mask[::stride, ::stride]]
-        pts = pts[np.all(np.isfinite(pts), axis=1)].astype(np.float64)
+        pts = sp["points"][i]
         if len(pts) == 0:
             continue
         rc, z, _ = project_pixels(dst, pts)
@@ -58,6 +56,22 @@ def projected_iou(src: View, src_dets: list[Detection], dst: View, dst_dets: lis
     return iou
 
 
+def _prepared(view: View, dets: list[Detection], stride: int) -> dict:
+    """What projected_iou reads of a view, as source (each mask's lifted points, subsampled by `stride`) and as
+    destination (label image, mask areas, depth with holes as 0)."""
+    h, w = view.depth.shape
+    lab = np.full((h, w), -1, np.int64)
+    for j, d in enumerate(dets):
+        lab[d.mask & (lab < 0)] = j
+    pm = point_map(view, stride)
+    points = []
+    for d in dets:
+        pts = pm[d.mask[::stride, ::stride]]
+        points.append(pts[np.all(np.isfinite(pts), axis=1)].astype(np.float64))
+    return {"lab": lab, "area": np.array([d.mask.sum() for d in dets], float),
+            "depth": np.nan_to_num(np.asarray(view.depth, np.float64), nan=0.0), "points": points}
+
+
 class _UnionFind:
     def __init__(self, n: int):
         self.p = list(range(n))
@@ -79,12 +93,14 @@ def associate(views: list[View], dets: list[list[Detection]], iou_threshold: flo
     """Instance ids (0..n-1, consistent across views) for every detection of every view."""
     offsets = np.cumsum([0] + [len(d) for d in dets])
     uf = _UnionFind(int(offsets[-1]))
+    # Each view's masks lifted, label image and depth made once: every view takes part in 2 (n - 1) pairs.
+    prep = [_prepared(v, d, 2) if d else None for v, d in zip(views, dets)]
     for i in range(len(views)):
         for j in range(i + 1, len(views)):
             if not dets[i] or not dets[j]:
                 continue
-            a2b = projected_iou(views[i], dets[i], views[j], dets[j], depth_tol)
-            b2a = projected_iou(views[j], dets[j], views[i], dets[i], depth_tol).T
+            a2b = projected_iou(views[i], dets[i], views[j], dets[j], depth_tol, 2, prep[i], prep[j])
+            b2a = projected_iou(views[j], dets[j], views[i], dets[i], depth_tol, 2, prep[j], prep[i]).T
             both = np.minimum(a2b, b2a)
             for a in range(len(dets[i])):
                 b = int(np.argmax(both[a]))
