@@ -194,7 +194,12 @@ def consolidate(m: InstanceMap, radius: float = 0.006, min_shared: float = 0.5, 
     inst = m.instance_ids
     if len(inst) < 2:
         return m
-    trees = {i: cKDTree(m.points[m.ids == i]) for i in inst}
+    # Each instance's points (in map order) from one stable sort, not a pass over the map per instance.
+    order = np.argsort(m.ids, kind="stable")
+    start = np.searchsorted(m.ids[order], inst, side="left")
+    stop = np.searchsorted(m.ids[order], inst, side="right")
+    points = {i: m.points[order[a:b]] for i, a, b in zip(inst, start, stop)}
+    trees = {i: cKDTree(points[i]) for i in inst}
     parent = {i: i for i in inst}
 
     def find(a):
@@ -210,7 +215,7 @@ def consolidate(m: InstanceMap, radius: float = 0.006, min_shared: float = 0.5, 
         return bool(np.any(box[a][0] - box[b][1] > r) or np.any(box[b][0] - box[a][1] > r))
 
     for a in inst:
-        pa = m.points[m.ids == a]
+        pa = points[a]
         if len(pa) > 400:
             pa = pa[np.linspace(0, len(pa) - 1, 400).astype(int)]
         for b in inst:
@@ -223,11 +228,11 @@ def consolidate(m: InstanceMap, radius: float = 0.006, min_shared: float = 0.5, 
                     parent[max(ra, rb)] = min(ra, rb)
     # Small fragments (a mug handle or a rim seen apart from the body) join the instance they touch; if that
     # over-merges two objects, the pose stage splits them again by re-fitting what one model leaves over.
-    sizes = {i: int((m.ids == i).sum()) for i in inst}
+    sizes = {i: len(points[i]) for i in inst}
     for a in sorted(inst, key=lambda i: sizes[i]):
         if sizes[a] > max_fragment:
             break
-        pa = m.points[m.ids == a]
+        pa = points[a]
         best, best_d = None, np.inf
         for b in inst:
             if find(b) == find(a) or sizes[b] < 3 * sizes[a] or apart(a, b, touch):
