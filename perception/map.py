@@ -69,9 +69,10 @@ def align_views(views: list[View], voxel: float = 0.01, max_trans: float = 0.03,
     for v in views:
         p = point_map(v, stride=4).reshape(-1, 3)
         p = p[np.all(np.isfinite(p), axis=1) & (np.linalg.norm(p - v.T_base_cam[:3, 3], axis=1) < max_range)]
-        # Point-to-plane ICP reads the target's normals only: a source's are estimated when the coarse
-        # alignment (FPFH) needs them.
-        clouds.append(_cloud(p.astype(np.float64), voxel, normals=not clouds))
+        # Every cloud with its normals, although point-to-plane ICP reads the target's only: without the
+        # sources' the registration's result varied in its last bits from run to run (3 of 8 runs of three dev
+        # table scans, 0 of 5 with them; Open3D's threaded ICP), and with it the map.
+        clouds.append(_cloud(p.astype(np.float64), voxel))
     out, corr = [views[0]], [np.eye(4)]
     target = clouds[0]
     for v, src in zip(views[1:], clouds[1:]):
