@@ -69,9 +69,10 @@ def align_views(views: list[View], voxel: float = 0.01, max_trans: float = 0.03,
     for v in views:
         p = point_map(v, stride=4).reshape(-1, 3)
         p = p[np.all(np.isfinite(p), axis=1) & (np.linalg.norm(p - v.T_base_cam[:3, 3], axis=1) < max_range)]
-        # Every cloud with its normals, although point-to-plane ICP reads the target's only: without the
-        # sources' the registration's result varied in its last bits from run to run (3 of 8 runs of three dev
-        # table scans, 0 of 5 with them; Open3D's threaded ICP), and with it the map.
+        # Every cloud with its normals, although point-to-plane ICP reads the target's only (the sources' are
+        # ~35 ms of a D435 table scan). Open3D's ICP runs threaded and its result varies in its last bits from run
+        # to run under load either way (dev table scans: 3 of 8 runs without the sources' normals, 1 of 10 with
+        # them); until that is settled the registration is left as it was.
         clouds.append(_cloud(p.astype(np.float64), voxel))
     out, corr = [views[0]], [np.eye(4)]
     target = clouds[0]
