@@ -34,9 +34,9 @@ from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import (continuation, facing_unclaimed, filled, fine_fit, fine_tolerance, intruded,
-                                          overhang, overhang_area, patch_normals, surface_noise, verify,
-                                          within_wall)
+from kitchenbot.perception.verify import (BASE_SEEN, base_seen, continuation, facing_unclaimed, filled, fine_fit,
+                                          fine_tolerance, intruded, overhang, overhang_area, patch_normals,
+                                          surface_noise, verify, within_wall)
 from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
 
@@ -713,7 +713,7 @@ class Perceiver:
                                                  others, self.inventory[hyp.obj_id].is_rotationally_symmetric)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
             hyp.verification.continued = self._continued(m, tree, hyp, own,
-                                                         found + [f for f in along if f[0] is not hyp])
+                                                         found + [f for f in along if f[0] is not hyp], normals)
         near = None  # map points near the pose and which of them a pose explains (for filled and overhang)
         if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
             near = self._explained_near(m, tree, hyp, found)
@@ -741,7 +741,7 @@ class Perceiver:
                     np.linalg.norm(d - (d @ z) * z) < 0.5 * model.diameter)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
-                   found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
+                   found: list[tuple[Hypothesis, int, np.ndarray]], normals: np.ndarray | None = None) -> float:
         """verify.continuation for a pose of a tall vessel lying down (axis over 45 deg from up): map points past
         its ends that no pose explains. A copy fitted end to end along the axis does not explain them: that is
         how a bottle is fitted by cups (one after the other along its body). For a standing vessel (upright or
@@ -749,7 +749,8 @@ class Perceiver:
         cup's rim (a plate, a lying bottle) or under its base (its support) is past its end too, while an
         upright bottle's body, shoulder and neck go on past an upside-down cup's base within its radius. An
         upright vessel's base end is not judged at all: what lies under it is what it stands on, however narrow
-        (a drink can, the glass it is nested in, whose wall goes on under its base)."""
+        (a drink can, the glass it is nested in, whose wall goes on under its base); nor is the end past a closed
+        base that the own points (`normals`: theirs, facing the cameras) show as a closed surface (`base_seen`)."""
         model = self.inventory[hyp.obj_id]
         T = hyp.T_base_obj
         z = T[:3, 2]
@@ -775,8 +776,12 @@ class Perceiver:
                 and along > 0.25 * (model.extents[2] + other.extents[2])
             if not end_to_end:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
+        # A closed base the depth shows ends the item: what lies past it (a sponge on an upside-down mug's base)
+        # rests on it; a bottle fitted by a cup goes on through where the cup's base would be, unseen.
+        closed = normals is not None and \
+            base_seen(m.points[own], normals, model.points, T, FINE_ON_TOL) >= BASE_SEEN
         return continuation(P, model.points, T, explained, len(own), only_along=standing,
-                            on_base=standing and z @ up > 0)
+                            on_base=(standing and z @ up > 0) or closed)
 
     def _near_points(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis) -> tuple[np.ndarray, np.ndarray]:
         """Map points within the model's diameter of a pose, and which of them the pose puts on its surface."""
