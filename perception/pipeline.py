@@ -713,7 +713,7 @@ class Perceiver:
                                                  others, self.inventory[hyp.obj_id].is_rotationally_symmetric)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
             hyp.verification.continued = self._continued(m, tree, hyp, own,
-                                                         found + [f for f in along if f[0] is not hyp], normals)
+                                                         found + [f for f in along if f[0] is not hyp])
         near = None  # map points near the pose and which of them a pose explains (for filled and overhang)
         if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
             near = self._explained_near(m, tree, hyp, found)
@@ -741,7 +741,7 @@ class Perceiver:
                     np.linalg.norm(d - (d @ z) * z) < 0.5 * model.diameter)
 
     def _continued(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis, own: np.ndarray,
-                   found: list[tuple[Hypothesis, int, np.ndarray]], normals: np.ndarray | None = None) -> float:
+                   found: list[tuple[Hypothesis, int, np.ndarray]]) -> float:
         """verify.continuation for a pose of a tall vessel lying down (axis over 45 deg from up): map points past
         its ends that no pose explains. A copy fitted end to end along the axis does not explain them: that is
         how a bottle is fitted by cups (one after the other along its body). For a standing vessel (upright or
@@ -750,16 +750,25 @@ class Perceiver:
         upright bottle's body, shoulder and neck go on past an upside-down cup's base within its radius. An
         upright vessel's base end is not judged at all: what lies under it is what it stands on, however narrow
         (a drink can, the glass it is nested in, whose wall goes on under its base); nor is the end past a closed
-        base that the own points (`normals`: theirs, facing the cameras) show as a closed surface (`base_seen`)."""
+        base that the map points on the pose's surface show as a closed surface (`base_seen`)."""
         model = self.inventory[hyp.obj_id]
         T = hyp.T_base_obj
         z = T[:3, 2]
         up = self._up()
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
         standing = abs(z @ up) >= np.cos(np.radians(45))
-        P, explained = self._near_points(m, tree, hyp)
-        if len(P) == 0:
+        idx = np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)
+        if len(idx) == 0:
             return 0.0
+        P = m.points[idx]
+        explained = on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
+        # A closed base the depth shows ends the item: what lies past it (a sponge on an upside-down mug's base)
+        # rests on it; a bottle fitted by a cup goes on through where the cup's base would be, unseen. (The map
+        # points on the pose's surface, not its own points: a turned-over retry keeps the points of the fit it
+        # turns, which left the base out.)
+        mine = idx[explained]
+        closed = len(mine) > 0 and \
+            base_seen(m.points[mine], self._map_normals(m, mine), model.points, T, FINE_ON_TOL) >= BASE_SEEN
         for h, _, _ in found:
             if h is hyp:
                 continue
@@ -776,10 +785,6 @@ class Perceiver:
                 and along > 0.25 * (model.extents[2] + other.extents[2])
             if not end_to_end:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
-        # A closed base the depth shows ends the item: what lies past it (a sponge on an upside-down mug's base)
-        # rests on it; a bottle fitted by a cup goes on through where the cup's base would be, unseen.
-        closed = normals is not None and \
-            base_seen(m.points[own], normals, model.points, T, FINE_ON_TOL) >= BASE_SEEN
         return continuation(P, model.points, T, explained, len(own), only_along=standing,
                             on_base=(standing and z @ up > 0) or closed)
 
