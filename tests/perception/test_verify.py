@@ -539,10 +539,10 @@ def test_a_glass_rejected_for_a_lid_alone_still_ends_where_its_model_ends(percei
 def test_an_item_lying_on_an_upside_down_mugs_seen_base_is_not_continuation(perceiver, inventory):
     """A mug upside down (standing on its rim) with a sponge propped on its base: the sponge's top, within the
     base's radius and 0.5-3 cm past it, read as the mug's body going on past its base (`continued`), and the
-    right pose was rejected (fresh sink scene: the turned-over retry of a mug fitted upright, 0.95 overlap, fine
-    0.90, rejected by continued 0.26 alone). Half of the base is seen as a closed surface facing out: the mug ends
-    there, and what lies past it rests on it. A bottle going on past the same base (its body where the base
-    would be seen, then its neck) is still continuation: that base is not seen."""
+    right pose was rejected (sink block 4872, scene 2, on c5751d4: the turned-over retry of a mug fitted upright,
+    overlap 0.95, fine 0.90, rejected by continued 0.26 alone). Half of the base is seen as a closed surface
+    facing out: the mug ends there, and what lies past it rests on it. A bottle going on past the same base (its
+    body where the base would be seen, then its neck) is still continuation: that base is not seen."""
     from kitchenbot.perception.map import InstanceMap
     from kitchenbot.perception.register import Hypothesis
     from kitchenbot.perception.verify import Verification
