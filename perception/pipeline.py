@@ -34,9 +34,9 @@ from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import (continuation, facing_unclaimed, filled, fine_fit, fine_tolerance, intruded,
-                                          overhang, overhang_area, patch_normals, surface_noise, verify,
-                                          within_wall)
+from kitchenbot.perception.verify import (BASE_SEEN, base_seen, continuation, facing_unclaimed, filled, fine_fit,
+                                          fine_tolerance, intruded, overhang, overhang_area, patch_normals,
+                                          surface_noise, verify, within_wall)
 from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
 
@@ -749,16 +749,26 @@ class Perceiver:
         cup's rim (a plate, a lying bottle) or under its base (its support) is past its end too, while an
         upright bottle's body, shoulder and neck go on past an upside-down cup's base within its radius. An
         upright vessel's base end is not judged at all: what lies under it is what it stands on, however narrow
-        (a drink can, the glass it is nested in, whose wall goes on under its base)."""
+        (a drink can, the glass it is nested in, whose wall goes on under its base); nor is the end past a closed
+        base that the map points on the pose's surface show as a closed surface (`base_seen`)."""
         model = self.inventory[hyp.obj_id]
         T = hyp.T_base_obj
         z = T[:3, 2]
         up = self._up()
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
         standing = abs(z @ up) >= np.cos(np.radians(45))
-        P, explained = self._near_points(m, tree, hyp)
-        if len(P) == 0:
+        idx = np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)
+        if len(idx) == 0:
             return 0.0
+        P = m.points[idx]
+        explained = on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
+        # A closed base the depth shows ends the item: what lies past it (a sponge on an upside-down mug's base)
+        # rests on it; a bottle fitted by a cup goes on through where the cup's base would be, unseen. (The map
+        # points on the pose's surface, not its own points: a turned-over retry keeps the points of the fit it
+        # turns, which left the base out.)
+        mine = idx[explained]
+        closed = len(mine) > 0 and \
+            base_seen(m.points[mine], self._map_normals(m, mine), model.points, T, FINE_ON_TOL) >= BASE_SEEN
         for h, _, _ in found:
             if h is hyp:
                 continue
@@ -776,7 +786,7 @@ class Perceiver:
             if not end_to_end:
                 explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
         return continuation(P, model.points, T, explained, len(own), only_along=standing,
-                            on_base=standing and z @ up > 0)
+                            on_base=(standing and z @ up > 0) or closed)
 
     def _near_points(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis) -> tuple[np.ndarray, np.ndarray]:
         """Map points within the model's diameter of a pose, and which of them the pose puts on its surface."""

@@ -85,6 +85,13 @@ ACROSS_SHARE = 0.25
 AROUND_BIN = 15
 AROUND_MIN = 0.02
 AROUND_SPAN = 120
+# A vessel's closed base counts as seen (`base_seen`; the end past it is then not judged for continuation) when
+# this share of its disc (within BASE_INNER of its radius, in BASE_VOXEL squares) holds own points on its plane
+# facing out (cos over BASE_FACING with the axis). Not tuned: the first values tried.
+BASE_SEEN = 0.3
+BASE_INNER = 0.8
+BASE_VOXEL = 0.005
+BASE_FACING = 0.8
 # The filled share at which a pose scores 0 (linear from 0 at none; see `filled`): calibrated with
 # perception/calibrate_verify.py on development scenes with distractors (docs/perception_measurements.md, "Speed
 # and the lid of a can", "A can's lid is no opening").
@@ -303,9 +310,10 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
     within its radius covers under `AROUND_SPAN` degrees around the axis (`around_span`): one side only (a cup
     leaning on a mug's rim), not a body going on around the axis.
 
-    `on_base` (a vessel standing on its base, upright): the end past its base (the model's lowest z) is not judged:
-    what lies under a standing item within its footprint is what it stands on, however narrow (a drink can under
-    a glass, the glass a glass is nested in, whose wall goes on under the upper one's base). A longer object
+    `on_base` (a vessel standing on its base, upright, or one whose closed base the depth shows: `base_seen`): the
+    end past its base (the model's lowest z) is not judged: what lies under a standing item within its footprint
+    is what it stands on, however narrow (a drink can under a glass, the glass a glass is nested in, whose wall
+    goes on under the upper one's base), and what lies on a seen base is another item resting on it. A longer object
     fitted by the vessel still goes on past its rim (a bottle's shoulder and neck) or through its opening
     (`filled`)."""
     if n_own == 0 or len(points) == 0:
@@ -329,6 +337,36 @@ def continuation(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.nd
                 continue
         n_past += inner
     return float(n_past / n_own)
+
+
+def base_seen(points: np.ndarray, normals: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray,
+              tol: float, voxel: float = BASE_VOXEL) -> float:
+    """How much of a vessel's closed base the depth shows as a closed surface: of the base disc's area (within
+    `BASE_INNER` of its radius; `model_points` object frame, axis z, the base at the lowest z), the share of
+    `voxel` squares that hold a point (`points`, base frame: the pose's own) within `tol` of the base's plane
+    on its outer side and facing out along the axis (`normals`, facing the cameras; NaN: no direction).
+
+    An item whose base is seen ends there: what lies past a seen base within its radius is another item resting
+    on it (a sponge on an upside-down mug), not the same body going on (a bottle fitted by a cup continues
+    through where the cup's base would be, and that disc is not seen: its wall, shoulder or neck is there)."""
+    if len(points) == 0:
+        return 0.0
+    Ti = inv(T_base_obj)
+    q = points @ Ti[:3, :3].T + Ti[:3, 3]
+    nz = normals @ Ti[:3, :3].T
+    axis = np.median(model_points[:, :2], axis=0)
+    z0 = model_points[:, 2].min()
+    r_model = np.linalg.norm(model_points[:, :2] - axis, axis=1)
+    r_base = BASE_INNER * r_model[model_points[:, 2] < z0 + 0.005].max()
+    xy = q[:, :2] - axis
+    cap = (np.abs(q[:, 2] - z0) < tol) & (np.linalg.norm(xy, axis=1) < r_base) & (nz[:, 2] < -BASE_FACING)
+    if not cap.any():
+        return 0.0
+    cells = {tuple(c) for c in np.floor(xy[cap] / voxel).astype(int)}
+    g = np.arange(-r_base, r_base + voxel, voxel)
+    gx, gy = np.meshgrid(g, g)
+    disc = np.hypot(gx + 0.5 * voxel, gy + 0.5 * voxel) < r_base
+    return float(min(1.0, len(cells) / max(1, int(disc.sum()))))
 
 
 def around_span(xy: np.ndarray, bin_deg: float = AROUND_BIN, min_share: float = AROUND_MIN) -> float:
