@@ -46,16 +46,11 @@ class InstanceMap:
                            np.zeros((n_views, 3)))
 
 
-def _cloud(points: np.ndarray, voxel: float, normals: bool = True) -> o3d.geometry.PointCloud:
+def _cloud(points: np.ndarray, voxel: float) -> o3d.geometry.PointCloud:
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     pc = pc.voxel_down_sample(voxel)
-    if normals:
-        _normals(pc, voxel)
-    return pc
-
-
-def _normals(pc: o3d.geometry.PointCloud, voxel: float) -> None:
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=voxel * 2.5, max_nn=30))
+    return pc
 
 
 def align_views(views: list[View], voxel: float = 0.01, max_trans: float = 0.03, max_rot_deg: float = 5.0,
@@ -154,8 +149,6 @@ def align_to_cell(views: list[View], cell, max_trans: float = 0.03, max_rot_deg:
 
 
 def _coarse_then_icp(src: o3d.geometry.PointCloud, dst: o3d.geometry.PointCloud, voxel: float):
-    if not src.has_normals():
-        _normals(src, voxel)
     param = o3d.geometry.KDTreeSearchParamHybrid(radius=voxel * 5, max_nn=100)
     fs = reg.compute_fpfh_feature(src, param)
     fd = reg.compute_fpfh_feature(dst, param)
