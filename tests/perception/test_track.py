@@ -229,10 +229,36 @@ def test_a_pose_whose_grasp_missed_is_not_kept_unchecked(perceiver, inventory, c
     wrong = replace(plate, T_base_obj=off, checks=dict(plate.checks))
     priors = [wrong if p is plate else p for p in first.poses]
     again, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
-    r = perceiver.perceive(again, priors=priors, prior_map=first.map_points)
-    assert any(np.array_equal(p.T_base_obj, off) for p in r.poses)  # kept as it was: the mechanism of the misses
+    # (kept as it was, the mechanism of the misses, until the refit of a pose that leaves part of its item beside
+    # it: test_a_kept_pose_that_leaves_part_of_its_item_unexplained_is_fitted_again)
     b = Belief(poses=priors)
     b.doubt(wrong)
     r = perceiver.perceive(again, priors=b.poses, prior_map=first.map_points)
     assert not any(np.array_equal(p.T_base_obj, off) for p in r.poses)
     assert r.kept == 2
+
+
+def test_a_kept_pose_that_leaves_part_of_its_item_unexplained_is_fitted_again(perceiver, inventory, cell):
+    """A side plate believed 4 cm from where it lies, its surroundings unchanged: the prior was kept as it was
+    (no check), and the crescent of the plate beyond the believed rim, which no model explains alone, stayed an
+    unrecognised thing beside it, scan after scan (before: the wrong pose returned). The cluster lies within the
+    pose's reach: fitted with the pose's own points, the plate is found where it lies; the cup and the mug, with
+    nothing left over beside them, are kept as they were (perception/refit.py)."""
+    from dataclasses import replace
+
+    placed = _scene(inventory, cell)
+    views, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002)
+    first = perceiver.perceive(views)
+    assert len(first.poses) == 3
+    plate = next(p for p in first.poses if p.obj_id == 2)
+    off = plate.T_base_obj.copy()
+    off[0, 3] += 0.04
+    priors = [replace(plate, T_base_obj=off, checks=dict(plate.checks)) if p is plate else p for p in first.poses]
+    again, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
+    r = perceiver.perceive(again, priors=priors, prior_map=first.map_points)
+    assert not any(np.array_equal(p.T_base_obj, off) for p in r.poses)
+    assert sorted(p.obj_id for p in r.poses) == [2, 4, 5]
+    assert max(_match(r.poses, placed, inventory)) < 0.01
+    for p in r.poses:
+        if p.obj_id != 2:  # the good poses are not churned
+            assert np.array_equal(p.T_base_obj, next(q for q in first.poses if q.obj_id == p.obj_id).T_base_obj)

@@ -1,0 +1,118 @@
+"""A pose that leaves part of its own item unexplained is fitted again with that part.
+
+A pose can be wrong and still pass every check: in a pile the visible part of an item is small, and a fit a
+centimetre or two off (inside the item under it) still puts most of that part on its surface at the splitting
+tolerance (1.5 voxels) and at the sensor's precision. The rest of the item's points (its far end, its handle)
+then lie beyond the pose's surface: they are left over, no model explains them alone (a fragment of a mug), the
+instance is rejected and its points become an "unrecognised thing" the planner must avoid, right beside a pose
+every lift of which runs into them. Pose tracking keeps that pose scan after scan (a prior whose surroundings did
+not change is kept as it was, perception/track.py), so nothing ever corrects it.
+
+So after the poses of a scan are final (kept, tracked or estimated alike), the map points no pose explains are
+clustered (DBSCAN, as for any remainder), and a cluster that lies within a pose's reach (its model's bounding
+sphere round its origin: it could be part of that item) is fitted together with that pose's own points by the
+full estimate (`Perceiver.estimate`, the other poses as stacking starts). The new fit replaces the pose only where
+it explains clearly more of those points (at least REFIT_GAIN of the cluster more) and passes the checks every pose
+passes (the fine check, with the other poses as neighbours), and is not a second fit of another pose. A right pose
+beside an item of its own that no model explains (a distractor, a hidden item's fragment) keeps its pose: a fit
+stretched over both does not explain the two at the sensor's precision. Base frame, metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from kitchenbot.perception.map import InstanceMap
+from kitchenbot.perception.register import Scorer, refine
+from kitchenbot.perception.types import View
+from kitchenbot.perception.verify import fine_tolerance, surface_noise
+
+#: fewest points of a left-over cluster for it to be part of an item (as a remainder is fitted again: 60)
+REFIT_MIN_POINTS = 60
+#: share of the cluster's points (REFIT_MIN_POINTS at least) the new fit must put on its surface (3 mm) beyond
+#: what the pose puts there
+REFIT_GAIN = 0.1
+#: share of what the pose puts of its own points on its surface (3 mm) that the new fit must keep: the same item
+#: fitted better, not a fit that leaves it for the cluster
+REFIT_KEEP_OWN = 0.9
+
+
+def refit_beside_unexplained(per, m: InstanceMap, views: list[View], kept: list[list]) -> int:
+    """Re-fit, in place, each pose of `kept` ([hyp, iid, own map indices]) that has a cluster of map points no
+    pose takes as its own within its reach, where a fit of its own points with the cluster (the pose refined from
+    where it is, else the full estimate) puts clearly more of them on its surface and passes the checks.
+    `per`: the Perceiver. Returns the number of poses replaced."""
+    if not kept:
+        return 0
+    vox = per.settings.voxel_size
+    thr = per.settings.verify_threshold
+    owned = np.zeros(len(m.points), bool)
+    for _, _, own in kept:
+        owned[own] = True
+    idx = np.nonzero((m.ids >= 0) & ~owned)[0]
+    if len(idx) < REFIT_MIN_POINTS:
+        return 0
+    from kitchenbot.perception.pipeline import SURFACE_TOL, _clusters  # pipeline imports this module
+
+    clusters = [idx[c] for c in _clusters(m.points[idx], 1.5 * vox, REFIT_MIN_POINTS, vox / 2)]
+    tree, tol, replaced = None, None, 0
+    for C in clusters:
+        j = _owner(per, m, kept, C)
+        if j is None:
+            continue
+        hyp, iid, own = kept[j]
+        sel = np.union1d(own, C)
+        on_c = per._explained(hyp, m.points[C], SURFACE_TOL).sum()
+        on_own = per._explained(hyp, m.points[own], SURFACE_TOL).sum()
+        others = [k for i, k in enumerate(kept) if i != j]
+        for new in _fits(per, m.select(sel), views, hyp, [k[0] for k in others]):
+            # the same item fitted better: its own points kept, clearly more of the cluster's taken
+            if per._explained(new, m.points[own], SURFACE_TOL).sum() < REFIT_KEEP_OWN * on_own or \
+                    per._explained(new, m.points[C], SURFACE_TOL).sum() < \
+                    on_c + max(REFIT_MIN_POINTS, REFIT_GAIN * len(C)) or \
+                    any(per._same_place(k[0], new) for k in others):
+                continue
+            if tree is None:
+                tree = cKDTree(m.points)
+                tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
+            own_new = sel[per._explained(new, m.points[sel])]
+            per._fine_parts(m, tree, tol, new, own_new, others + [[new, iid, own_new]])
+            if new.verification is not None and new.verification.score >= thr:
+                kept[j] = [new, iid, own_new]
+                replaced += 1
+                break
+    return replaced
+
+
+def _owner(per, m: InstanceMap, kept: list[list], C: np.ndarray) -> int | None:
+    """Index of the pose the cluster `C` could be part of: of the poses within whose reach (bounding sphere) part
+    of it lies, the one that puts the most of it on its surface at the splitting tolerance (1.5 voxels)."""
+    best, best_n = None, -1
+    for j, (hyp, _, _) in enumerate(kept):
+        d = np.linalg.norm(m.points[C] - hyp.T_base_obj[:3, 3], axis=1)
+        if d.min() > per.database[hyp.obj_id].reach:
+            continue
+        n = int(per._explained(hyp, m.points[C]).sum())
+        if n > best_n:
+            best, best_n = j, n
+    return best
+
+
+def _fits(per, inst: InstanceMap, views: list[View], hyp, found: list):
+    """Fits of `inst` (a pose's points and a cluster beside it), cheapest first: the pose refined from where it is
+    (as a tracked prior is), then the full estimate."""
+    query = per._query(inst, views, point_features=False)
+    if len(query.points) >= 8:
+        entry = per.database[hyp.obj_id]
+        scorer = Scorer(entry, query.points, views, per.settings.voxel_size,
+                        inside_solid=per._inside_solid(per._up()), depths=per._depths)
+        h = refine(query, entry, scorer, hyp.T_base_obj, per.reg_cfg, "refit",
+                   symmetric=per.inventory[hyp.obj_id].is_rotationally_symmetric, local=True)
+        h.score *= per._colour_weight(query, h, 1.0)
+        h = per._accepted(query, h, scorer)
+        if h is not None:
+            yield h
+    h, _query = per.estimate(inst, views, found)
+    if h is not None:
+        yield h
