@@ -150,7 +150,8 @@ def run(args: argparse.Namespace) -> int:
                           f"{'  ' + r.get('message', '')[:70] if r['status'] != 'succeeded' else ''}")
     t = Table(title=f"kitchenbot bench tasks ({'oracle' if args.oracle_perception else 'pipeline'} perception, "
                     f"slip {args.slip:.0%} per transport)")
-    for col in ("task", "runs", "succeeded", "unrecognised left", "objects placed", "collisions", "protective stops", "limit violations",
+    for col in ("task", "runs", "succeeded", "unrecognised left", "objects placed", "collisions", "protective stops",
+                "limit violations",
                 "slips", "compute/cycle median s", "p90 s", "CPU median s", "CPU p90 s", "items/min"):
         t.add_column(col)
     summary = {}
@@ -181,7 +182,8 @@ def run(args: argparse.Namespace) -> int:
              "items_per_minute": items_per_minute(rs), "items_per_minute_cpu": items_per_minute(rs, "compute_cpu_s"),
              "sim_s": sum(r.get("sim_s") or 0.0 for r in rs), "compute_s": sum(r.get("compute_s") or 0.0 for r in rs)}
         summary[task] = s
-        t.add_row(task, str(s["runs"]), str(s["succeeded"]), str(s["unrecognised_left"]), f"{placed}/{wanted} ({s['placed_pct']:.1f} %)",
+        t.add_row(task, str(s["runs"]), str(s["succeeded"]), str(s["unrecognised_left"]),
+                  f"{placed}/{wanted} ({s['placed_pct']:.1f} %)",
                   str(s["collisions"]), str(s["protective_stops"]), str(s["limit_violations"]), str(s["slips"]),
                   f"{s['compute_per_cycle_median_s']:.2f}" if cyc else "-",
                   f"{s['compute_per_cycle_p90_s']:.2f}" if cyc else "-",
