@@ -13,7 +13,7 @@ import numpy as np
 @dataclass
 class RunReport:
     task: str
-    status: str = "running"  # succeeded | failed | stopped
+    status: str = "running"  # succeeded | unrecognised_left (sink empty but for `unrecognised`) | failed | stopped
     objects_total: int = 0
     objects_done: int = 0
     attempts: int = 0
@@ -45,7 +45,16 @@ class RunReport:
     perception: str = "pipeline"  # pipeline | oracle (ground truth from the simulator)
     truth: dict | None = None  # simulation: what really happened
     message: str = ""
+    # item-sized things in the sink no pose explains at the end (executive/done_check.py): xyz, size (m), voxels
+    unrecognised: list = field(default_factory=list)
+    unrecognised_looks: list = field(default_factory=list)  # the targeted looks taken at them: xyz, size, seen
     safe: bool = True  # ended with the arm at a known safe pose
+
+    @property
+    def done_status(self) -> str:
+        """The status of a run that reached `done`: the sink empty as perceived, but an item-sized thing no pose
+        explains left in it (executive/done_check.py) is no success."""
+        return "unrecognised_left" if self.unrecognised else "succeeded"
 
     def rate(self, items: int) -> float | None:
         """`items` per minute of this run's time: in simulation simulated time (motions, gripper, camera frames)

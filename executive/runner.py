@@ -293,7 +293,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         rt, st, b = self.report, self.state, self.belief
         if self.settings_before_harder is not None:  # a planner passed in may plan the next run
             self.planner.settings, self.settings_before_harder = self.settings_before_harder, None
-        rt.status = {"done": "succeeded", "stopped": "stopped"}.get(st, "failed")
+        rt.status = {"done": rt.done_status, "stopped": "stopped"}.get(st, "failed")
         if st == "stopped":
             rt.message = rt.message or "stopped on request"
         now = time.perf_counter()

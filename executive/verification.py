@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from kitchenbot.drivers.errors import DriverTimeoutError
 from kitchenbot.executive.belief import as_pose
+from kitchenbot.executive.done_check import DoneCheck
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.executive.stage_times import diff as stage_diff
 from kitchenbot.executive.unrecognised import Unrecognised, unrecognised_things
@@ -56,7 +57,7 @@ def _surface(model, T_base_obj: np.ndarray) -> np.ndarray:
     return model.points[::4] @ T[:3, :3].T + T[:3, 3]
 
 
-class Verification:
+class Verification(DoneCheck):
     # What a pick can move is what rested or leaned on the item: items beside it on the same support, or under it,
     # stay where they were. An item touching the picked one (model surfaces at their perceived poses within
     # TOUCH_DISTANCE: poses are within ~1-2 cm, so measured generously) is taken to have moved with it when its
@@ -87,6 +88,9 @@ class Verification:
             self.report.message = self._why_left(left)
             self.report.safe = self._make_safe()
             return "give_up"
+        if self._look_at_things_left():  # something no pose explains, looked at from above and perceived anew
+            self.counts.empty_scans = 0
+            return "next_object"
         self.counts.empty_scans += 1
         if self.counts.empty_scans < self.opt.confirm_empty_scans:
             return "next_object"
@@ -108,6 +112,7 @@ class Verification:
             self.report.message = "sink empty, but " + "; ".join(problems)
             self.report.safe = self._make_safe()
             return "give_up"
+        self._name_things_left()  # still no pose for an item-sized thing: the run ends `unrecognised_left`
         return "complete"
 
     def _why_left(self, left: list) -> str:
