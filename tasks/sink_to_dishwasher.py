@@ -18,6 +18,7 @@ from kitchenbot.world.attitude import faces_down, faces_up, is_level, is_lying
 
 VESSELS = ("cup", "glass", "bowl", "mug")
 RACK_WIRE = 0.006  # m, the racks' side wires (world.cell)
+MORE_IN_KEPT_ROOM = 2  # lower-rack spots offered inside the room kept for plates, after the others
 
 
 def from_the_back(xy) -> tuple[float, float]:
@@ -105,19 +106,43 @@ class SinkToDishwasher(Task):
 
     def _bowl_in_lower_rack(self, obj: ObjectPose, belief: Holdings, pose, how: str) -> list[PlaceTarget]:
         """A bowl (or a vessel the full upper rack has no room for) in the lower rack, `pose` on_edge (on its rim,
-        its axis along x, as a plate) or inverted, from
-        the rack's far end in x (plates are loaded from the end nearest the robot), with room kept for the plates
-        still in the sink (one plate thickness each, from the end nearest the robot)."""
+        its axis along x, as a plate) or inverted, from the rack's far end in x (plates are loaded from the end
+        nearest the robot), with room kept for the plates still in the sink (one plate thickness each, from the end
+        nearest the robot).
+
+        The room kept is where the plates would go first; it can hold the only spots the item reaches (an upright
+        bowl in the sink is carried by a rim pinch that reaches the rack's middle, not its far end, where the bowls
+        before it went). So spots inside that room are offered too, after the others (the planner tries targets in
+        order), where every pending plate still has a spot beside them (`_plates_still_fit`): the plates then go
+        elsewhere in the rack, the room kept for them is the same in number."""
         model = self.inventory[obj.obj_id]
+        placed = list(belief.placed)
+        plates = [m for m in belief.pending if m.cls == "plate"]
+        kept: list[Placed] = []
+        big = None
+        if plates:  # where the plates will go (the spots _plate_spots gives them, the largest plate in each)
+            big = max(plates, key=lambda m: max(m.extents[:2]))
+            kept = [Placed(big.obj_id, big.cls, T, *footprint(big, T), None)
+                    for T in self._plate_spots(big, placed, len(plates))]
+        poses = self._lower_rack_spots(model, placed + kept, pose)
+        if kept:
+            inside = [T for T in self._lower_rack_spots(model, placed, pose)
+                      if not any(np.allclose(T, P) for P in poses)]
+            poses += [T for T in inside if self._plates_still_fit(big, len(plates), placed, model, T)][:MORE_IN_KEPT_ROOM]
+        free_yaw = pose is inverted and model.is_rotationally_symmetric  # a mug keeps its handle along x
+        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=free_yaw,
+                            support=f"rack_lower ({how})", flip_ok=either_way(model)) for T in poses]
+
+    def _plates_still_fit(self, plate, n: int, placed: list[Placed], model, T: np.ndarray) -> bool:
+        """Do `n` plates (each as large as `plate`) still find lower-rack spots with `model` placed at T?"""
+        there = Placed(model.obj_id, model.cls, T, *footprint(model, T), None)
+        return len(self._plate_spots(plate, placed + [there], n)) >= n
+
+    def _lower_rack_spots(self, model, taken: list[Placed], pose, limit: int = 3) -> list[np.ndarray]:
+        """Free lower-rack poses for `model` (`pose` on_edge or inverted) beside what is `taken`, from the far end."""
         spec = self.cell.spec.dishwasher.lower
         lo = np.array(spec.origin_xy)
         hi = lo + np.array(spec.size_xy)
-        taken = list(belief.placed)
-        plates = [m for m in belief.pending if m.cls == "plate"]
-        if plates:  # where the plates will go (the spots _plate_spots gives them, the largest plate in each)
-            big = max(plates, key=lambda m: max(m.extents[:2]))
-            for T in self._plate_spots(big, taken, len(plates)):
-                taken.append(Placed(big.obj_id, big.cls, T, *footprint(big, T), None))
         y = (lo[1] + hi[1]) / 2
         # Flush beside what is in the rack (or kept for plates), CLEARANCE + 1 mm from it, then every 5 mm from
         # the far end: on the 15 mm grid alone a second bowl missed the room left between the first one and the
@@ -127,18 +152,14 @@ class SinkToDishwasher(Task):
         xs = [p.lo[0] - CLEARANCE - 0.001 - r for p in in_rack] + [p.hi[0] + CLEARANCE + 0.001 + r for p in in_rack]
         xs += list(np.arange(hi[0] - 0.01, lo[0], -0.005))
         if pose is inverted:
-            poses = self._mouth_down_in_lower_rack(model, lo, hi, spec.floor_z, taken, xs)
-        else:
-            # On its rim (its axis along x, as a plate): on the centre line, facing the spray arm.
-            pref = [(float(x), float(y)) for x in xs]
+            return self._mouth_down_in_lower_rack(model, lo, hi, spec.floor_z, taken, xs, limit)
+        # On its rim (its axis along x, as a plate): on the centre line, facing the spray arm.
+        pref = [(float(x), float(y)) for x in xs]
 
-            def far_end_first(xy):  # the largest x first, on the rack's centre line first
-                return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
+        def far_end_first(xy):  # the largest x first, on the rack's centre line first
+            return (-round(float(xy[0]), 4), abs(float(xy[1]) - y))
 
-            poses = area_spots(model, lo, hi, spec.floor_z, taken, pose, 3, pref, step=0.015, order=far_end_first)
-        free_yaw = pose is inverted and model.is_rotationally_symmetric  # a mug keeps its handle along x
-        return [PlaceTarget(T, "slot", slot=f"lower@{T[0, 3]:.3f},{T[1, 3]:.3f}", free_yaw=free_yaw,
-                            support=f"rack_lower ({how})", flip_ok=either_way(model)) for T in poses]
+        return area_spots(model, lo, hi, spec.floor_z, taken, pose, limit, pref, step=0.015, order=far_end_first)
 
     def _mouth_down_in_lower_rack(self, model, lo, hi, floor_z: float, taken: list[Placed], xs,
                                   limit: int = 3) -> list[np.ndarray]:

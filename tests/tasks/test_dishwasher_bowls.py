@@ -131,3 +131,43 @@ def test_cups_go_mouth_down_into_the_lower_rack_when_the_upper_one_is_full(inv):
     assert n_up >= 7 and set(racks[:n_up]) == {"rack_upper"} and set(racks[n_up:]) == {"rack_lower"}
     ts = task.targets(plate, belief)  # the plate still has its place in the lower rack
     assert not isinstance(ts, NoFreeSlot) and abs(ts[0].T_base_obj[0, 2]) > 0.99
+
+
+def test_an_upright_bowl_may_stand_in_the_room_kept_for_plates_when_they_all_still_fit(inv):
+    """Two bowls already stand on their rim at the lower rack's far end, four dinner plates are still in the sink
+    and one more upright bowl. The room kept for the plates (their first spots, nearest the robot) reached into the
+    only spot left beside the bowls, so the bowl had no lower-rack target, only mouth-down ones in the upper rack
+    that no grasp of an upright bowl reaches (turning it over needs a regrasp), and it stayed in the sink with the
+    plates under it. A spot inside that room is offered, after the others, when every plate still fits beside it."""
+    cell = Cell()
+    task = make_task("sink-to-dishwasher", inv, cell)
+    belief = Belief()
+    sink = [in_sink(inv, "bowl", k=k) for k in range(3)] + [in_sink(inv, "dinner_plate", k=k) for k in range(3, 7)]
+    low = cell.spec.dishwasher.lower
+    lo, hi = np.array(low.origin_xy), np.array(low.origin_xy) + np.array(low.size_xy)
+
+    def in_lower(T):
+        return all(lo[i] <= T[i, 3] <= hi[i] for i in (0, 1))
+
+    for b in sink[:2]:  # the first two bowls, placed with nothing kept for plates (as if no plate were seen yet)
+        belief.pending = []
+        ts = task.targets(b, belief)
+        belief.record_placed(task, b, ts[0], ts[0].T_base_obj)
+    belief.pending = task.pending_models(sink[2:])
+    ts = task.targets(sink[2], belief)
+    assert not isinstance(ts, NoFreeSlot)
+    lower = [t for t in ts if in_lower(t.T_base_obj)]
+    assert lower, [t.slot for t in ts]  # before: only the upper rack's mouth-down spots
+    assert all(abs(t.T_base_obj[0, 2]) > 0.99 for t in lower)  # on its rim
+    belief.record_placed(task, sink[2], lower[0], lower[0].T_base_obj)
+    belief.pending = task.pending_models(sink[3:])
+    for pl in sink[3:]:  # every plate still has a spot beside the three bowls
+        ts = task.targets(pl, belief)
+        assert not isinstance(ts, NoFreeSlot), ts
+        belief.record_placed(task, pl, ts[0], ts[0].T_base_obj)
+        belief.pending = belief.pending[1:]
+    assert len(belief.placed) == 7
+    boxes = [(p.lo, p.hi) for p in belief.placed]
+    for i in range(len(boxes)):
+        for j in range(i):
+            assert not (np.all(boxes[i][0] < boxes[j][1]) and np.all(boxes[i][1] > boxes[j][0]))
