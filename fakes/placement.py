@@ -24,6 +24,7 @@ from kitchenbot.transforms import make_T
 
 GRID = 0.003  # m
 CONTACT_TOL = 0.0015  # m: grid cells this close to the deepest contact count as touching
+RELEASE_PROBE = 0.0005  # m: a released object's supports are found from this far above its underside
 
 
 @dataclass
@@ -62,6 +63,16 @@ class _Body:
         ok = np.isfinite(t)
         return xy[ok], origins[ok, 2] + t[ok]
 
+    def topside(self, T: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """z of the highest surface of the posed object above each base-frame point xy (NaN where none)."""
+        Vw = self.vertices @ T[:3, :3].T + T[:3, 3]
+        origins = np.column_stack([xy, np.full(len(xy), Vw[:, 2].max() + 0.01)])
+        R = T[:3, :3]
+        o_obj = (origins - T[:3, 3]) @ R
+        d_obj = np.broadcast_to(R.T @ np.array([0.0, 0.0, -1.0]), o_obj.shape)
+        t = self.scene.cast_rays(o3d.core.Tensor(np.hstack([o_obj, d_obj]).astype(np.float32)))["t_hit"].numpy()
+        return origins[:, 2] - t
+
 
 def _drop(body: _Body, T: np.ndarray, scene, floor_z: float) -> tuple[np.ndarray, np.ndarray]:
     """(T moved vertically to touch the scene, contact points (N, 3) in the base frame)."""
@@ -78,6 +89,49 @@ def _drop(body: _Body, T: np.ndarray, scene, floor_z: float) -> tuple[np.ndarray
     T[2, 3] += dz
     touching = gap >= dz - CONTACT_TOL
     return T, np.column_stack([xy[touching], h[touching]])
+
+
+def drop_released(world, uid: int, T_base_obj: np.ndarray, floor_z: float = -1.0) -> np.ndarray:
+    """T_base_obj of an object let go where it is: it stays, falls onto what is below it, or (if its bottom is
+    sunk into something) rises onto that; never onto an item lying on it.
+
+    Unlike `_drop` (scene generation: anything the object intersects counts as below it), a column's support is
+    found from just above the object's underside: the first surface below the probe point, or, when the probe
+    point is inside a closed mesh (the first surface below it faces down), the top of that mesh above it.
+    """
+    body = _Body.of(world.objects[uid].model.mesh)
+    scene, labels = build_scene(world, exclude=(uid,))
+    xy, b = body.underside(T_base_obj)
+    if len(xy) == 0:
+        return T_base_obj
+    t = body.topside(T_base_obj, xy)
+    t = np.where(np.isfinite(t), t, b)
+    # The probe point is inside the object (below the middle of its column), so an item resting on the object's
+    # top is above it; a support touching or sunk into the underside is below it or contains it.
+    s = b + np.minimum(RELEASE_PROBE, np.maximum(t - b, 0.0) / 2)
+    down = _cast(scene, xy, s, down=True)
+    h = down["z"].copy()
+    closed = np.array([k[0] in ("obj", "cell") for k in labels.kinds] + [False])  # open planes/fixtures: surfaces
+    gid = np.where(np.isfinite(h), down["gid"], len(labels.kinds))
+    inside = closed[gid] & (down["nz"] < 0)  # the ray leaves a solid through its bottom: it started inside
+    if inside.any():
+        up = _cast(scene, xy[inside], s[inside], down=False)
+        h[inside] = np.where(np.isfinite(up["z"]), up["z"], h[inside])
+    h = np.where(np.isfinite(h), h, floor_z)
+    T = np.array(T_base_obj, float)
+    T[2, 3] += float((h - b).max())
+    return T
+
+
+def _cast(scene, xy: np.ndarray, z0: np.ndarray, down: bool) -> dict[str, np.ndarray]:
+    """First hits of vertical rays from (xy, z0): z (NaN where none), geometry id, normal's z."""
+    d = np.zeros((len(xy), 3), np.float32)
+    d[:, 2] = -1.0 if down else 1.0
+    origins = np.column_stack([xy, z0]).astype(np.float32)
+    r = scene.cast_rays(o3d.core.Tensor(np.hstack([origins, d])))
+    t = r["t_hit"].numpy()
+    z = np.where(np.isfinite(t), origins[:, 2] + d[:, 2] * t, np.nan)
+    return {"z": z, "gid": r["geometry_ids"].numpy().astype(np.int64), "nz": r["primitive_normals"].numpy()[:, 2]}
 
 
 def drop_onto(world, uid: int, T_base_obj: np.ndarray, floor_z: float = -1.0) -> np.ndarray:

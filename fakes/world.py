@@ -175,15 +175,16 @@ class SimWorld:
         self.slip_in_motions = int(self.rng.integers(0, 3)) if p > 0 and self.rng.random() < p else None
 
     def release(self) -> int | None:
-        """Let go of the held object: it drops straight down onto what is below it."""
+        """Let go of the held object: it stays or drops straight down onto what is below it (never onto an item
+        lying on it)."""
         uid = self.held_uid
         if uid is None:
             return None
         self.held_uid, self.T_tcp_held = None, None
-        from kitchenbot.fakes.placement import drop_onto
+        from kitchenbot.fakes.placement import drop_released
 
         obj = self.objects[uid]
-        obj.T_base_obj = drop_onto(self, uid, obj.T_base_obj)
+        obj.T_base_obj = drop_released(self, uid, obj.T_base_obj)
         self.version += 1
         return uid
 

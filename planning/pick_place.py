@@ -535,22 +535,28 @@ class Planner:
         # glass's mouth) may keep its overlap but not get deeper: where the estimated poses overlap, the real
         # items may be a fraction of a millimetre apart, and a lift that drives one into the other makes a
         # contact (a protective stop) that the overlap at the start hid. Supports (what it lies on) are left
-        # for good by any lift and stay unchecked for the first centimetres.
+        # by a lift straight up or along the item's own axis and stay unchecked for its first centimetres.
         side = {p: lift_scene.penetration(q_grasp, p) for p in start_contacts
                 if any(x in by_name for x in p) and not any(x in by_name and self._lies_on(g.obj, by_name[x]) for x in p)}
         deeper = {p: -(d + LIFT_DEEPEN_TOL) for p, d in side.items()}
+        # Any other lift (tilted away from what it ran into, a sidestep) may slide the item along a tilted support
+        # instead of leaving it: there a support too may keep its overlap but not get deeper. Unchecked, a lift
+        # tilted 45 degrees drove a mug lying on a tilted plate along the plate into it (model overlap 1.5 -> 3.1 mm).
+        supports = {p: lift_scene.penetration(q_grasp, p) for p in start_contacts
+                    if p not in side and any(x in by_name for x in p)}
+        tilted_deeper = {**deeper, **{p: -(d + LIFT_DEEPEN_TOL) for p, d in supports.items()}}
         # A basin wall the held item is clear of at the grasp (by WALL_GAP_MIN or more: not leaning on it) is no
         # contact to leave: in the first LIFT_CONTACT_TRAVEL the lift may not close that gap (_wall_gaps' margin)
         # either. Unchecked there, a lift tilted a little towards the wall drove a plate standing 1 mm off it into it.
         deeper.update({p: m for p, m in walls.items() if p in start_contacts})
+        tilted_deeper.update({p: m for p, m in walls.items() if p in start_contacts})
         free_start = [p for p in start_contacts if p not in side and p not in walls]
-        start_scene = lift_scene.allowing(free_start).with_pair_margins(deeper)
+        start_scene = lift_scene.allowing([p for p in free_start if p not in supports]).with_pair_margins(tilted_deeper)
         # The fingers too start within the transport margin of what lies next to or under the item (the plate
         # below in a stack): grasp_in checked them with the grasp margin. Lifting straight up (or along the
         # item's own axis) moves them away, so those pairs are not checked for the first few centimetres.
         tool_contacts = [p for p in at_grasp if p not in start_contacts and any(x in TOOL_PARTS for x in p)]
-        vertical_start_scene = (lift_scene.allowing(free_start + tool_contacts).with_pair_margins(deeper)
-                                if tool_contacts else start_scene)
+        vertical_start_scene = lift_scene.allowing(free_start + tool_contacts).with_pair_margins(deeper)
         # Beyond LIFT_CONTACT_TRAVEL only the held object's contacts with other items may last (until they clear,
         # see LIFT_CLEAR_TRAVEL), and only on a lift straight up or along the item's axis: an item sliding up
         # along a basin wall or dragging a finger is not lifted out, nor one pulled sideways through a neighbour

@@ -54,3 +54,49 @@ def test_offset_plate_on_a_plate_tips_onto_it(inventory):
     T = settle(w, u2, w.objects[u2].T_base_obj, keep_inside=w.cell.sink_interior)
     assert 2 < _tilt_deg(T) < 30  # rests on the lower plate and the floor, tilted
     assert T[2, 3] > w.objects[u1].T_base_obj[2, 3]
+
+
+def _hold(w, uid):
+    """Make `uid` the held object where it is (release only needs held_uid)."""
+    w.held_uid, w.T_tcp_held = uid, np.eye(4)
+
+
+def test_released_cup_under_a_plate_stays_put(inventory):
+    """A cup let go in place stays under the plate lying on its rim; it does not jump up through the plate."""
+    w = SimWorld(Cell(), inventory)
+    cup = w.add_object(inventory.by_name("cup"), make_T(t=(0.5, 0.0, 0.1)))
+    w.set_pose(cup, settle(w, cup, w.objects[cup].T_base_obj))
+    plate = w.add_object(inventory.by_name("side_plate"), make_T(t=(0.5, 0.0, 0.3)))
+    w.set_pose(plate, drop_onto(w, plate, w.objects[plate].T_base_obj))
+    assert w.objects[plate].T_base_obj[2, 3] > w.objects[cup].T_base_obj[2, 3] + 0.03  # lies on the rim
+    T0 = w.objects[cup].T_base_obj.copy()
+    _hold(w, cup)
+    assert w.release() == cup
+    assert w.objects[cup].T_base_obj[2, 3] == pytest.approx(T0[2, 3], abs=0.001)
+
+
+def test_released_cup_falls_onto_the_plate_below(inventory):
+    w = SimWorld(Cell(), inventory)
+    plate = w.add_object(inventory.by_name("side_plate"), make_T(t=(0.5, 0.0, 0.1)))
+    w.set_pose(plate, settle(w, plate, w.objects[plate].T_base_obj))
+    cup = w.add_object(inventory.by_name("cup"), make_T(t=(0.5, 0.0, 0.3)))
+    T_rest = drop_onto(w, cup, w.objects[cup].T_base_obj)
+    _hold(w, cup)
+    w.release()
+    assert w.objects[cup].T_base_obj[2, 3] == pytest.approx(T_rest[2, 3], abs=0.001)
+
+
+@pytest.mark.parametrize("sunk", [0.0003, 0.003])
+def test_released_cup_sunk_into_a_plate_rises_onto_it(inventory, sunk):
+    """Overlapping true poses (a settled stack, a grasp-time overlap) resolve upward, not through the plate."""
+    w = SimWorld(Cell(), inventory)
+    plate = w.add_object(inventory.by_name("side_plate"), make_T(t=(0.5, 0.0, 0.1)))
+    w.set_pose(plate, settle(w, plate, w.objects[plate].T_base_obj))
+    cup = w.add_object(inventory.by_name("cup"), make_T(t=(0.5, 0.0, 0.3)))
+    T_rest = drop_onto(w, cup, w.objects[cup].T_base_obj)
+    T = T_rest.copy()
+    T[2, 3] -= sunk
+    w.set_pose(cup, T)
+    _hold(w, cup)
+    w.release()
+    assert w.objects[cup].T_base_obj[2, 3] == pytest.approx(T_rest[2, 3], abs=0.001)
