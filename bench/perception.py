@@ -32,7 +32,7 @@ def bench_perception(args: argparse.Namespace) -> int:
 
     from kitchenbot.executive.config import load_config
     from kitchenbot.perception import bop
-    from kitchenbot.perception.pipeline import Perceiver
+    from kitchenbot.perception.pipeline import Perceiver, map_seg_ms
     from kitchenbot.world.cell import Cell
     from kitchenbot.world.inventory import Inventory
 
@@ -62,8 +62,8 @@ def bench_perception(args: argparse.Namespace) -> int:
         r = p.perceive([im.view for im in images])
         n_views.append(len(images))
         # Everything before the poses: cell check, alignment, surfaces, segmentation, association, fusion.
-        seg_wall.append(sum(v for k, v in r.timings_ms.items() if k != "pose"))
-        seg_cpu.append(sum(v for k, v in r.timings_cpu_ms.items() if k != "pose"))
+        seg_wall.append(map_seg_ms(r.timings_ms))
+        seg_cpu.append(map_seg_ms(r.timings_cpu_ms))
         pose_wall += r.pose_ms
         pose_cpu += r.pose_cpu_ms
         for k, v in r.timings_cpu_ms.items():

@@ -17,7 +17,7 @@ import numpy as np
 
 from kitchenbot.perception import bop
 from kitchenbot.perception.metrics import adi, auc_adds, grasp_error_summary, match_image, match_scan
-from kitchenbot.perception.pipeline import Perceiver
+from kitchenbot.perception.pipeline import Perceiver, map_seg_ms, scan_total_ms
 from kitchenbot.perception.rgbd import project_pixels
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.transforms import inv
@@ -183,8 +183,8 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
                 timings.setdefault(k, []).append(v)
             for k, v in res.timings_cpu_ms.items():
                 timings_cpu.setdefault(k, []).append(v)
-            mapseg_cpu.append(sum(v for k, v in res.timings_cpu_ms.items() if k != "pose"))
-            scan_cpu.append(sum(res.timings_cpu_ms.values()))
+            mapseg_cpu.append(map_seg_ms(res.timings_cpu_ms))
+            scan_cpu.append(scan_total_ms(res.timings_cpu_ms))
             if len(group) > 1 or group[0].has_world_pose:
                 _scan_errors(group, res.poses, inventory, min_visib, grasp_err)
             for im, view in zip(group, res.views):

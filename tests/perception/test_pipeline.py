@@ -104,3 +104,13 @@ def test_without_a_cell_in_the_camera_frame(perceiver, inventory, cell, placed):
     assert r.surfaces_from == "plane"
     in_cam = [(oid, inv(v.T_base_cam) @ T) for oid, T in placed]
     _check(r, in_cam, inventory)
+
+
+def test_map_and_segmentation_time_leaves_out_the_parts_timed_inside_pose():
+    """A part of pose estimation timed inside the "pose" stage (the re-fit beside unexplained points) is pose
+    time: counted once in a scan's whole time and not in map + segmentation."""
+    from kitchenbot.perception.pipeline import map_seg_ms, scan_total_ms
+
+    t = {"align": 60.0, "segment": 150.0, "associate": 70.0, "map": 65.0, "pose": 11000.0, "pose.refit": 900.0}
+    assert map_seg_ms(t) == 345.0
+    assert scan_total_ms(t) == 11345.0
