@@ -55,7 +55,7 @@ def test_an_item_that_slips_onto_the_rim_is_no_silent_success(make_runner, safe_
     runner.arm._slip = slip_onto_the_rim
     report = runner.run()
     safe_end(runner, world)
-    assert report.slips == 1
+    assert report.slips >= 1
     assert report.truth["end"]["in_sink"] == 1  # the simulator's truth: it is still there (on the rim)
     assert report.status != "succeeded", report.message
     assert "dropped during the run" in report.message and "last held at" in report.message, report.message
