@@ -89,6 +89,7 @@ def one(args: tuple) -> dict:
         "compute_s": rep.compute_time_s, "sim_s": rep.sim_time_s, "wall_s": time.perf_counter() - t0,
         "message": rep.message, "perception": rep.perception,
         "unrecognised": rep.unrecognised, "unrecognised_looks": rep.unrecognised_looks,
+        "lost": rep.lost, "sink_drop_looks": rep.sink_drop_looks,
         "failures": [f"{f['state']}:{f['kind']}" + (f":{f['details']['planning_kind']}"
                                                     if f.get("details", {}).get("planning_kind") else "")
                      for f in rep.failures],

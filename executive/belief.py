@@ -77,6 +77,22 @@ class Released:
     carried: bool = False
 
 
+@dataclass(eq=False)
+class SinkDrop:
+    """An item that left the gripper above the sink, not yet seen back in it (Belief.await_in_sink)."""
+    cls: str
+    site: np.ndarray  # where the tool was
+    expect: int  # items of its class the sink holds if it fell back in (less those taken out since)
+    sink_lo_hi: tuple  # the basin (Cell.sink_interior)
+    looked: bool = False  # the done check looked where it fell
+
+    def holds(self, p: ObjectPose) -> bool:
+        """`p` lies in the sink by its x-y (up to its rim, as the task counts it)."""
+        lo, hi = self.sink_lo_hi
+        xy = np.asarray(p.T_base_obj, float)[:2, 3]
+        return bool(np.all(xy >= np.asarray(lo)[:2]) and np.all(xy <= np.asarray(hi)[:2]))
+
+
 @dataclass
 class BeliefMap:
     """The map plans keep clear of: the latest perception's points, contact marks (where a stopped motion met
@@ -142,6 +158,10 @@ class Belief:
     drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
     unseen_placement: Placed | None = None  # the record of a placement its check did not see
     dropped: int = 0  # items that left the gripper on the way
+    # each drop as it stands: {"cls", "xyz" (where the tool was), "found"}; the ones not found are named at the end
+    drops: list = field(default_factory=list)
+    # drops over the sink not yet seen back in it (SinkDrop): a scan confirms each, or the done check looks for it
+    sink_drops: list = field(default_factory=list)
     drops_found: int = 0  # of those, seen again: fallen back into the sink (the scans see it) or found where it fell
     first_total: int | None = None  # the task's items in the first perception
     seen_staged: set = field(default_factory=set)  # instance ids of staged records whose pose a view gave
@@ -184,6 +204,7 @@ class Belief:
         old = np.all(c[:, :2] >= lo[:2], axis=1) & np.all(c[:, :2] <= hi[:2], axis=1) & (e < self.scene_epoch)
         self.map.keep_contacts(~old)
         self.seen_where_marked(poses)
+        self._sink_drops_seen(poses)
 
     def picked_away(self, obj: ObjectPose, pending: list) -> None:
         """The perceived item `obj` was picked and placed, and no new perception followed (the placement view
@@ -361,6 +382,10 @@ class Belief:
         failed on the pair and the attempts they used are not that plate's)."""
         t = self.attempts_for(obj)
         self.attempts = [a for a in self.attempts if a is not t]  # by identity: == compares their position arrays
+        for sd in self.sink_drops:  # one item of its class less in the sink
+            if sd.cls == obj.cls and sd.holds(obj):
+                sd.expect -= 1
+        self._sink_drops_seen([])  # all of its class there before are out: the one that fell back in was among them
 
     def give_up_on(self, obj: ObjectPose, reason: str | None = None) -> None:
         """No attempts left for `obj` (e.g. its task has no target for it)."""
@@ -430,13 +455,14 @@ class Belief:
         rel, self.released = self.released, None
         return rel
 
-    def record_dropped(self, where: np.ndarray, staged: Placed | None = None) -> None:
+    def record_dropped(self, where: np.ndarray, staged: Placed | None = None, cls: str | None = None) -> None:
         """An item left the gripper on the way (slipped, let go over the cell) about above `where`. `staged`: the
         record it was picked up from when it was staged; it is not there any more (it fell near `where`, and the
         look there records it anew where it is found). Kept, it was picked up "again" from an empty spot until its
         attempts ran out, and the run ended with it "left on the counter"."""
         self.dropped += 1
         self.drop_site = np.array(where, float)
+        self.drops.append({"cls": cls, "xyz": np.round(np.asarray(where, float), 3).tolist(), "found": False})
         if staged is not None:
             self.unplace(staged)
 
@@ -445,19 +471,55 @@ class Belief:
         a placement is, not looked for as a drop (nor counted lost)."""
         self.dropped = max(self.dropped - 1, 0)
         self.drop_site = None
+        if self.drops:
+            self.drops.pop()
 
     def record_drop_found(self) -> None:
         """The item that dropped last is not lost: it fell back into the sink or was found where it fell."""
         self.drops_found = min(self.drops_found + 1, self.dropped)
+        d = next((d for d in reversed(self.drops) if not d["found"]), None)
+        if d is not None:
+            d["found"] = True
+
+    def await_in_sink(self, cls: str, site: np.ndarray, expect: int, sink_lo_hi) -> None:
+        """The item that dropped last left the gripper above the sink: it fell back into it, or came to rest where
+        the sink scans do not look (on the rim, over the edge). It counts as seen again once a perception of the
+        sink holds `expect` items of its class (as many as before it was picked, less those taken out since),
+        not before (Belief.perceived, record_taken)."""
+        self.sink_drops.append(SinkDrop(cls, np.array(site, float), expect, sink_lo_hi))
+
+    def _sink_drops_seen(self, poses: list[ObjectPose]) -> None:
+        for sd in list(self.sink_drops):
+            if sd.expect <= 0 or sum(1 for p in poses if p.cls == sd.cls and sd.holds(p)) >= sd.expect:
+                self.sink_drops.remove(sd)
+                self._drop_seen(sd)
+
+    def _drop_seen(self, sd: "SinkDrop") -> None:
+        d = next((d for d in self.drops if not d["found"] and d["cls"] == sd.cls
+                  and np.allclose(d["xyz"], np.round(sd.site, 3))), None)
+        if d is not None:
+            d["found"] = True
+            self.drops_found = min(self.drops_found + 1, self.dropped)
+
+    def found_sink_drop(self, sd: "SinkDrop") -> None:
+        """The drop over the sink was found where the scans do not look (the done check's look at it)."""
+        if sd in self.sink_drops:
+            self.sink_drops.remove(sd)
+        self._drop_seen(sd)
+
+    def lost_drops(self) -> list[dict]:
+        """The drops not seen again: each {"cls", "xyz" (where it was last held)}."""
+        return [d for d in self.drops if not d["found"]]
 
     def unaccounted(self, done: int) -> tuple[int, int]:
-        """First-scan items neither in the sink nor placed, with `done` placed: (lost, never there). As many as
-        dropped on the way and were not seen again are lost; any more were never there (a duplicate detection in
-        the first scan that no later scan confirmed). A drop seen again is not lost, else a run where a slipped
-        item was found and placed and the first scan counted one item twice reads as one lost."""
+        """First-scan items neither in the sink nor placed, with `done` placed: (lost, never there). Every item
+        dropped on the way and not seen again is lost, whatever the first scan counted (it may have seen fewer
+        items than there were: a stack seen as one; capped by it, a plate that fell to the floor went unreported);
+        a drop seen again (found where it fell, or back in the sink) is not lost. More first-scan items missing
+        than that were never there (a duplicate detection that no later scan confirmed)."""
         missing = max((self.first_total or 0) - done - len(self.unverified) - len(self.staged), 0)
-        lost = min(missing, self.dropped - self.drops_found)
-        return lost, missing - lost
+        lost = len(self.lost_drops())
+        return lost, max(missing - lost, 0)
 
     def record_unseen(self, obj: ObjectPose, record: Placed, site: np.ndarray) -> None:
         """A placement was not seen at its target: kept there as an obstacle (`record`), counted as unverified,

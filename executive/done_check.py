@@ -17,6 +17,14 @@ A thing still unexplained when the scans confirm the sink empty ends the run not
 `unrecognised_left`, its position and size in the message and in RunReport.unrecognised (counted by
 `kitchenbot bench tasks`). Runs whose map holds no such thing take no look and end as before.
 
+Items lost in transit (an item that left the gripper on the way: Belief.drops) get the same: one that fell above
+the sink counts as seen again only once a scan holds as many items of its class as before (Belief.await_in_sink);
+one no scan saw back gets one look from straight above where it fell (it may rest on the rim, tilted above the
+basin, where neither the sink's perception nor the check above look), and one found there is picked up from there
+(as an item found where it slipped out over the counter). A drop still not seen again when the sink is confirmed
+empty is named in the run's outcome (`Belief.lost_drops`: its class and where it was last held; the run gives up,
+it does not succeed), whatever the first scan counted.
+
 A mixin of the verify state (executive/verification.py).
 """
 
@@ -26,7 +34,10 @@ import numpy as np
 
 from kitchenbot.drivers.errors import DriverTimeoutError
 from kitchenbot.executive.failures import StepFailed
-from kitchenbot.executive.unrecognised import Unrecognised
+from kitchenbot.executive.unrecognised import Unrecognised, unrecognised_things
+from kitchenbot.perception.rgbd import point_map
+from kitchenbot.planning.types import PlaceTarget
+from kitchenbot.world.gripper import DROP_HEIGHT
 
 
 def item_sized(thing: Unrecognised, extent: float, voxels: int) -> bool:
@@ -40,6 +51,81 @@ class DoneCheck:
     ITEM_VOXELS = 6
     SAME_THING = 0.06  # m: a thing whose centre lies this close to one looked at is that one
     MAX_LOOKS = 3  # targeted looks per run
+
+    DROP_REACH = 0.25  # m around where it fell an item found there may have come to rest (RecoveryActions.SEARCH_RADIUS)
+    ABOVE_RIM = 0.02  # m: an item centred this far above the counter top is not in the basin (it rests on the rim)
+
+    def _look_for_sink_drops(self) -> bool:
+        """Each drop above the sink no scan has seen back in it gets one view from straight above where it fell
+        and a perception of it (the counter as support: executive/recovery.py `_drop_perceiver`). An item of its
+        class found there out of the basin (on the rim, the counter beside it) is recorded where it lies and
+        picked up from there: True (the run goes on)."""
+        b = self.belief
+        for sd in list(b.sink_drops):
+            if sd.looked:
+                continue
+            sd.looked = True
+            self.report.sink_drop_looks += 1
+            try:
+                why = self._look_down_at(sd.site) if self.planner is not None else "no planner"
+                if why:
+                    self._log("note", "no view of where the item fell", xyz=sd.site, reason=why)
+                    continue
+                view = self._capture_view(f"sinkdrop{self.report.sink_drop_looks}", "drop", spot=True)
+            except (StepFailed, DriverTimeoutError) as e:
+                self._log("note", "no view of where the item fell", xyz=sd.site, reason=str(e))
+                continue
+            with self.stages.within("perceive"):
+                res = self._drop_perceiver().perceive([view])
+            rim = float(sd.sink_lo_hi[1][2]) + self.ABOVE_RIM
+            found = [p for p in res.poses if p.cls == sd.cls
+                     and np.linalg.norm(p.T_base_obj[:2, 3] - sd.site[:2]) < self.DROP_REACH
+                     and (not sd.holds(p) or p.T_base_obj[2, 3] > rim)]
+            above = [] if found else self._above_the_rim(view, sd.site, rim)
+            self._log("result", "looked where an item fell above the sink", xyz=sd.site, cls=sd.cls,
+                      found=[p.T_base_obj[:3, 3] for p in found], above_rim=[t.centre for t in above])
+            if not found:
+                if not above:  # nothing rests above the basin there: it fell back in, where the scans saw it
+                    b.found_sink_drop(sd)
+                for d in b.lost_drops():  # named at the end with what rests there
+                    if above and d["cls"] == sd.cls and np.allclose(d["xyz"], np.round(sd.site, 3)):
+                        d["rests"] = above[0].describe()
+                continue
+            obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - sd.site[:2]))
+            b.found_sink_drop(sd)
+            T_release = np.array(obj.T_base_obj, float)
+            T_release[2, 3] += DROP_HEIGHT  # as if released there (place targets are release poses)
+            placed = b.record_placed(self.task, obj, PlaceTarget(T_release, "drop", support="beside the basin "
+                                                                 "(it fell there)"), obj.T_base_obj)
+            self.report.recovered_drops += 1
+            b.record_found(placed)
+            return True
+        return False
+
+    def _above_the_rim(self, view, site: np.ndarray, rim: float) -> list[Unrecognised]:
+        """The item-sized things `view` shows above the counter top within DROP_REACH of `site` (x-y) that
+        neither the cell nor an item in the belief explains: where a fallen item no model fits rests."""
+        P = point_map(view, stride=2).reshape(-1, 3).astype(float)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        lo = np.array([site[0] - self.DROP_REACH, site[1] - self.DROP_REACH, rim])
+        hi = np.array([site[0] + self.DROP_REACH, site[1] + self.DROP_REACH, rim + 0.3])
+        P = P[np.all((P >= lo) & (P <= hi), axis=1)]
+        if not len(P):
+            return []
+        vox = self.planner.unexplained(P, self.belief.scene_objects())
+        things = unrecognised_things(vox, self.planner.world.voxel_size, lo, hi)
+        return [t for t in things if item_sized(t, self.ITEM_EXTENT, self.ITEM_VOXELS)]
+
+    def _name_lost_drops(self) -> str:
+        """The drops not seen again, for the run's message (empty: none); also in RunReport.lost."""
+        lost = self.belief.lost_drops()
+        self.report.lost = [{"cls": d["cls"], "xyz": d["xyz"]} for d in lost]
+        if not lost:
+            return ""
+        return (f"{len(lost)} object(s) dropped during the run are neither in the sink nor placed (not seen again): "
+                + ", ".join(f"{d['cls'] or 'an item'} last held at ({d['xyz'][0]:.2f}, {d['xyz'][1]:.2f}, "
+                            f"{d['xyz'][2]:.2f}) m" + (f" (something no model fits rests above the rim there, "
+                                                       f"{d['rests']})" if d.get("rests") else "") for d in lost))
 
     def _things_left(self) -> list[Unrecognised]:
         """The item-sized things in the basin no pose explains (executive/unrecognised.py), largest first."""

@@ -240,8 +240,8 @@ class Motions:
     def _slipped(self, what: str) -> StepFailed:
         """The held object slipped out: it fell straight down from about where the tool is now."""
         where = self.arm.tcp_pose()[:3, 3].copy()
-        self.belief.record_dropped(where, self.item.staged)
         obj = self.item.obj
+        self.belief.record_dropped(where, self.item.staged, obj.cls if obj is not None else None)
         return StepFailed("slip", f"the {obj.cls if obj is not None else 'object'} slipped out during {what}",
                           at=where)
 

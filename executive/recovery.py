@@ -29,7 +29,7 @@ from kitchenbot.planning.leave import rise_keeping_own_margins
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget, PlanningFailure, Trajectory
 from kitchenbot.world.gripper import DROP_HEIGHT
 from kitchenbot.world.inventory import grasp_kind
-from kitchenbot.world.same_item import SAME_ITEM_RADIUS
+from kitchenbot.world.same_item import SAME_ITEM_RADIUS, same_item
 
 
 class RecoveryActions:
@@ -374,11 +374,15 @@ class RecoveryActions:
         if site is None or self.item.obj is None or self.planner is None:
             return
         lo, hi = self.robot.cell.sink_interior
-        if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
-            if unseen_rec is None:
-                b.record_drop_found()
-            return  # it fell back into the sink: the re-scan finds it
         cls = self.item.obj.cls
+        if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
+            if unseen_rec is None:  # it fell back into the sink, or onto its rim: a scan that sees it back says so
+                obj = self.item.obj
+                at = obj.T_base_obj[:3, 3]  # (a duplicate detection of it is not another item)
+                expect = 1 + sum(1 for p in b.poses if p.cls == cls and self.task.in_sink(p) and p is not obj
+                                 and not same_item(p.cls, p.T_base_obj[:3, 3], cls, at))
+                b.await_in_sink(cls, site, expect, (lo, hi))
+            return
         keep_out = self._keep_out(site, cls)
         self.tracks.searching = True
         unseen = True
@@ -566,7 +570,7 @@ class RecoveryActions:
         (x0, y0), (x1, y1) = self.robot.cell.spec.counter_extent_xy
         if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
             self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
-            self.belief.record_dropped(tcp, it.staged)
+            self.belief.record_dropped(tcp, it.staged, it.obj.cls if it.obj is not None else None)
             self._cmd("gripper.open", release=True)
             self.gripper.open()
             return False

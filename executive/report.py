@@ -48,6 +48,10 @@ class RunReport:
     # item-sized things in the sink no pose explains at the end (executive/done_check.py): xyz, size (m), voxels
     unrecognised: list = field(default_factory=list)
     unrecognised_looks: list = field(default_factory=list)  # the targeted looks taken at them: xyz, size, seen
+    # items that left the gripper on the way and were not seen again (executive/done_check.py): cls, xyz (m: where
+    # the tool was when it fell)
+    lost: list = field(default_factory=list)
+    sink_drop_looks: int = 0  # looks at where an item fell above the sink that no scan saw back in it
     safe: bool = True  # ended with the arm at a known safe pose
 
     @property

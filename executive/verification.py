@@ -91,6 +91,9 @@ class Verification(DoneCheck):
         if self._look_at_things_left():  # something no pose explains, looked at from above and perceived anew
             self.counts.empty_scans = 0
             return "next_object"
+        if self._look_for_sink_drops():  # an item that fell above the sink, found beside the basin: picked from there
+            self.counts.empty_scans = 0
+            return "next_object"
         self.counts.empty_scans += 1
         if self.counts.empty_scans < self.opt.confirm_empty_scans:
             return "next_object"
@@ -103,8 +106,7 @@ class Verification(DoneCheck):
         # First-scan items neither in the sink nor placed: dropped and not seen again, or never there (Belief.unaccounted)
         lost, never = b.unaccounted(self.report.objects_done)
         if lost > 0:
-            problems.append(f"{lost} object(s) dropped during the run are neither in the sink nor placed "
-                            "(out of reach?)")
+            problems.append(self._name_lost_drops())
         if never > 0:
             self.report.message = (f"{never} first-scan detection(s) never confirmed by a later scan "
                                    "(duplicates?)")
