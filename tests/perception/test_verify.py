@@ -389,9 +389,6 @@ def test_a_vessel_standing_on_something_narrow_is_not_continued_by_it(perceiver,
     pose passes. On the base code the can's side read as continuation (a bottle going on past the base) and the
     glass was rejected. An upright glass fitted over the lower part of an upright bottle, whose shoulder and neck
     go on past its rim, is still rejected; so is the same glass lying (its base end judged as before)."""
-    from kitchenbot.perception.map import InstanceMap
-    from kitchenbot.perception.register import Hypothesis
-    from kitchenbot.perception.verify import Verification
 
     entry, model = perceiver.database[6], inventory[6]  # the glass
     z0, z1 = model.points[:, 2].min(), model.points[:, 2].max()
@@ -404,14 +401,7 @@ def test_a_vessel_standing_on_something_narrow_is_not_continued_by_it(perceiver,
     def verdict(T, extra):
         own, _ = _cup_surface(entry, T, 0.0005)
         extra = extra[extra[:, 0] > -0.3 * np.abs(extra[:, :2]).max()]  # the side the cameras see
-        points = np.vstack([own, extra @ T[:3, :3].T + T[:3, 3]])
-        ids = np.r_[np.zeros(len(own), int), np.ones(len(extra), int)]
-        m = InstanceMap(points, ids, np.zeros(len(points), int), np.zeros((len(points), 2), int),
-                        np.array([[0.8, 0.0, 0.6]]))
-        h = Hypothesis(6, T, verification=Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0))
-        perceiver._active_cell = perceiver.cell  # gravity: the base frame's z
-        perceiver._fine_check(m, [(h, 0, np.nonzero(ids == 0)[0])])
-        return h.verification
+        return _fine_verdict(perceiver, 6, T, own, extra)
 
     can = _cylinder_side(r_base - 0.002, z0 - 0.03, z0)  # a can's side under the base
     ver = verdict(upright, can)
@@ -543,9 +533,6 @@ def test_an_item_lying_on_an_upside_down_mugs_seen_base_is_not_continuation(perc
     overlap 0.95, fine 0.90, rejected by continued 0.26 alone). Half of the base is seen as a closed surface
     facing out: the mug ends there, and what lies past it rests on it. A bottle going on past the same base (its
     body where the base would be seen, then its neck) is still continuation: that base is not seen."""
-    from kitchenbot.perception.map import InstanceMap
-    from kitchenbot.perception.register import Hypothesis
-    from kitchenbot.perception.verify import Verification
 
     entry, model = perceiver.database[5], inventory[5]  # the mug
     z0 = model.points[:, 2].min()
@@ -554,14 +541,7 @@ def test_an_item_lying_on_an_upside_down_mugs_seen_base_is_not_continuation(perc
     rng = np.random.default_rng(3)
 
     def verdict(own, extra):
-        points = np.vstack([own, extra @ T[:3, :3].T + T[:3, 3]])
-        ids = np.r_[np.zeros(len(own), int), np.ones(len(extra), int)]
-        m = InstanceMap(points, ids, np.zeros(len(points), int), np.zeros((len(points), 2), int),
-                        np.array([[0.8, 0.0, 0.6]]))
-        h = Hypothesis(5, T, verification=Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0))
-        perceiver._active_cell = perceiver.cell  # gravity: the base frame's z
-        perceiver._fine_check(m, [(h, 0, np.nonzero(ids == 0)[0])])
-        return h.verification
+        return _fine_verdict(perceiver, 5, T, own, extra)
 
     # The mug's surface as the camera above sees it (normals facing it in the base frame), as dense as a scan's
     # map (each model point four times, spread 1.5 mm along the surface).
@@ -585,3 +565,20 @@ def test_an_item_lying_on_an_upside_down_mugs_seen_base_is_not_continuation(perc
     bottle = bottle[bottle[:, 0] - axis[0] > -0.3 * 0.03]
     ver = verdict(own[~on_base], bottle)
     assert ver.score < perceiver.settings.verify_threshold, ver
+
+
+def _fine_verdict(perceiver, obj_id, T, own, extra):
+    """The fine check's verification of a pose of `obj_id` at `T` whose own points are `own` (base frame), with
+    `extra` (object frame, placed by `T`) as a second instance beside it; camera above, gravity the base's z."""
+    from kitchenbot.perception.map import InstanceMap
+    from kitchenbot.perception.register import Hypothesis
+    from kitchenbot.perception.verify import Verification
+
+    points = np.vstack([own, extra @ T[:3, :3].T + T[:3, 3]])
+    ids = np.r_[np.zeros(len(own), int), np.ones(len(extra), int)]
+    m = InstanceMap(points, ids, np.zeros(len(points), int), np.zeros((len(points), 2), int),
+                    np.array([[0.8, 0.0, 0.6]]))
+    h = Hypothesis(obj_id, T, verification=Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0))
+    perceiver._active_cell = perceiver.cell
+    perceiver._fine_check(m, [(h, 0, np.nonzero(ids == 0)[0])])
+    return h.verification
