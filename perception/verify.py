@@ -225,15 +225,26 @@ def _on(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: 
     return out
 
 
-def facing_unclaimed(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
-                     voxel: float, tol: float, others: list[tuple[ModelEntry, np.ndarray]]) -> float | None:
-    """The `normals` part over a pose's own points (camera-facing `normals`, NaN rows by position only) less those
-    another pose (`others`) has on its surface within `tol`; None where no other pose has any. (A stacked item's
-    segment, what the item on it left over, also holds the rim of the item under it, fitted later: those points
-    lie within a voxel of its underside and face the other way.)"""
+def claimed_by(points: np.ndarray, normals: np.ndarray, tol: float,
+               others: list[tuple[ModelEntry, np.ndarray]]) -> np.ndarray:
+    """Which points (camera-facing `normals`, NaN rows by position only) another pose (`others`: (entry,
+    T_base_obj)) has on its surface within `tol`."""
     claimed = np.zeros(len(points), bool)
     for e, T in others:
         claimed |= _on(points, normals, e, T, tol)
+    return claimed
+
+
+def facing_unclaimed(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
+                     voxel: float, tol: float, others: list[tuple[ModelEntry, np.ndarray]],
+                     claimed: np.ndarray | None = None) -> float | None:
+    """The `normals` part over a pose's own points (camera-facing `normals`, NaN rows by position only) less those
+    another pose (`others`) has on its surface within `tol`; None where no other pose has any. (A stacked item's
+    segment, what the item on it left over, also holds the rim of the item under it, fitted later: those points
+    lie within a voxel of its underside and face the other way.) `claimed`: `claimed_by(points, normals, tol,
+    others)` where the caller has it already."""
+    if claimed is None:
+        claimed = claimed_by(points, normals, tol, others)
     if not claimed.any() or claimed.all():
         return None
     P, N = points[~claimed], normals[~claimed]
@@ -253,7 +264,8 @@ def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_bas
 
 
 def fine_fit(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray, tol: float,
-             others: list[tuple[ModelEntry, np.ndarray]] = (), symmetric: bool = False) -> tuple[float, np.ndarray]:
+             others: list[tuple[ModelEntry, np.ndarray]] = (), symmetric: bool = False,
+             claimed: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """`fine_share` and the pose it is read at. A neighbour's points in the segment (touching items) do not count
     against a pose.
 
@@ -262,12 +274,12 @@ def fine_fit(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_
     axis). An item seen as a sliver (a nested cup's rim) is registered a few millimetres off, which is right
     for grasping and within 0.1 diameter, but at 3 mm would read as a shape that does not fit; a can taken
     for a tapered cup stays off wherever it is slid. The refined pose is returned (the given one where there
-    was nothing to refine on, or the refinement moved it by more than a centimetre)."""
+    was nothing to refine on, or the refinement moved it by more than a centimetre). `claimed`:
+    `claimed_by(points, normals, tol, others)` where the caller has it already."""
     if len(points) == 0:
         return 0.0, T_base_obj
-    claimed = np.zeros(len(points), bool)
-    for e, T in others:
-        claimed |= _on(points, normals, e, T, tol)
+    if claimed is None:
+        claimed = claimed_by(points, normals, tol, others)
     mine = ~claimed | _on(points, normals, entry, T_base_obj, tol)
     if not mine.any():
         return 0.0, T_base_obj
