@@ -67,8 +67,9 @@ FINE_TOL_NOISE = 4.0
 FINE_FULL = 0.6
 # The fine fit's nudge (`fine_fit`) runs on at most about this many of the pose's own points (every k-th: map
 # points come in pixel order, so evenly over the item); the share is read on all of them. A segment holds up to
-# ~25 000 map points, and the nudge's ICP on all of them was a tenth of a scan's pose stage; the same fit to a
-# few hundredths of a millimetre on 2000 (the refinement's ICP runs on <= 600 voxel centres).
+# ~25 000 map points, and the nudge's ICP on all of them was a tenth of a scan's pose stage (the refinement's ICP
+# runs on <= 600 voxel centres). On 2000 the final poses and verification scores of the development and fresh
+# scans of the twenty-eighth session were the same (docs/perception_measurements.md, pose28).
 FINE_FIT_POINTS = 2000
 # The continued share at which a pose scores 0 (linear from 0 at none): right fits of lying cups, mugs and glasses
 # have 0-0.06, cups fitted along a lying bottle 0-0.6, most over 0.15 (development scenes with distractors,
