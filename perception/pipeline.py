@@ -35,8 +35,8 @@ from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.refit import refit_beside_unexplained
 from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.types import ObjectPose, View
-from kitchenbot.perception.verify import (BASE_SEEN, base_seen, continuation, facing_unclaimed, filled, fine_fit,
-                                          fine_tolerance, intruded, overhang, overhang_area, patch_normals,
+from kitchenbot.perception.verify import (BASE_SEEN, base_seen, claimed_by, continuation, facing_unclaimed, filled,
+                                          fine_fit, fine_tolerance, intruded, overhang, overhang_area, patch_normals,
                                           surface_noise, verify, within_wall)
 from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
@@ -176,6 +176,8 @@ class Perceiver:
         self._db = database
         self._depths: list[np.ndarray] | None = None  # per scan: depth with unknown = 0, shared by the scorers
         self._normals: tuple[int, dict] | None = None  # per scan: (id of the map's points, {point set: normals})
+        self._fine_ctx: tuple | None = None  # per map: (its points, their KD-tree, the fine tolerance)
+        self._fine_memo: dict[tuple, object] = {}  # per map: the fine check's parts and pieces (`_fine_parts`)
         self.settings_seed = 0
         st = self.settings
         self.reg_cfg = RegistrationConfig(voxel=st.voxel_size, top_k=st.top_k, candidate_threshold=st.candidate_threshold,
@@ -223,6 +225,7 @@ class Perceiver:
         o3d.utility.random.seed(self.settings_seed)  # Open3D's RANSAC: same views, same answer
         self._depths = None
         self._normals = None
+        self._fine_ctx, self._fine_memo = None, {}  # the fine check's map context and memo (`_fine_context`)
         db = self.database
         # Scan poses off (arm repeatability, hand-eye error): with a known cell each view is registered onto the
         # cell's sink (absolute and relative errors at once); without one, the views onto the first view.
@@ -537,9 +540,8 @@ class Perceiver:
         todo = {k for k, f in enumerate(found) if f[0].source != KEPT}
         if not todo:  # every pose kept as it was: nothing to check (nor the map's tree and noise to measure)
             return
-        tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
+        tree, tol = self._fine_context(m)
         log.debug("perception: fine tolerance %.1f mm", 1000 * tol)
-        tree = cKDTree(m.points)
         while todo:
             alive = [f for k, f in enumerate(found) if k not in failed]
             # A pose rejected by `overhang_area` alone (a glass fitted along a drink can: its side and its ends
@@ -568,8 +570,7 @@ class Perceiver:
         todo = [k for k, (h, _, _) in enumerate(found) if failed(h) and self.inventory[h.obj_id].cls in FLIP_CLASSES]
         if not todo:
             return False
-        tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
-        tree = cKDTree(m.points)
+        tree, tol = self._fine_context(m)
         changed = False
         for k in todo:
             h, iid, own = found[k]
@@ -664,7 +665,7 @@ class Perceiver:
         if not ctx:
             return []
         explaining = [f[0] for f in found if not failed(f[0]) or by_context(f[0])]
-        tree = cKDTree(m.points)
+        tree, _ = self._fine_context(m)
         near: set[int] = set()
         for h, _, _ in ctx:
             near.update(tree.query_ball_point(h.T_base_obj[:3, 3], CONTEXT_REACH * self.inventory[h.obj_id].diameter))
@@ -701,43 +702,107 @@ class Perceiver:
         return v is not None and v.score < self.settings.verify_threshold and \
             replace(v, overhang_area=0.0).score >= self.settings.verify_threshold
 
+    def _fine_context(self, m: InstanceMap) -> tuple[cKDTree, float]:
+        """The map's KD-tree and the fine check's tolerance (from the map's surface noise): computed once per scan
+        and map (the fine check runs again after each retry; both depend on the map points alone). A new map
+        also starts a new `_fine_memo` (its keys name map points by index)."""
+        if self._fine_ctx is None or self._fine_ctx[0] is not m.points:
+            tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
+            self._fine_ctx = (m.points, cKDTree(m.points), tol)
+            self._fine_memo = {}
+        return self._fine_ctx[1], self._fine_ctx[2]
+
     def _fine_parts(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis, own: np.ndarray,
                     found: list[tuple[Hypothesis, int, np.ndarray]],
                     along: list[tuple[Hypothesis, int, np.ndarray]] = ()) -> None:
         """The `fine`, `continued` and `filled` parts of one pose, with `found` the poses that may explain
-        points near it (and `along` those that explain points for `continued` only: `_fine_check`)."""
+        points near it (and `along` those that explain points for `continued` only: `_fine_check`).
+
+        The parts depend only on the pose, its own points, the map and the poses near it (within their two
+        diameters, and the centimetre the fine fit may move it): the fine check is repeated after each retry
+        and for the neighbours of each pose that fails, and a pose whose inputs are all as they were gets the
+        parts it was given then, not computed again (`_fine_memo`, one scan)."""
         if hyp.verification is None or len(own) == 0:
             return
-        db = self.database
-        reach = self.inventory[hyp.obj_id].diameter
         # A pose that cannot be there together with this one (`_through_each_other`) explains nothing for it:
         # of two such fits at most one is right, and each must not pass on the strength of the other.
         found = [f for f in found if f[0] is hyp or not self._through_each_other(hyp, f[0])]
+        if hyp.verification.normals_segment is None:
+            hyp.verification.normals_segment = hyp.verification.normals
+        self._fine_context(m)  # the memo is this map's
+        key = self._fine_key(tol, hyp, own, found, along)
+        parts = self._fine_memo.get(key)
+        if parts is None:
+            parts = self._fine_parts_computed(m, tree, tol, hyp, own, found, along)
+            self._fine_memo[key] = parts
+        for name, value in parts.items():
+            setattr(hyp.verification, name, value)
+
+    def _memo(self, key: tuple, compute):
+        """`compute()`, remembered for the scan under `key` (`_fine_memo`: keys name everything it reads)."""
+        if key not in self._fine_memo:
+            self._fine_memo[key] = compute()
+        return self._fine_memo[key]
+
+    def _fine_key(self, tol: float, hyp: Hypothesis, own: np.ndarray,
+                  found: list[tuple[Hypothesis, int, np.ndarray]],
+                  along: list[tuple[Hypothesis, int, np.ndarray]]) -> tuple:
+        """Everything `_fine_parts_computed` reads but the map (`_fine_memo` is one map's): the gravity prior, the
+        tolerance, the pose (model, pose, the normals part judged on its segment), its own points and the poses that can explain
+        points it looks at (model and pose; the order does not matter: each check takes the union of what they
+        explain)."""
+        diameter, centre = self.inventory[hyp.obj_id].diameter, hyp.T_base_obj[:3, 3]
+
+        def near(fs) -> frozenset:
+            return frozenset((h.obj_id, h.T_base_obj.tobytes()) for h, _, _ in fs if h is not hyp and
+                             np.linalg.norm(h.T_base_obj[:3, 3] - centre) <=
+                             diameter + self.inventory[h.obj_id].diameter + FINE_KEY_SLACK)
+
+        along_near = near(along) if self.inventory[hyp.obj_id].cls in FLIP_CLASSES else frozenset()
+        up = self._up()  # (continued, overhang and intruded read the gravity prior)
+        return ("parts", None if up is None else np.asarray(up, float).tobytes(), tol, hyp.obj_id, hyp.T_base_obj.tobytes(), np.asarray(own).tobytes(),
+                hyp.verification.normals_segment, near(found), along_near)
+
+    def _fine_parts_computed(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis, own: np.ndarray,
+                             found: list[tuple[Hypothesis, int, np.ndarray]],
+                             along: list[tuple[Hypothesis, int, np.ndarray]]) -> dict[str, float]:
+        """`_fine_parts` computed: the verification parts it sets, by name (`found` filtered already)."""
+        db = self.database
+        reach = self.inventory[hyp.obj_id].diameter
         others = [(db[h.obj_id], h.T_base_obj) for h, _, _ in found if h is not hyp and
                   np.linalg.norm(h.T_base_obj[:3, 3] - hyp.T_base_obj[:3, 3]) <
                   0.5 * (reach + self.inventory[h.obj_id].diameter)]
-        normals = patch_normals(m.points[own], m.cam_centres[m.view[own]])
+        # The pieces that do not depend on the neighbours are remembered for the scan too (a pose checked again
+        # because a neighbour failed has the same points and normals), and each neighbour's claim on them.
+        own_key = np.asarray(own).tobytes()
+        normals = self._memo(("normals", own_key), lambda: patch_normals(m.points[own], m.cam_centres[m.view[own]]))
+        claimed = np.zeros(len(own), bool)
+        for e, T in others:
+            claimed |= self._memo(("claimed", own_key, tol, e.obj_id, T.tobytes()),
+                                  lambda: claimed_by(m.points[own], normals, tol, [(e, T)]))
         # Points another pose has on its surface do not count against this one's normals either (the segment
         # of a stacked item, what the item on it left over, holds the rim of the item under it, fitted later).
-        if hyp.verification.normals_segment is None:
-            hyp.verification.normals_segment = hyp.verification.normals
+        parts: dict[str, float] = {}
         facing = facing_unclaimed(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, self.settings.voxel_size,
-                                  tol, others)
-        hyp.verification.normals = hyp.verification.normals_segment if facing is None else \
-            max(hyp.verification.normals_segment, facing)
-        hyp.verification.fine, T_fine = fine_fit(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol,
-                                                 others, self.inventory[hyp.obj_id].is_rotationally_symmetric)
+                                  tol, others, claimed)
+        segment = hyp.verification.normals_segment
+        parts["normals"] = segment if facing is None else max(segment, facing)
+        sym = self.inventory[hyp.obj_id].is_rotationally_symmetric
+        # (the fit depends on the neighbours only through the points they claim)
+        parts["fine"], T_fine = self._memo(
+            ("fine_fit", own_key, tol, hyp.obj_id, hyp.T_base_obj.tobytes(), claimed.tobytes()),
+            lambda: fine_fit(m.points[own], normals, db[hyp.obj_id], hyp.T_base_obj, tol, others, sym, claimed))
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
-            hyp.verification.continued = self._continued(m, tree, hyp, own,
-                                                         found + [f for f in along if f[0] is not hyp])
+            parts["continued"] = self._continued(m, tree, hyp, own, found + [f for f in along if f[0] is not hyp])
         near = None  # map points near the pose and which of them a pose explains (for filled and overhang)
         if self.inventory[hyp.obj_id].cls in CAVITY_CLASSES:
             near = self._explained_near(m, tree, hyp, found)
-            hyp.verification.filled = self._filled(near, hyp, own)
+            parts["filled"] = self._filled(near, hyp, own)
         if self.inventory[hyp.obj_id].cls in FLIP_CLASSES:
-            hyp.verification.overhang, hyp.verification.overhang_area = \
+            parts["overhang"], parts["overhang_area"] = \
                 self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
-            hyp.verification.intruded = self._intruded(m, tree, tol, hyp, found, T_fine)
+            parts["intruded"] = self._intruded(m, tree, tol, hyp, found, T_fine)
+        return parts
 
     def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Whether two poses of one tall vessel (cup, mug, glass) lie on one axis turned opposite ways, their
@@ -773,11 +838,10 @@ class Perceiver:
         up = self._up()
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
         standing = abs(z @ up) >= np.cos(np.radians(45))
-        idx = np.array(tree.query_ball_point(T[:3, 3], model.diameter), int)
+        idx, P, explained = self._near(m, tree, hyp)
         if len(idx) == 0:
             return 0.0
-        P = m.points[idx]
-        explained = on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
+        explained = explained.copy()
         # A closed base the depth shows ends the item: what lies past it (a sponge on an upside-down mug's base)
         # rests on it; a bottle fitted by a cup goes on through where the cup's base would be, unseen. (The map
         # points on the pose's surface, not its own points: a turned-over retry keeps the points of the fit it
@@ -800,17 +864,34 @@ class Perceiver:
                 and np.linalg.norm(d - (d @ z) * z) < 0.5 * model.diameter \
                 and along > 0.25 * (model.extents[2] + other.extents[2])
             if not end_to_end:
-                explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
+                explained |= self._explains_near(hyp, P, h)
         return continuation(P, model.points, T, explained, len(own), only_along=standing,
                             on_base=(standing and z @ up > 0) or closed)
 
+    def _near(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Map points within the model's diameter of a pose (indices, points) and which of them the pose puts on its
+        surface; remembered per pose for the map (`_fine_memo`: `continued`, `filled` and `overhang` all read
+        them, again at each repeat of the fine check). Read only: copy before changing."""
+        T = hyp.T_base_obj
+
+        def compute():
+            idx = np.array(tree.query_ball_point(T[:3, 3], self.inventory[hyp.obj_id].diameter), int)
+            P = m.points[idx]
+            on = on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL) if len(P) else np.zeros(0, bool)
+            return idx, P, on
+
+        return self._memo(("near", hyp.obj_id, T.tobytes()), compute)
+
+    def _explains_near(self, hyp: Hypothesis, P: np.ndarray, other: Hypothesis) -> np.ndarray:
+        """Which of the map points near `hyp` (`P`, from `_near`) the pose `other` puts on its surface (at 1.5 x
+        FINE_ON_TOL); remembered per pair of poses for the map. Read only."""
+        return self._memo(("explains", hyp.obj_id, hyp.T_base_obj.tobytes(), other.obj_id, other.T_base_obj.tobytes()),
+                          lambda: on_surface(P, None, self.database[other.obj_id], other.T_base_obj, 1.5 * FINE_ON_TOL))
+
     def _near_points(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis) -> tuple[np.ndarray, np.ndarray]:
         """Map points within the model's diameter of a pose, and which of them the pose puts on its surface."""
-        T = hyp.T_base_obj
-        P = m.points[np.array(tree.query_ball_point(T[:3, 3], self.inventory[hyp.obj_id].diameter), int)]
-        if len(P) == 0:
-            return P, np.zeros(0, bool)
-        return P, on_surface(P, None, self.database[hyp.obj_id], T, FINE_ON_TOL)
+        _, P, on = self._near(m, tree, hyp)
+        return P, on.copy()
 
     def _explained_near(self, m: InstanceMap, tree: cKDTree, hyp: Hypothesis,
                         found: list[tuple[Hypothesis, int, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
@@ -824,7 +905,7 @@ class Perceiver:
         for h, _, _ in found:
             if h is not hyp and np.linalg.norm(h.T_base_obj[:3, 3] - T[:3, 3]) < \
                     model.diameter + self.inventory[h.obj_id].diameter:
-                explained |= on_surface(P, None, self.database[h.obj_id], h.T_base_obj, 1.5 * FINE_ON_TOL)
+                explained |= self._explains_near(hyp, P, h)
         return P, explained
 
     def _filled(self, near: tuple[np.ndarray, np.ndarray], hyp: Hypothesis, own: np.ndarray) -> float:
@@ -1316,6 +1397,9 @@ class Perceiver:
 
 #: Hypothesis.source of a prior kept as it was (Perceiver._kept)
 KEPT = "kept"
+# How much farther than their two diameters (metres) a pose counts as a neighbour in the fine check's memo key
+# (`Perceiver._fine_key`): the fine fit may move the pose up to a centimetre, and `intruded` measures from there.
+FINE_KEY_SLACK = 0.02
 
 # By how much a vessel's pose turned over after a rejection may explain its points less well (`fine`, `explained`,
 # `normals`, `free_space`; verification parts are shares) and replace it (Perceiver._retry_turned_over).

@@ -65,6 +65,12 @@ FINE_TOL_NOISE = 4.0
 # 0.5-0.8 (their fits are a few millimetres off); drink cans and bottles fitted as cups and glasses 0.2-0.8,
 # boxes fitted as mugs 0.1-0.5 (development scenes with distractors, docs/perception.md).
 FINE_FULL = 0.6
+# The fine fit's nudge (`fine_fit`) runs on at most about this many of the pose's own points (every k-th: map
+# points come in pixel order, so evenly over the item); the share is read on all of them. A segment holds up to
+# ~25 000 map points, and the nudge's ICP on all of them was a tenth of a scan's pose stage (the refinement's ICP
+# runs on <= 600 voxel centres). On 2000 the final poses and verification scores of the development and fresh
+# scans of the twenty-eighth session were the same (docs/perception_measurements.md, pose28).
+FINE_FIT_POINTS = 2000
 # The continued share at which a pose scores 0 (linear from 0 at none): right fits of lying cups, mugs and glasses
 # have 0-0.06, cups fitted along a lying bottle 0-0.6, most over 0.15 (development scenes with distractors,
 # docs/perception_measurements.md "A bottle is longer than a cup"); with the threshold 0.85 a pose is rejected
@@ -225,15 +231,26 @@ def _on(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: 
     return out
 
 
-def facing_unclaimed(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
-                     voxel: float, tol: float, others: list[tuple[ModelEntry, np.ndarray]]) -> float | None:
-    """The `normals` part over a pose's own points (camera-facing `normals`, NaN rows by position only) less those
-    another pose (`others`) has on its surface within `tol`; None where no other pose has any. (A stacked item's
-    segment, what the item on it left over, also holds the rim of the item under it, fitted later: those points
-    lie within a voxel of its underside and face the other way.)"""
+def claimed_by(points: np.ndarray, normals: np.ndarray, tol: float,
+               others: list[tuple[ModelEntry, np.ndarray]]) -> np.ndarray:
+    """Which points (camera-facing `normals`, NaN rows by position only) another pose (`others`: (entry,
+    T_base_obj)) has on its surface within `tol`."""
     claimed = np.zeros(len(points), bool)
     for e, T in others:
         claimed |= _on(points, normals, e, T, tol)
+    return claimed
+
+
+def facing_unclaimed(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
+                     voxel: float, tol: float, others: list[tuple[ModelEntry, np.ndarray]],
+                     claimed: np.ndarray | None = None) -> float | None:
+    """The `normals` part over a pose's own points (camera-facing `normals`, NaN rows by position only) less those
+    another pose (`others`) has on its surface within `tol`; None where no other pose has any. (A stacked item's
+    segment, what the item on it left over, also holds the rim of the item under it, fitted later: those points
+    lie within a voxel of its underside and face the other way.) `claimed`: `claimed_by(points, normals, tol,
+    others)` where the caller has it already."""
+    if claimed is None:
+        claimed = claimed_by(points, normals, tol, others)
     if not claimed.any() or claimed.all():
         return None
     P, N = points[~claimed], normals[~claimed]
@@ -253,7 +270,8 @@ def fine_share(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_bas
 
 
 def fine_fit(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray, tol: float,
-             others: list[tuple[ModelEntry, np.ndarray]] = (), symmetric: bool = False) -> tuple[float, np.ndarray]:
+             others: list[tuple[ModelEntry, np.ndarray]] = (), symmetric: bool = False,
+             claimed: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """`fine_share` and the pose it is read at. A neighbour's points in the segment (touching items) do not count
     against a pose.
 
@@ -262,12 +280,12 @@ def fine_fit(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_
     axis). An item seen as a sliver (a nested cup's rim) is registered a few millimetres off, which is right
     for grasping and within 0.1 diameter, but at 3 mm would read as a shape that does not fit; a can taken
     for a tapered cup stays off wherever it is slid. The refined pose is returned (the given one where there
-    was nothing to refine on, or the refinement moved it by more than a centimetre)."""
+    was nothing to refine on, or the refinement moved it by more than a centimetre). `claimed`:
+    `claimed_by(points, normals, tol, others)` where the caller has it already."""
     if len(points) == 0:
         return 0.0, T_base_obj
-    claimed = np.zeros(len(points), bool)
-    for e, T in others:
-        claimed |= _on(points, normals, e, T, tol)
+    if claimed is None:
+        claimed = claimed_by(points, normals, tol, others)
     mine = ~claimed | _on(points, normals, entry, T_base_obj, tol)
     if not mine.any():
         return 0.0, T_base_obj
@@ -275,7 +293,8 @@ def fine_fit(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_
     T = T_base_obj
     has = np.isfinite(N).all(axis=1)
     if has.sum() >= 12:
-        T = inv(icp_to_model(P[has], entry, inv(T_base_obj), (2 * tol, tol), iters=8, qn=N[has],
+        step = max(1, int(has.sum()) // FINE_FIT_POINTS)
+        T = inv(icp_to_model(P[has][::step], entry, inv(T_base_obj), (2 * tol, tol), iters=8, qn=N[has][::step],
                              symmetric=symmetric))
         # a refinement is a nudge: one that moves the pose by more than a centimetre is no judgement of it
         if np.linalg.norm(T[:3, 3] - T_base_obj[:3, 3]) > 0.01:
