@@ -48,6 +48,9 @@ MEMO_MOVE = 0.001
 MEMO_TURN = np.radians(1.0)
 #: m: the grid on which `_within_one_item` bounds what a fit can take of a cluster
 ROOM_GRID = 0.01
+#: m: the grid of ball centres (and of points) on which `_in_one_ball` looks for room for the pose's points and
+#: the cluster's
+BALL_GRID = 0.02
 #: failed re-fits remembered (the latest first): a scan's few clusters beside poses, over a few scans
 MEMO_SIZE = 32
 
@@ -135,7 +138,9 @@ def refit_beside_unexplained(per, m: InstanceMap, views: list[View], kept: list[
             continue
         room = _within_one_item(m.points[own], m.points[C], REFIT_KEEP_OWN * on_own,
                                 model.diameter + 2 * SURFACE_TOL * vox + vox)
-        if room.sum() < gain:
+        if room.sum() < gain or not _in_one_ball(m.points[own], m.points[C[room]], REFIT_KEEP_OWN * on_own, gain,
+                                                 _enclosing_radius(per.database[hyp.obj_id].dense_points) +
+                                                 SURFACE_TOL * vox):
             continue
         if per.refit_memo.failed_before(hyp.obj_id, model.is_rotationally_symmetric, hyp.T_base_obj, m.points[own],
                                         m.points[C]):
@@ -174,8 +179,36 @@ def _within_one_item(own: np.ndarray, cluster: np.ndarray, keep: float, diameter
     n_c = np.bincount(inv_c.ravel(), minlength=len(k_c))
     # two points in voxels whose centres are d apart are at least d - s sqrt(3) apart
     near = cdist(k_c * s, k_own * s) <= diameter + s * np.sqrt(3.0)
-    room = near.astype(np.int64) @ n_own >= keep
+    room = near @ n_own >= keep
     return room[inv_c.ravel()]
+
+
+def _enclosing_radius(points: np.ndarray) -> float:
+    """Radius of a ball that holds all of a model's surface `points` (about its box's centre or its centroid,
+    the smaller): no fit of the model puts on its surface points farther apart than this ball allows."""
+    P = np.asarray(points, float)
+    return float(min(np.sqrt(((P - c) ** 2).sum(axis=1).max())
+                     for c in (0.5 * (P.min(axis=0) + P.max(axis=0)), P.mean(axis=0))))
+
+
+def _in_one_ball(own: np.ndarray, cluster: np.ndarray, keep: float, gain: float, radius: float) -> bool:
+    """Whether some ball of `radius` (the model's enclosing ball, the surface tolerance included) could hold
+    `keep` of the `own` points and `gain` of the `cluster` points: else no fit of the model keeps its own points
+    and takes that much of the cluster (a thing 10 cm beyond a plate's rim is within the plate's diameter of
+    most of its points, but no plate-sized ball holds both). Ball centres and points on a 2 cm grid, the
+    radius grown by both (generous: a ball that could hold them is never missed)."""
+    s = g = BALL_GRID
+    k_own, n_own = np.unique(np.floor(own / s).astype(np.int64), axis=0, return_counts=True)
+    k_c, n_c = np.unique(np.floor(cluster / s).astype(np.int64), axis=0, return_counts=True)
+    c_own, c_c = (k_own + 0.5) * s, (k_c + 0.5) * s
+    r = radius + 0.5 * np.sqrt(3.0) * (s + g)
+    lo, hi = c_own.min(axis=0) - radius, c_own.max(axis=0) + radius
+    axes = [np.arange(a, b + g, g) for a, b in zip(lo, hi)]
+    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    holds_own = (cdist(centres, c_own) <= r) @ n_own >= keep
+    if not holds_own.any():
+        return False
+    return bool(((cdist(centres[holds_own], c_c) <= r) @ n_c >= gain).any())
 
 
 def _owner(per, m: InstanceMap, kept: list[list], C: np.ndarray) -> int | None:

@@ -103,3 +103,19 @@ def test_only_the_part_of_a_cluster_within_the_items_size_can_be_taken():
     assert not _within_one_item(own, across, 0.9 * len(own), 0.117).any()
     crescent = own[:300] * [1.1, 1.1, 1.0]
     assert _within_one_item(own, crescent, 0.9 * len(own), 0.117).all()
+
+
+def test_a_cluster_no_ball_of_the_items_size_holds_with_its_points_is_not_fitted():
+    """A plate's points (a 27 cm disc) and a cluster 10 cm beyond its rim: most plate points are within the
+    plate's diameter of the cluster, but no ball of the plate's size holds both; a crescent at the rim fits."""
+    from kitchenbot.perception.refit import _enclosing_radius, _in_one_ball
+
+    rng = np.random.default_rng(2)
+    r, a = 0.135 * np.sqrt(rng.uniform(0, 1, 8000)), rng.uniform(0, 2 * np.pi, 8000)
+    plate = np.c_[r * np.cos(a), r * np.sin(a), np.zeros(8000)]
+    radius = _enclosing_radius(plate) + 0.003
+    assert abs(radius - 0.138) < 0.002
+    beyond = rng.uniform([0.235, -0.03, 0.0], [0.30, 0.03, 0.05], (2000, 3))
+    assert not _in_one_ball(plate[:6000], beyond, 0.9 * 6000, 200, radius)
+    crescent = plate[np.hypot(plate[:, 0], plate[:, 1]) > 0.12]
+    assert _in_one_ball(plate[:6000], crescent, 0.9 * 6000, 0.5 * len(crescent), radius)
