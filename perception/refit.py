@@ -20,7 +20,10 @@ stretched over both does not explain the two at the sensor's precision. Base fra
 A re-fit that failed is remembered (`RefitMemo`, one per Perceiver): on a re-scan where the pose is where it was
 and its own points and the cluster's are the same points (pose tracking's test for unchanged surroundings), the pair
 is not fitted again (the same fits of the same points would fail the same way; before, the clusters beside poses
-that nothing in the scene changed were fitted again on every scan).
+that nothing in the scene changed were fitted again on every scan). Nor is a cluster fitted of which no fit of the
+pose's model that keeps its own points could take the gain asked: most of it on the pose's surface already, too
+little of it within the item's size of the pose's points (`_within_one_item`; only that part is fitted), or no ball
+of the model's size holding both (`_in_one_ball`). The full estimate searches the pose's own model only.
 """
 
 from __future__ import annotations
