@@ -32,7 +32,7 @@ from kitchenbot.perception.rgbd import check_view
 from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
-from kitchenbot.perception.refit import refit_beside_unexplained
+from kitchenbot.perception.refit import RefitMemo, refit_beside_unexplained
 from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (BASE_SEEN, base_seen, claimed_by, continuation, facing_unclaimed, filled,
@@ -179,6 +179,7 @@ class Perceiver:
         self._fine_ctx: tuple | None = None  # per map: (its points, their KD-tree, the fine tolerance)
         self._fine_memo: dict[tuple, object] = {}  # per map: the fine check's parts and pieces (`_fine_parts`)
         self.settings_seed = 0
+        self.refit_memo = RefitMemo()  # re-fits beside what is left that failed, not tried again unchanged
         st = self.settings
         self.reg_cfg = RegistrationConfig(voxel=st.voxel_size, top_k=st.top_k, candidate_threshold=st.candidate_threshold,
                                           min_overlap=st.min_overlap)
@@ -1224,16 +1225,19 @@ class Perceiver:
         return best
 
     def estimate(self, inst: InstanceMap, views: list[View], found: list[Hypothesis] = (),
-                 covered: np.ndarray | None = None) -> tuple[Hypothesis | None, FusedCloud]:
+                 covered: np.ndarray | None = None, model: int | None = None) -> tuple[Hypothesis | None, FusedCloud]:
         """Class and pose of one instance (its map points), or None when no model explains it. `found`: poses
         already estimated nearby, whose stacking positions (same model shifted along its axis) are tried too.
         `covered`: points the poses of items on this one explain (what a pose left over is fitted with the
-        points it took as `covered`: register.Scorer)."""
+        points it took as `covered`: register.Scorer). `model`: only that model, if the features propose it (a
+        known item fitted again)."""
         st = self.settings
         query = self._query(inst, views)
         if len(query.points) < 8:
             return None, query
         cands = propose(query, self.database, st.top_k, st.candidate_threshold)
+        if model is not None:
+            cands = [c for c in cands if c[0] == model]
         up = self._up()
         # Screen every candidate's hypotheses, then refine the best few over all candidates. Appearance must
         # agree too: geometry alone confuses e.g. two nested cups with one glass.
