@@ -703,7 +703,6 @@ class Scene:
         self.gd = pin.GeometryData(gm)
         self._bp = None
         self._pools: dict[float, object] = {}  # the batch checker's pools, one per pads' opening (_pool)
-        self._single_rows = 0  # rows valid_batch checked one by one, without a pool (FEW_ROWS)
         self._tcp_in_j6 = robot.model.frames[robot.tcp_id].placement.translation.copy()
         self._ws_lo = np.asarray(robot.limits.workspace.lower, float)
         self._ws_hi = np.asarray(robot.limits.workspace.upper, float)
@@ -894,7 +893,6 @@ class Scene:
         other.gd = pin.GeometryData(self.gm)
         other._bp = None
         other._pools = {}  # its own pair activations and margins
-        other._single_rows = 0
         other._zone = None
         return other
 
@@ -996,32 +994,11 @@ class Scene:
             self._pools[key] = pool
         return pool
 
-    # Rows (in all, per scene) that valid_batch asks valid() one by one while this scene has no batch checker yet for
-    # the pads' opening: building one (_pool: a copy of the geometry and its broad phase) costs ~3 ms, ~200 single
-    # checks (~15 us each), and most scenes are made for one query and asked a batch of a few to a hundred rows (a
-    # release pose's IK branches, a straight line's states). Past this many the checker is built as before. The
-    # answers are the same (tests/planning/test_collision.py).
-    FEW_ROWS = 128
-
-    def _valid_rows(self, Q: np.ndarray, up_to_first: bool) -> np.ndarray:
-        """valid(q) for each row of Q (N, 6); with `up_to_first`, the rows after the first invalid one are left False
-        (undetermined, as valid_batch's batch checker leaves them)."""
-        ok = np.zeros(len(Q), bool)
-        for i, q in enumerate(Q):
-            ok[i] = self.valid(q)
-            if up_to_first and not ok[i]:
-                break
-        return ok
-
     def valid_batch(self, Q: np.ndarray, *, up_to_first: bool = False) -> np.ndarray:
         """Validity of each row of Q (N, 6): limits, workspace (vectorised DH FK) and collisions (batch).
         `up_to_first`: the batch checker stops at the first colliding row, so only the rows up to the first
         invalid one are answered (those after it are undetermined): what :meth:`first_invalid` needs."""
         Q = np.asarray(Q, float).reshape(-1, 6)
-        if len(Q) <= self.FEW_ROWS and self._single_rows + len(Q) <= self.FEW_ROWS \
-                and self._shared["opening"] not in self._pools:
-            self._single_rows += len(Q)
-            return self._valid_rows(Q, up_to_first)
         robot = self.world.robot
         ok = np.all((Q >= robot.lower - 1e-9) & (Q <= robot.upper + 1e-9), axis=1)
         p = tcp_positions(robot, Q)

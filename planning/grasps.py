@@ -364,6 +364,7 @@ MAX_MISSES = 4  # rejections of one grasp kept to tell whether it missed narrowl
 # m: how far a grasp may back off along its approach (a shallower bite) when the finger tips would touch what the
 # item rests on: a Fin-Ray grasp still holds
 BITES = (0.0, 0.004, 0.008)
+IK_CHUNK = 8  # candidates whose IK (at every bite) is solved in one batch (RobotModel.ik_all_batch)
 TOOL_PARTS = ("pad_a", "pad_b", "palm", "camera")
 
 
@@ -576,16 +577,25 @@ def select_grasps(
         st.feasible += 1
         return True
 
-    # IK batched: every candidate's closed-form branches at every bite in one solve (cheap beside one per call;
-    # those after `limit` is reached are solved for nothing)
+    # IK batched: the closed-form branches of the next IK_CHUNK candidates at every bite in one solve (~25x
+    # cheaper per pose than one per call), solved as the checks reach them (most searches stop at `limit` long
+    # before the end of `pending`)
     n_bites = len(BITES)
-    ik_all = robot.ik_all_batch(np.concatenate([bites(T) for _, _, _, T in pending]), q_current) if pending else []
+    solved: dict[int, list] = {}
+
+    def ik_of(i: int) -> list:
+        if i not in solved:
+            chunk = pending[i:i + IK_CHUNK]
+            sols = robot.ik_all_batch(np.concatenate([bites(T) for _, _, _, T in chunk]), q_current)
+            for m in range(len(chunk)):
+                solved[i + m] = sols[m * n_bites:(m + 1) * n_bites]
+        return solved[i]
+
     for i, (k, o, spec, T) in enumerate(pending):
         if limit is not None and len(out) >= limit:
             break
         misses: list = []
-        q_grasp, q_pre, Tg, brush, first_hit, first_taken, reached = fit(
-            k, o, spec, T, misses, ik=ik_all[i * n_bites:(i + 1) * n_bites])
+        q_grasp, q_pre, Tg, brush, first_hit, first_taken, reached = fit(k, o, spec, T, misses, ik=ik_of(i))
         if q_grasp is None and misses:
             near.append((k, o, spec, T, misses))
         if q_grasp is None and first_taken is not None:

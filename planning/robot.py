@@ -312,15 +312,17 @@ class RobotModel:
             return []
         Q, ok = ik_flange_batch(self.ur, T @ self._T_tcp_flange)
         idx = np.argwhere(ok)  # (pose, branch), pose-major
-        out: list[list[np.ndarray]] = [[] for _ in range(len(T))]
+        rows: list[list[tuple[float, np.ndarray]]] = [[] for _ in range(len(T))]
         if not len(idx):
-            return out
-        for (i, _), qw in zip(idx, self.wrap_near_rows(Q[ok], q_ref)):
-            if qw is not None:
-                out[i].append(qw)
-        for sols in out:
-            sols.sort(key=lambda q: float(np.max(np.abs(q - q_ref))))
-        return out
+            return [[] for _ in range(len(T))]
+        W = self.wrap_near_rows(Q[ok], q_ref)
+        kept = [k for k, qw in enumerate(W) if qw is not None]
+        if kept:
+            dist = np.max(np.abs(np.array([W[k] for k in kept]) - q_ref), axis=1).tolist()  # ik_all's sort key
+            for k, d in zip(kept, dist):
+                rows[idx[k, 0]].append((d, W[k]))
+        # nearest first; equal distances keep the branches' order (a stable sort, as ik_all's)
+        return [[q for _, q in sorted(r, key=lambda x: x[0])] for r in rows]
 
     def surely_unreachable(self, T_base_tcp: np.ndarray) -> bool:
         """Whether no joint configuration reaches the TCP pose, by a margin numerical IK cannot close

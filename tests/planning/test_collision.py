@@ -221,36 +221,3 @@ def test_batch_pools_are_kept_per_opening(planner, home, resting, monkeypatch):
             assert len(built) == 3, len(built)  # one pool per opening
         else:  # its strict scene (pad contacts checked) keeps its own: at most one more per opening
             assert len(built) <= 2 * 3, len(built)
-
-
-def test_few_rows_are_checked_without_building_a_batch_checker(planner, home, resting, monkeypatch):
-    """A scene asked a few rows (a release pose's IK branches, a short line) checks them one by one (valid) instead
-    of building the batch checker (~3 ms, ~200 single checks): the same answers, with allowed pad contacts and
-    `up_to_first` (first_invalid) too, and the checker built as before once the scene has been asked many rows."""
-    from kitchenbot.planning import collision
-
-    built = []
-    real = collision.pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager
-
-    def counted(*a):
-        built.append(1)
-        return real(*a)
-
-    monkeypatch.setattr(collision.pin, "BroadPhaseManagerPool_DynamicAABBTreeCollisionManager", counted)
-    cup = resting("cup", (0.5, 0.0), 1)
-    spec = planner.inventory.by_name("cup").grasps[0]
-    q_grasp = planner.robot.ik_q(cup.T_base_obj @ spec.T_obj_tcp, home)
-    rng = np.random.default_rng(13)
-    Q = np.clip(np.vstack([q_grasp + rng.normal(0.0, 0.02, (20, 6)), home + rng.uniform(-1.5, 1.5, (20, 6))]),
-                planner.robot.lower, planner.robot.upper)
-    for scene in (planner.scene([cup]), planner.scene([cup]).for_grasp("1")):
-        built.clear()
-        single = np.array([scene.valid(q) for q in Q])
-        assert 0 < single.sum() < len(Q)
-        np.testing.assert_array_equal(scene.valid_batch(Q), single)
-        k = scene.first_invalid(Q)
-        assert k == int(np.argmin(single))
-        assert built == []
-        many = np.vstack([Q] * 4)  # past FEW_ROWS in all: the batch checker, the same answers
-        np.testing.assert_array_equal(scene.valid_batch(many), np.concatenate([single] * 4))
-        assert len(built) >= 1
