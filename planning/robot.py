@@ -24,7 +24,7 @@ from scipy.linalg.lapack import dgesv as _dgesv
 
 from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import URModel, ur_model
-from kitchenbot.planning.ur_ik import ik_flange, surely_unreachable
+from kitchenbot.planning.ur_ik import ik_flange, ik_flange_batch, surely_unreachable
 
 _TURNS = np.array([0.0, -1.0, 1.0, -2.0, 2.0])  # the 2*pi turns wrap_near tries, nearest first
 _TURNS_LIST = _TURNS.tolist()
@@ -204,6 +204,18 @@ class RobotModel:
         out = cand[pick, np.arange(6)]
         return np.where(np.isfinite(best), out, q)
 
+    def wrap_round_trip_rows(self, Q: np.ndarray, ref: np.ndarray, rest: np.ndarray) -> np.ndarray:
+        """wrap_round_trip for each row of Q (N, 6) at once (the same arithmetic per element: the same values)."""
+        Q, ref, rest = (np.asarray(a, float) for a in (Q, ref, rest))
+        cand = Q[:, None, :] + 2 * np.pi * _TURNS[None, :, None]  # (N, 5, 6): each row itself first
+        ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)
+        to_ref = np.abs(cand - ref)
+        cost = np.where(ok, to_ref + np.abs(cand - rest), np.inf)
+        best = cost.min(axis=1)
+        pick = np.argmin(np.where(cost <= best[:, None, :] + 1e-9, to_ref, np.inf), axis=1)
+        out = np.take_along_axis(cand, pick[:, None, :], axis=1)[:, 0, :]
+        return np.where(np.isfinite(best), out, Q)
+
     def _dls(self, T_target: pin.SE3, q0: np.ndarray, max_iter: int, tol: float, damping: float) -> tuple[np.ndarray, float, int]:
         model, data, fid = self.model, self.data, self.tcp_id
         q = q0.copy()
@@ -287,6 +299,30 @@ class RobotModel:
         out = [qw for qw in self.wrap_near_rows(np.array(sols), q_ref) if qw is not None]
         out.sort(key=lambda q: float(np.max(np.abs(q - q_ref))))
         return out
+
+    def ik_all_batch(self, T_base_tcp: np.ndarray, q_ref: np.ndarray) -> list[list[np.ndarray]]:
+        """ik_all for N TCP poses (N, 4, 4) at once: per pose, every closed-form branch inside the joint limits,
+        wrapped nearest `q_ref`, nearest first. One vectorised solve (planning.ur_ik.ik_flange_batch) and one
+        wrap over all branches instead of N calls: grasp selection asks this of every candidate grasp at every
+        bite. The batched closed form is the same derivation in array arithmetic: its angles agree with ik_flange's
+        to ~1e-12 rad (tests/planning/test_robot.py), not bitwise."""
+        q_ref = np.asarray(q_ref, float)
+        T = np.asarray(T_base_tcp, float).reshape(-1, 4, 4)
+        if not len(T):
+            return []
+        Q, ok = ik_flange_batch(self.ur, T @ self._T_tcp_flange)
+        idx = np.argwhere(ok)  # (pose, branch), pose-major
+        rows: list[list[tuple[float, np.ndarray]]] = [[] for _ in range(len(T))]
+        if not len(idx):
+            return [[] for _ in range(len(T))]
+        W = self.wrap_near_rows(Q[ok], q_ref)
+        kept = [k for k, qw in enumerate(W) if qw is not None]
+        if kept:
+            dist = np.max(np.abs(np.array([W[k] for k in kept]) - q_ref), axis=1).tolist()  # ik_all's sort key
+            for k, d in zip(kept, dist):
+                rows[idx[k, 0]].append((d, W[k]))
+        # nearest first; equal distances keep the branches' order (a stable sort, as ik_all's)
+        return [[q for _, q in sorted(r, key=lambda x: x[0])] for r in rows]
 
     def surely_unreachable(self, T_base_tcp: np.ndarray) -> bool:
         """Whether no joint configuration reaches the TCP pose, by a margin numerical IK cannot close

@@ -126,3 +126,33 @@ def test_wrap_near_is_wrap_near_rows_bitwise_at_the_edges(planner):
         else:
             assert got.dtype == want.dtype and np.array_equal(got.view(np.int64), want.view(np.int64)), (q, ref)
     assert 0 < nones < len(rows)
+
+
+def test_ik_all_batch_gives_ik_all_per_pose(planner, home):
+    """Grasp selection solves every candidate's IK in one batch (RobotModel.ik_all_batch): per pose the branches
+    ik_all gives (the same number, in the same order, each within 1e-9 rad), none for poses out of reach."""
+    robot = planner.robot
+    rng = np.random.default_rng(11)
+    Q = np.clip(home + rng.uniform(-1.5, 1.5, (120, 6)), robot.lower, robot.upper)
+    T = np.array([robot.fk_tcp(q) for q in Q] + [trans(2.0, 0.0, 0.0) @ robot.fk_tcp(home)])
+    ref = home + rng.uniform(-0.3, 0.3, 6)
+    got = robot.ik_all_batch(T, ref)
+    assert len(got) == len(T)
+    assert got[-1] == [] and robot.ik_all(T[-1], ref) == []
+    for Tk, sols in zip(T[:-1], got[:-1]):
+        want = robot.ik_all(Tk, ref)
+        assert len(sols) == len(want) >= 1
+        for a, b in zip(sols, want):
+            np.testing.assert_allclose(a, b, atol=1e-9)
+    assert robot.ik_all_batch(np.zeros((0, 4, 4)), ref) == []
+
+
+def test_wrap_round_trip_rows_is_wrap_round_trip_row_by_row(planner):
+    """The batched round-trip wrap of grasp selection gives wrap_round_trip's values bitwise, row by row."""
+    robot = planner.robot
+    rng = np.random.default_rng(12)
+    Q = np.clip(rng.uniform(-7.0, 7.0, (300, 6)), robot.lower, robot.upper)
+    for ref, rest in ((np.zeros(6), np.zeros(6)), (rng.uniform(-3, 3, 6), rng.uniform(-3, 3, 6))):
+        rows = robot.wrap_round_trip_rows(Q, ref, rest)
+        for q, got in zip(Q, rows):
+            assert np.array_equal(got, robot.wrap_round_trip(q, ref, rest))
