@@ -24,6 +24,7 @@ from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import ur_model
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject, coal_transform
+from kitchenbot.planning.doubtful_support import approaches_points, own_axis_directions, pose_doubtful
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_legs, sidesteps
@@ -807,6 +808,9 @@ class Planner:
         names = sorted({x for p in pairs for x in p if x in by_name})
         if not names:
             return None
+        doubtful = [n for n in names if pose_doubtful(by_name[n], self.settings.visible_fraction_unoccluded)]
+        if doubtful:  # its pose may not choose the direction (planning/doubtful_support.py)
+            return self._lift_off_doubtful(lift_scene, start_scene, held_scene, q_grasp, g, pairs, by_name, doubtful)
         held_bvh = self.world.bvh(self.inventory[g.obj.obj_id])
         T_held = np.asarray(g.obj.T_base_obj, float)
         others = [(self.world.bvh(self.inventory[by_name[n].obj_id]), coal_transform(by_name[n].T_base_obj))
@@ -829,6 +833,38 @@ class Planner:
             if held_scene.valid(q_lifted) and self._contact_comes_back(lift_scene, lift.q, pairs) is None and \
                     self._remade_in_fit(lift_scene, lift.q, pairs) is None:
                 return lift, q_lifted, leg
+        return None
+
+    def _lift_off_doubtful(self, lift_scene: Scene, start_scene: Scene, held_scene: Scene, q_grasp: np.ndarray,
+                           g: Grasp, pairs: list[tuple[str, str]], by_name: dict,
+                           doubtful: list[str]) -> tuple[Trajectory, np.ndarray, np.ndarray] | None:
+        """_separating_lift's answer where some of the items the held one touches at the grasp (`doubtful`, their
+        pairs' names) have poses too poorly supported by what was seen of them to choose a direction
+        (doubtful_support.pose_doubtful): a lift in two legs, first LIFT_CONTACT_TRAVEL along the held item's own
+        axis or in a cone about it (doubtful_support.own_axis_directions: off whatever it rests on, wherever that
+        is), then straight up. Those items' fitted poses are not checked against the held item; their own points
+        are instead (doubtful_support.approaches_points: no point may come nearer the swept item than at the grasp
+        while within the collision margin). Everything else is checked as on the separating lift. None where no
+        such lift plans."""
+        skip = [p for p in lift_scene.pair_names if "held" in p and any(x in doubtful for x in p)]
+        trusted = [p for p in pairs if not any(x in doubtful for x in p)]
+        lift_free, start_free = lift_scene.allowing(skip), start_scene.allowing(skip)
+        held_bvh = self.world.bvh(self.inventory[g.obj.obj_id])
+        points = np.vstack([np.asarray(by_name[n].points, float).reshape(-1, 3) for n in doubtful])
+        T_tcp_obj = inv(g.spec.T_obj_tcp)
+        for d in own_axis_directions(g.obj.T_base_obj):
+            leg = LIFT_CONTACT_TRAVEL * d
+            r = self._two_leg_lift(lift_free, start_free, q_grasp, g.T_base_tcp, leg)
+            if isinstance(r, PlanningFailure):
+                continue
+            lift, q_lifted = r
+            if not held_scene.valid(q_lifted) or self._contact_comes_back(lift_scene, lift.q, trusted) is not None \
+                    or self._remade_in_fit(lift_scene, lift.q, trusted) is not None:
+                continue
+            path = [self.robot.fk_tcp(q) @ T_tcp_obj for q in lift.q]
+            if approaches_points(held_bvh, path, points, self.settings.collision_margin):
+                continue
+            return lift, q_lifted, leg
         return None
 
     # m around the TCP and the flange within which a voxel the gripper (palm 75 x 140 mm, pads, camera) ran into lies
