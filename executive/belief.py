@@ -48,6 +48,9 @@ class Attempts:
     plan_epoch: int = -1
     slides: int = 0
     missed: list = field(default_factory=list)  # grasps (spec names) that closed on nothing here: not tried again
+    # a grip of it closed across more than its own rim (a nest of plates seen as one): slid before it is gripped
+    # again (executive/strategies.py, SlideTopOfNest); cleared by the slide
+    nest_felt: bool = False
     set_aside_plans: int = 0  # plans to set it aside on the counter (it had no target and blocked another item)
     no_room: tuple | None = None  # (scene epoch, items keeping room) when its task last had no target for it
 
@@ -369,6 +372,17 @@ class Belief:
         if grasp not in t.missed:
             t.missed.append(grasp)
 
+    def record_nest_felt(self, obj: ObjectPose) -> None:
+        """A grip of `obj` (a plate) closed wider than planned by about the pitch of a nest: its pads took in the
+        rim of the plate nested under it too (the pair is seen as one plate). Another pinch there closes across
+        both rims again; the top one is slid off the other first (SlideTopOfNest)."""
+        self.attempts_for(obj, create=True).nest_felt = True
+
+    def nest_felt(self, obj: ObjectPose) -> bool:
+        """Whether a grip of `obj` closed across two nested rims since it was last slid (record_nest_felt)."""
+        t = self.attempts_for(obj)
+        return t is not None and t.nest_felt
+
     def doubt(self, obj: ObjectPose) -> None:
         """A grasp of `obj` missed: its pose is in doubt. Its verification's parts are dropped, so the next
         perception does not keep it unchecked where the map around it did not change (Perceiver._kept: a grasp
@@ -413,6 +427,8 @@ class Belief:
     def record_slid(self, t: Attempts, T_after: np.ndarray) -> None:
         """The item slid to T_after: the same item over there; the scene changed."""
         t.pos = T_after[:3, 3].copy()
+        if t.nest_felt:  # the top plate slid off the one its grips took in too: those grips say nothing of it alone
+            t.nest_felt, t.missed = False, []
         self.scene_changed()
 
     def record_blocked(self, obj: ObjectPose, blocker: int | None) -> None:

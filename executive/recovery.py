@@ -22,6 +22,7 @@ from kitchenbot.executive.belief import as_pose
 from kitchenbot.executive.failures import Failure, StepFailed, Stopped
 from kitchenbot.executive.recovery_rules import CAMERA, rule_for
 from kitchenbot.executive.recovery_strategies import recover_with
+from kitchenbot.executive.strategies import SLIDABLE
 from kitchenbot.executive.verify import target_presence
 from kitchenbot.perception.rgbd import point_map
 from kitchenbot.perception.types import ObjectPose
@@ -93,6 +94,8 @@ class RecoveryActions:
             if f.kind == "grasp_missed" and self.item.pick is not None:
                 for name in self._missed_alike(f, obj, self.item.pick.grasp.spec.name):
                     self.belief.record_missed_grasp(obj, name)
+            if f.kind == "grasp_missed" and self._closed_on_a_nest(f, obj):
+                self.belief.record_nest_felt(obj)
             if f.kind == "grasp_missed" and self.item.staged is not None:
                 self.belief.look_again(self.item.staged)
 
@@ -111,6 +114,22 @@ class RecoveryActions:
         if model is None or not model.is_rotationally_symmetric or kind is None:
             return [name]
         return [name] + [g.name for g in model.grasps if g.name != name and grasp_kind(g.name) == kind]
+
+    # a plate's grip that closes wider than planned by this fraction of its nest pitch (or more) took in a second
+    # rim: the pitch is the rise from one nested plate to the next, so both rims and the gap between them
+    NEST_FELT = 0.8
+
+    def _closed_on_a_nest(self, f: Failure, obj: ObjectPose) -> bool:
+        """Whether the grip that failed `f` closed on a plate wider than planned (``expected`` in the failure) by
+        NEST_FELT of its model's nest pitch or more: its pads took in the rim of a plate nested under it, the pair
+        seen as one plate (SLIDABLE classes only: those nest flat)."""
+        if "expected" not in f.details or "opening" not in f.details or obj.cls not in SLIDABLE:
+            return False
+        inv = self.planner.inventory if self.planner is not None else self.robot.inventory
+        model = inv.models.get(obj.obj_id)
+        if model is None or model.nest_pitch <= 0:
+            return False
+        return float(f.details["opening"]) - float(f.details["expected"]) >= self.NEST_FELT * model.nest_pitch
 
     def _act_back_off(self, f: Failure, ctx: dict) -> None:
         tr = self.tracks

@@ -131,7 +131,7 @@ class Strategy:
 
 class DirectPick(Strategy):
     name = "direct_pick"
-    when = "first, always"
+    when = "first, always (only `slide_top_of_nest` comes before it, where it applies)"
     does = "a pick whose grasp also reaches one of the targets (the grasp filter), then the place at the first " \
            "target that plans; when none plans with that grasp, the pick again without it (at most " \
            f"{PLACE_GRASPS} grasps)"
@@ -313,6 +313,58 @@ class SlideOffStack(Strategy):
         return _slide_plan(self.name, req)
 
 
+class SlideTopOfNest(Strategy):
+    """Two plates nested so closely that perception sees one: every grasp of the pair is collision-free as
+    planned, but a rim pinch closes across both rims (the opening wider than planned by about the nest's pitch:
+    a `grasp_missed`), and so does every other pinch there, whatever its bite, until the item's attempts are
+    spent and both plates stay in the sink. Once a grip has felt that (`Belief.nest_felt`), the plate is slid
+    sideways before it is gripped again: the closed fingers drag the top plate (the one they press on), and the
+    next scan sees it overhanging the one below, where a pinch takes it alone. Tried before the direct pick
+    (which would plan a pinch across the pair again); where no slide plans, the direct pick goes on as before."""
+
+    name = "slide_top_of_nest"
+    when = "a plate a grip of which closed across two rims (`grasp_missed` wider than planned by 0.8 of its nest " \
+           f"pitch: a nest seen as one plate) since it was last slid, not staged, slid fewer than " \
+           f"{M.MAX_SLIDES_PER_OBJECT} times; before the direct pick"
+    does = "press on its well with the closed fingers and slide it 6 cm sideways (`Planner.plan_slide`): the top " \
+           "plate follows the fingers, and the next scan sees it overhanging the one below; the grasps missed " \
+           "on the pair are allowed again"
+
+    def applies(self, failure, obj, belief, req):
+        return (failure is None and obj.cls in SLIDABLE and req.staged is None and belief.nest_felt(obj)
+                and _may_slide(belief, obj))
+
+    def plan(self, req):
+        under = nested_under(req.planner, req.obj)
+        if under is None:
+            return None
+        req.note("command", "plan_slide", cls=req.obj.cls, nest_felt=True)
+        # the plate the grip felt is planned for as lying one nest pitch under it (no scan shows it): the slide
+        # lifts the fingers as the top plate climbs out of its well, to where a grasp of it alone is free
+        slide = req.planner.plan_slide(req.joints(), [*req.scene_objs, under], req.obj,
+                                       map_points=req.belief.map_points)
+        req.check_deadline()
+        if not slide.ok:
+            req.note("note", "no slide", reason=str(slide))
+            return None
+        req.note("result", "planned slide", direction=slide.direction, distance=slide.distance,
+                 to=slide.T_base_obj_after[:3, 3])
+        return ItemPlan(self.name, slide=slide)
+
+
+def nested_under(planner, obj: ObjectPose) -> ObjectPose | None:
+    """The plate of `obj`'s kind nested under it, as a grip across both rims says it lies: `obj`'s pose moved
+    one nest pitch along its own axis, the way that points down (mouth up or down: a nest is stacked along the
+    axis; unseen: no points, no instance id); None when its model is unknown or does not nest."""
+    model = planner.inventory.models.get(obj.obj_id)
+    if model is None or model.nest_pitch <= 0:
+        return None
+    T = np.array(obj.T_base_obj, float)
+    down = T[:3, 2] if T[2, 2] < 0 else -T[:3, 2]
+    T[:3, 3] += model.nest_pitch * down
+    return ObjectPose(obj.obj_id, obj.cls, T, 0.0, visible_fraction=0.0)
+
+
 def _slide_plan(name: str, req: PlanRequest, **kw) -> ItemPlan | None:
     """Strategy `name`'s slide of `req.obj` (`Planner.plan_slide` with `kw`), or None (the reason noted)."""
     slide = req.planner.plan_slide(req.joints(), req.scene_objs, req.obj, map_points=req.belief.map_points, **kw)
@@ -468,7 +520,7 @@ class BlockerFirst(Strategy):
 
 
 STRATEGIES: dict[str, type[Strategy]] = {s.name: s for s in (
-    DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, SlideOffBlocked,
+    SlideTopOfNest, DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, SlideOffBlocked,
     SlideFromWall, PickHiddenBlocker, SetAsideBlocker, BlockerFirst)}
 
 
