@@ -287,6 +287,7 @@ class Perceiver:
             splits = 0
             found: list[tuple[Hypothesis, int, np.ndarray]] = []
             parts: set[int] = set()  # ids made by cutting a blob (never cut again)
+            blob_of: dict[int, np.ndarray] = {}  # id of such a region -> the blob's voxel centres (Scorer context)
             groups: dict[int, list[np.ndarray]] = {}  # id of a remainder in pieces -> the pieces (map indices)
             # id of what a pose left over -> the points that pose (and those before it in the chain) explained:
             # the item stacked on what is left (Scorer `covered`: the surface hidden under it counts for nothing)
@@ -304,7 +305,8 @@ class Perceiver:
                     used.add(prior_k)
                 else:
                     covered = _voxel_centres(m.points[under[iid]], vox / 2) if iid in under else None
-                    hyp, _query = self.estimate(m.select(sel), views, [f[0] for f in found], covered)
+                    hyp, _query = self.estimate(m.select(sel), views, [f[0] for f in found], covered,
+                                                blob_of.get(iid))
                 pose_ms.append(1000 * (time.perf_counter() - t0))
                 pose_cpu_ms.append(1000 * (time.process_time() - c0))
                 if iid in groups:
@@ -327,9 +329,11 @@ class Perceiver:
                         # Several items segmented together and no single model explains enough of them: cut
                         # the blob into item-sized regions and try each (what a region's pose leaves over is
                         # refitted as usual; duplicates are resolved below).
+                        blob = _voxel_centres(m.points[sel], vox)
                         for part in _partition(m.points[sel], 0.07):
                             ids_out[sel[part]] = next_id
                             parts.add(next_id)
+                            blob_of[next_id] = blob
                             queue.append(next_id)
                             next_id += 1
                         continue
@@ -1225,12 +1229,14 @@ class Perceiver:
         return best
 
     def estimate(self, inst: InstanceMap, views: list[View], found: list[Hypothesis] = (),
-                 covered: np.ndarray | None = None, model: int | None = None) -> tuple[Hypothesis | None, FusedCloud]:
+                 covered: np.ndarray | None = None, model: int | None = None,
+                 context: np.ndarray | None = None) -> tuple[Hypothesis | None, FusedCloud]:
         """Class and pose of one instance (its map points), or None when no model explains it. `found`: poses
         already estimated nearby, whose stacking positions (same model shifted along its axis) are tried too.
         `covered`: points the poses of items on this one explain (what a pose left over is fitted with the
         points it took as `covered`: register.Scorer). `model`: only that model, if the features propose it (a
-        known item fitted again)."""
+        known item fitted again). `context`: the points of the blob this instance is a region of, which confirm
+        a model's surface as the instance's own do (register.Scorer `context`)."""
         st = self.settings
         query = self._query(inst, views)
         if len(query.points) < 8:
@@ -1253,7 +1259,7 @@ class Perceiver:
                 break  # one item's segment, with a fit that may pass already, from a model that looks more alike
             entry = self.database[oid]
             scorers[oid] = Scorer(entry, query.points, views, st.voxel_size, inside_solid=self._inside_solid(up),
-                                  depths=self._depths, covered=covered)
+                                  depths=self._depths, covered=covered, context=context)
             w = 0.6 + 0.4 * max(0.0, img_sim) if np.isfinite(img_sim) else 1.0
             stack = [h.T_base_obj for h in found if h.obj_id == oid and
                      np.linalg.norm(h.T_base_obj[:3, 3] - query.points.mean(axis=0)) < self.inventory[oid].diameter]

@@ -129,14 +129,21 @@ class Scorer:
 
     def __init__(self, entry: ModelEntry, query_points: np.ndarray, views: list[View], eps: float, n_model: int = 800,
                  inside_solid: Callable[[np.ndarray], np.ndarray] | None = None,
-                 depths: list[np.ndarray] | None = None, covered: np.ndarray | None = None):
+                 depths: list[np.ndarray] | None = None, covered: np.ndarray | None = None,
+                 context: np.ndarray | None = None):
         """`inside_solid(P)`: which base-frame points lie inside known solid matter (the cell's counter and sink
         walls, or below the support plane); a pose that puts the model there is penalised. `covered`: points
         another pose already explains (the item stacked on this one): model surface the depth confirms near them
         but not near the query, and behind the seen surface (HIDDEN_DEPTH), is hidden under that item (a plate's
         top 6 mm under the plate on it lies within the depth tolerance of the upper one's surface), neither for
         nor against the pose. (Surface in front of the seen one still counts against it: with it, a fit of a
-        nested bowl leaning 10 deg more than the bowl poked out of the bowl in it for free and won.)"""
+        nested bowl leaning 10 deg more than the bowl poked out of the bowl in it for free and won.)
+        `context`: points of the segment the query was cut from (the other regions of a blob cut into item-sized
+        regions): model surface the depth confirms near them counts as confirmed (`or_model`) as near the query's
+        own points, while `or_query` stays the share of the query's points the pose explains. An item longer than
+        a region (a 12 cm glass leaning in a pile) has most of its seen surface in the neighbouring regions; judged
+        on its region alone, the right fit confirmed a fifth of its visible surface and no fit of any region
+        passed."""
         self.inside_solid = inside_solid
         self.covered_tree = cKDTree(covered) if covered is not None and len(covered) else None
         step = max(1, len(entry.dense_points) // n_model)
@@ -144,7 +151,8 @@ class Scorer:
         self.mn = entry.dense_normals[::step].astype(np.float64)
         self.model_tree = entry.tree
         self.q = query_points
-        self.q_tree = cKDTree(query_points)
+        self.q_tree = cKDTree(query_points if context is None or not len(context)
+                              else np.concatenate([query_points, context]))
         self.views = views
         self.depths = depths if depths is not None else clean_depths(views)
         self.eps = eps
