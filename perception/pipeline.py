@@ -306,7 +306,7 @@ class Perceiver:
                 else:
                     covered = _voxel_centres(m.points[under[iid]], vox / 2) if iid in under else None
                     hyp, _query = self.estimate(m.select(sel), views, [f[0] for f in found], covered,
-                                                blob_of.get(iid))
+                                                context=blob_of.get(iid))
                 pose_ms.append(1000 * (time.perf_counter() - t0))
                 pose_cpu_ms.append(1000 * (time.process_time() - c0))
                 if iid in groups:
