@@ -341,15 +341,7 @@ class SlideTopOfNest(Strategy):
         req.note("command", "plan_slide", cls=req.obj.cls, nest_felt=True)
         # the plate the grip felt is planned for as lying one nest pitch under it (no scan shows it): the slide
         # lifts the fingers as the top plate climbs out of its well, to where a grasp of it alone is free
-        slide = req.planner.plan_slide(req.joints(), [*req.scene_objs, under], req.obj,
-                                       map_points=req.belief.map_points)
-        req.check_deadline()
-        if not slide.ok:
-            req.note("note", "no slide", reason=str(slide))
-            return None
-        req.note("result", "planned slide", direction=slide.direction, distance=slide.distance,
-                 to=slide.T_base_obj_after[:3, 3])
-        return ItemPlan(self.name, slide=slide)
+        return _slide_plan(self.name, req, scene_objs=[*req.scene_objs, under])
 
 
 def nested_under(planner, obj: ObjectPose) -> ObjectPose | None:
@@ -365,9 +357,11 @@ def nested_under(planner, obj: ObjectPose) -> ObjectPose | None:
     return ObjectPose(obj.obj_id, obj.cls, T, 0.0, visible_fraction=0.0)
 
 
-def _slide_plan(name: str, req: PlanRequest, **kw) -> ItemPlan | None:
-    """Strategy `name`'s slide of `req.obj` (`Planner.plan_slide` with `kw`), or None (the reason noted)."""
-    slide = req.planner.plan_slide(req.joints(), req.scene_objs, req.obj, map_points=req.belief.map_points, **kw)
+def _slide_plan(name: str, req: PlanRequest, scene_objs: list[ObjectPose] | None = None, **kw) -> ItemPlan | None:
+    """Strategy `name`'s slide of `req.obj` (`Planner.plan_slide` with `kw`) among `scene_objs` (default: the
+    request's), or None (the reason noted)."""
+    objs = req.scene_objs if scene_objs is None else scene_objs
+    slide = req.planner.plan_slide(req.joints(), objs, req.obj, map_points=req.belief.map_points, **kw)
     req.check_deadline()
     if not slide.ok:
         req.note("note", "no slide", reason=str(slide))

@@ -34,6 +34,19 @@ def _errors(T_est, T_true) -> tuple[float, float]:
             float(np.degrees(np.arccos(np.clip(T_est[:3, 2] @ T_true[:3, 2], -1, 1)))))
 
 
+def _sink_scan_cams() -> list[np.ndarray]:
+    """T_base_cam of the sink's three scan poses as the generated scenes of these tests were seen (printed rounded:
+    the rotations orthonormalised)."""
+    cams = [np.array(c + [[0.0, 0.0, 0.0, 1.0]]) for c in (
+        [[-0.7206, -0.5434, 0.4307, 0.2619], [-0.6025, 0.7981, -0.001, 0.0008], [-0.3432, -0.2602, -0.9025, 0.3312]],
+        [[0.3941, -0.9011, 0.1807, 0.4003], [-0.7665, -0.4308, -0.4764, 0.24], [0.5071, 0.0492, -0.8605, 0.3005]],
+        [[-0.8802, -0.4382, 0.1821, 0.4009], [-0.3112, 0.8227, 0.4757, -0.2397], [-0.3583, 0.3621, -0.8605, 0.3003]])]
+    for c in cams:
+        u, _, vt = np.linalg.svd(c[:3, :3])
+        c[:3, :3] = u @ vt
+    return cams
+
+
 def test_cup_lying_across_a_leaning_cup(perceiver, inventory, cell):
     """Sink-pick seed 29: a cup leaning 31 deg (in a cup under it, left out here) and a cup lying across it at
     110 deg, segmented as one instance. An upright fit between the two, scoring 0.01 less than the lying cup's
@@ -164,14 +177,7 @@ def test_a_glass_nested_in_a_glass_under_a_glass_lying_across_is_found(perceiver
     placed = [(GLASS, _T([0.0381, -0.0832, 2.9484], [0.3199, 0.1035, -0.138])),
               (GLASS, _T([0.2373, -0.3098, 2.3013], [0.3243, 0.0889, -0.0454])),
               (GLASS, _T([0.9431, -1.6897, 1.9199], [0.3368, 0.0366, 0.0346]))]
-    cams = [np.array(c + [[0.0, 0.0, 0.0, 1.0]]) for c in (
-        [[-0.7206, -0.5434, 0.4307, 0.2619], [-0.6025, 0.7981, -0.001, 0.0008], [-0.3432, -0.2602, -0.9025, 0.3312]],
-        [[0.3941, -0.9011, 0.1807, 0.4003], [-0.7665, -0.4308, -0.4764, 0.24], [0.5071, 0.0492, -0.8605, 0.3005]],
-        [[-0.8802, -0.4382, 0.1821, 0.4009], [-0.3112, 0.8227, 0.4757, -0.2397], [-0.3583, 0.3621, -0.8605, 0.3003]])]
-    # the printed rotations are rounded: orthonormalise them
-    for c in cams:
-        u, _, vt = np.linalg.svd(c[:3, :3])
-        c[:3, :3] = u @ vt
+    cams = _sink_scan_cams()
     views, _ = render(inventory, placed, cams, cell, noise=0.002)
     poses = perceiver.perceive(views).poses
     assert len(poses) == 3, [(p.obj_id, p.T_base_obj[:3, 3].round(3)) for p in poses]
@@ -194,13 +200,7 @@ def test_a_region_of_a_blob_is_scored_with_the_rest_of_the_blob_confirming_its_s
 
     glass = _T([-0.2136, -1.0795, -1.129], [0.3888, 0.0051, -0.0091])
     placed = [(GLASS, glass), (MUG, _T([1.5738, -1.9195, -0.7704], [0.4218, -0.0771, -0.0815]))]
-    cams = [np.array(c + [[0.0, 0.0, 0.0, 1.0]]) for c in (
-        [[-0.7206, -0.5434, 0.4307, 0.2619], [-0.6025, 0.7981, -0.001, 0.0008], [-0.3432, -0.2602, -0.9025, 0.3312]],
-        [[0.3941, -0.9011, 0.1807, 0.4003], [-0.7665, -0.4308, -0.4764, 0.24], [0.5071, 0.0492, -0.8605, 0.3005]],
-        [[-0.8802, -0.4382, 0.1821, 0.4009], [-0.3112, 0.8227, 0.4757, -0.2397], [-0.3583, 0.3621, -0.8605, 0.3003]])]
-    for c in cams:
-        u, _, vt = np.linalg.svd(c[:3, :3])
-        c[:3, :3] = u @ vt
+    cams = _sink_scan_cams()
     views, labels = render(inventory, placed, cams, cell, noise=0.002)
     vox = perceiver.settings.voxel_size
     blob = _voxel_centres(np.concatenate([backproject(v, lab >= 0)[0] for v, lab in zip(views, labels)]), vox)

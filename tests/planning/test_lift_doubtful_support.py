@@ -20,6 +20,7 @@ import pytest
 from kitchenbot.planning import doubtful_support
 from kitchenbot.planning import pick_place as pick_place_mod
 from kitchenbot.transforms import from_rotvec, inv
+from tests.planning.test_lift_nested_unseen import _surface_points
 
 # (name, true pose, fitted pose; each (rotation vector, position), base frame), the held bowl first and the bowl
 # under it second
@@ -46,15 +47,7 @@ def _seen_strip(model, T_true: np.ndarray, n: int = 6000) -> np.ndarray:
     """Points on the lower bowl's true surface where the camera saw it: its outer wall within 2 cm of the rim
     (radius 6 cm or more in its own frame) on the side that sticks out from under the held bowl (azimuth 150 to
     330 degrees about its axis)."""
-    V = np.asarray(model.mesh.vertices, float)
-    F = np.asarray(model.mesh.triangles)
-    a = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    rng = np.random.default_rng(0)
-    k = rng.choice(len(F), n, p=a / a.sum())
-    u, v = rng.random(n), rng.random(n)
-    flip = u + v > 1
-    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-    P = V[F[k, 0]] + u[:, None] * (V[F[k, 1]] - V[F[k, 0]]) + v[:, None] * (V[F[k, 2]] - V[F[k, 0]])
+    P = _surface_points(model, np.eye(4), n)  # in the bowl's own frame
     az = np.degrees(np.arctan2(P[:, 1], P[:, 0])) % 360.0
     P = P[(np.linalg.norm(P[:, :2], axis=1) >= 0.06) & (az >= 150.0) & (az <= 330.0)]
     return P @ T_true[:3, :3].T + T_true[:3, 3]
