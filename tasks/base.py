@@ -121,7 +121,8 @@ class Task:
     # names are its STRATEGIES). "stage_when_blocked" (stage an item for a regrasp also when the grasps that
     # reach its targets are blocked on their way out of the sink, or the full place plan finds no release for
     # them) is worth it where the targets admit few grasps (rack poses), not where the counter is the target.
-    strategies = ("direct_pick", "escape_then_pick", "stage_for_regrasp", "slide_off_stack", "slide_off_blocked",
+    strategies = ("direct_pick", "escape_then_pick", "pick_past_seen_through", "stage_for_regrasp",
+                  "slide_off_stack", "slide_off_blocked",
                   "slide_from_wall", "pick_hidden_blocker", "blocker_first")
 
     # ---- what to pick ------------------------------------------------------------------------------------------
