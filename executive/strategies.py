@@ -22,6 +22,7 @@ from kitchenbot.executive import machine as M
 from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.failures import StepFailed
 from kitchenbot.perception.types import ObjectPose
+from kitchenbot.planning.seen_through import seen_through
 from kitchenbot.planning.types import NoFreeSlot
 from kitchenbot.world.attitude import is_lying
 
@@ -194,6 +195,48 @@ class EscapeThenPick(Strategy):
         if not req.escape():
             return None
         return _direct(req, self.name)
+
+
+def _seen_through_pins(req: PlanRequest, failure: PlanFailure) -> list[ObjectPose]:
+    """The items named as pinning `req.obj` (its lift fails at the grasp against them) whose poses the points seen
+    of `req.obj` contradict: they lie inside those poses' bodies (planning.seen_through)."""
+    if not failure.pinned or not failure.blocking_all:
+        return []
+    pins = [p for p in req.scene_objs if p.instance_id >= 0 and p.instance_id in failure.blocking_all]
+    return seen_through(req.planner.inventory, req.obj, pins)
+
+
+class PickPastSeenThrough(Strategy):
+    """An item pinned by an item said to lie on it, where the views saw the pinned item's own surface inside the
+    body of the one on it: that pose cannot be right (a few points of another item fitted as a vessel resting on
+    this one; every grasp of that phantom collides with the real items under it, so neither could go first and
+    both stayed). The pick is planned again without those poses; what the views saw of them stays in the map as
+    voxel obstacles (no pose explains those points any more), so the lift still avoids everything seen."""
+
+    name = "pick_past_seen_through"
+    when = "the item's lift is pinned (`cartesian_path_failed` at the grasp) by items lying on it, and at least " \
+           "a twentieth (50 points or more) of the points seen of the item lie 5 mm or more inside the hull of one " \
+           "of those items as posed (`planning.seen_through`): the camera saw through it"
+    does = "the direct pick again without those poses (their points stay in the map as voxel obstacles)"
+
+    def __init__(self):
+        self._gone: list[ObjectPose] = []  # what applies() found, for plan() (plan_item calls one then the other)
+
+    def applies(self, failure, obj, belief, req):
+        self._gone = []
+        if failure is None or failure.stage != "pick" or failure.kind != "cartesian_path_failed":
+            return False
+        self._gone = _seen_through_pins(req, failure)
+        return bool(self._gone)
+
+    def plan(self, req):
+        gone, self._gone = self._gone, []
+        if not gone:
+            return None
+        req.note("note", "a pose the views saw through is not trusted to pin the item", cls=req.obj.cls,
+                 pins=[(p.cls, p.instance_id) for p in gone])
+        kept = [p for p in req.scene_objs if not any(p is g for g in gone)]
+        return _direct(PlanRequest(**{**req.__dict__, "scene_objs": kept}), self.name)
 
 
 class StageForRegrasp(Strategy):
@@ -514,7 +557,8 @@ class BlockerFirst(Strategy):
 
 
 STRATEGIES: dict[str, type[Strategy]] = {s.name: s for s in (
-    SlideTopOfNest, DirectPick, EscapeThenPick, StageForRegrasp, StageWhenBlocked, SlideOffStack, SlideOffBlocked,
+    SlideTopOfNest, DirectPick, EscapeThenPick, PickPastSeenThrough, StageForRegrasp, StageWhenBlocked, SlideOffStack,
+    SlideOffBlocked,
     SlideFromWall, PickHiddenBlocker, SetAsideBlocker, BlockerFirst)}
 
 

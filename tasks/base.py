@@ -123,8 +123,9 @@ class Task:
     # them) is worth it where the targets admit few grasps (rack poses), not where the counter is the target.
     # "slide_top_of_nest" comes first: once a grip of a plate closed across two nested rims, the direct pick
     # would plan a pinch across the pair again.
-    strategies = ("slide_top_of_nest", "direct_pick", "escape_then_pick", "stage_for_regrasp", "slide_off_stack",
-                  "slide_off_blocked", "slide_from_wall", "pick_hidden_blocker", "blocker_first")
+    strategies = ("slide_top_of_nest", "direct_pick", "escape_then_pick", "pick_past_seen_through",
+                  "stage_for_regrasp", "slide_off_stack", "slide_off_blocked", "slide_from_wall",
+                  "pick_hidden_blocker", "blocker_first")
 
     # ---- what to pick ------------------------------------------------------------------------------------------
     def wants(self, obj: ObjectPose) -> bool:

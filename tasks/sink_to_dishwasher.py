@@ -51,8 +51,8 @@ class SinkToDishwasher(Task):
     success_criteria = "sink empty; every plate verified in a lower-rack slot, every vessel in a rack slot"
     # rack poses admit few grasps: a blocked or unplaceable one is staged too (see Task.strategies)
     # (and an item with no room in the racks that blocks one with room is set aside on the counter)
-    strategies = ("slide_top_of_nest", "direct_pick", "escape_then_pick", "stage_for_regrasp", "stage_when_blocked",
-                  "slide_off_stack", "slide_off_blocked", "slide_from_wall",
+    strategies = ("slide_top_of_nest", "direct_pick", "escape_then_pick", "pick_past_seen_through",
+                  "stage_for_regrasp", "stage_when_blocked", "slide_off_stack", "slide_off_blocked", "slide_from_wall",
                   "pick_hidden_blocker", "set_aside_blocker", "blocker_first")
 
     def wants(self, obj: ObjectPose) -> bool:
