@@ -23,13 +23,16 @@ INSIDE_DEPTH = 0.005  # m inside the hull's faces: past what a fitted pose's err
 INSIDE_FRACTION = 0.05  # of X's seen points inside Y: more, and Y's pose is contradicted
 INSIDE_MIN = 50  # points: fewer say nothing (a few stray points at a rim)
 
-_hulls: dict[int, ConvexHull] = {}
+_hulls: dict[int, tuple[object, ConvexHull]] = {}  # id(model) -> (model, its hull): the model is kept so the id
+# stays its own (two inventories in one process, e.g. the builtin one and a user's models, share object ids)
 
 
 def _hull(inventory: Inventory, obj_id: int) -> ConvexHull:
-    if obj_id not in _hulls:
-        _hulls[obj_id] = ConvexHull(np.asarray(inventory[obj_id].mesh.vertices, float))
-    return _hulls[obj_id]
+    model = inventory[obj_id]
+    hit = _hulls.get(id(model))
+    if hit is None or hit[0] is not model:
+        hit = _hulls[id(model)] = (model, ConvexHull(np.asarray(model.mesh.vertices, float)))
+    return hit[1]
 
 
 def points_inside(inventory: Inventory, pose: ObjectPose, points: np.ndarray, depth: float = INSIDE_DEPTH) -> int:
