@@ -36,7 +36,6 @@ from kitchenbot.perception.map import InstanceMap
 from kitchenbot.perception.register import Scorer, refine
 from kitchenbot.perception.track import KEEP_SHARE, KEEP_TOL
 from kitchenbot.perception.types import View
-from kitchenbot.perception.verify import fine_tolerance, surface_noise
 
 #: fewest points of a left-over cluster for it to be part of an item (as a remainder is fitted again: 60)
 REFIT_MIN_POINTS = 60
@@ -123,7 +122,7 @@ def refit_beside_unexplained(per, m: InstanceMap, views: list[View], kept: list[
     from kitchenbot.perception.pipeline import SURFACE_TOL, _clusters  # pipeline imports this module
 
     clusters = [idx[c] for c in _clusters(m.points[idx], 1.5 * vox, REFIT_MIN_POINTS, vox / 2)]
-    tree, tol, replaced = None, None, 0
+    replaced = 0
     for C in clusters:
         j = _owner(per, m, kept, C)
         if j is None:
@@ -155,9 +154,7 @@ def refit_beside_unexplained(per, m: InstanceMap, views: list[View], kept: list[
                     per._explained(new, m.points[C], SURFACE_TOL).sum() < gain or \
                     any(per._same_place(k[0], new) for k in others):
                 continue
-            if tree is None:
-                tree = cKDTree(m.points)
-                tol = fine_tolerance(surface_noise(m.points[:: max(1, len(m.points) // 20000)]))
+            tree, tol = per._fine_context(m)  # the scan's map tree and fine tolerance, made once per map
             own_new = sel[per._explained(new, m.points[sel])]
             per._fine_parts(m, tree, tol, new, own_new, others + [[new, iid, own_new]])
             if new.verification is not None and new.verification.score >= thr:
