@@ -193,25 +193,17 @@ class RobotModel:
         Every turn of a joint puts the links where they were: the same pose. Nearest `ref` alone (wrap_near), a
         wrist within ~pi of `ref` either way is turned the way that leaves it a whole turn from `rest`, and the
         way back (a re-scan's waypoint, whose value turned the other way is outside the limits) unwinds it."""
-        q, ref, rest = (np.asarray(a, float) for a in (q, ref, rest))
-        cand = q[None, :] + 2 * np.pi * _TURNS[:, None]  # (5, 6): q itself first
-        ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)
-        to_ref = np.abs(cand - ref)
-        cost = np.where(ok, to_ref + np.abs(cand - rest), np.inf)
-        best = cost.min(axis=0)
-        # among the least costs (to rounding), the nearest ref; q's own value where nothing else is inside
-        pick = np.argmin(np.where(cost <= best + 1e-9, to_ref, np.inf), axis=0)
-        out = cand[pick, np.arange(6)]
-        return np.where(np.isfinite(best), out, q)
+        return self.wrap_round_trip_rows(np.asarray(q, float)[None, :], ref, rest)[0]
 
     def wrap_round_trip_rows(self, Q: np.ndarray, ref: np.ndarray, rest: np.ndarray) -> np.ndarray:
-        """wrap_round_trip for each row of Q (N, 6) at once (the same arithmetic per element: the same values)."""
+        """wrap_round_trip for each row of Q (N, 6) at once."""
         Q, ref, rest = (np.asarray(a, float) for a in (Q, ref, rest))
         cand = Q[:, None, :] + 2 * np.pi * _TURNS[None, :, None]  # (N, 5, 6): each row itself first
         ok = (cand >= self.lower - 1e-9) & (cand <= self.upper + 1e-9)
         to_ref = np.abs(cand - ref)
         cost = np.where(ok, to_ref + np.abs(cand - rest), np.inf)
         best = cost.min(axis=1)
+        # among the least costs (to rounding), the nearest ref; the row's own value where nothing else is inside
         pick = np.argmin(np.where(cost <= best[:, None, :] + 1e-9, to_ref, np.inf), axis=1)
         out = np.take_along_axis(cand, pick[:, None, :], axis=1)[:, 0, :]
         return np.where(np.isfinite(best), out, Q)
