@@ -30,3 +30,12 @@ def test_bench_tasks_writes_summary(tmp_path, state_dir, capsys):
     assert "items per minute (cup-stacking)" in out and "compute per cycle by stage (cup-stacking" in out
     if run["delivered"]:
         assert set(s["cycle_stage_means_s"]) >= {"plan", "execute"}
+
+
+def test_robot_cpu_per_cycle_leaves_out_the_simulated_camera_only():
+    from kitchenbot.bench.tasks import robot_cpu_per_cycle
+    runs = [{"compute_cpu_per_cycle_s": [2.0, None, 1.0],
+             "cycle_stages_cpu_s": [{"capture": 0.5, "plan": 1.0, "perceive": 0.5}, {}, {"plan": 1.0}]},
+            {"compute_cpu_per_cycle_s": [3.0], "cycle_stages_cpu_s": [{"capture": 0.25}]}]
+    assert robot_cpu_per_cycle(runs) == pytest.approx([1.5, 1.0, 2.75])
+    assert robot_cpu_per_cycle([{}]) == []
