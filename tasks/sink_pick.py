@@ -319,13 +319,6 @@ class SinkPick(Task):
                     needs.setdefault(m.obj_id, m)
             else:
                 singles.append(m)
-        if "plate" not in needs and "plate" not in top_cls and model.cls != "plate":
-            # no plate pile yet and none seen still to come: plates hidden under others in the sink show up only
-            # once those are out, so the counter keeps room for the largest plate the inventory knows where that
-            # costs no item seen (a plate finding the zone scattered with cups had no spot: `no_free_slot`)
-            plates = [m for m in self.inventory if m.cls == "plate"]
-            if plates:
-                needs["plate"] = max(plates, key=lambda m: max(m.extents[:2]))
         out = list(needs.values()) + singles
         return sorted(out, key=lambda m: -float(np.prod(m.extents[:2])))[:LOOKAHEAD_ITEMS]
 
