@@ -444,17 +444,28 @@ class SlideOffBlocked(Strategy):
 
     KINDS = ("no_collision_free_grasp", "cartesian_path_failed")
 
+    def __init__(self):
+        self._below: list[ObjectPose] = []  # what applies() found, for plan() (plan_item calls one then the other)
+
     def applies(self, failure, obj, belief, req):
+        self._below = []
         if failure is None or failure.stage != "pick" or failure.kind not in self.KINDS or req.staged is not None:
             return False
         if not _may_slide(belief, obj):
             return False
         if obj.cls not in SLIDABLE and not is_lying(np.asarray(obj.T_base_obj, float)):
             return False
-        return bool(_blocked_below(req, failure))
+        self._below = _blocked_below(req, failure)
+        return bool(self._below)
 
     def plan(self, req):
-        below = _blocked_below(req, PlanFailure("", "", "pick", self.name))
+        # the items below as the failure named them too (asked again without the failure, plan() slid "off"
+        # nothing where only this failure named the item below: the slide then ignored what it was for)
+        below, self._below = self._below, []
+        if not below:
+            below = _blocked_below(req, PlanFailure("", "", "pick", self.name))
+        if not below:
+            return None
         req.note("command", "plan_slide", cls=req.obj.cls, off=[p.instance_id for p in below])
         return _slide_plan(self.name, req, then_pickable=False, off=below)
 

@@ -58,6 +58,24 @@ def test_an_item_touching_a_wall_may_slide_along_it(scene):
     assert all(d[0] <= 1e-6 for d, _ in dirs)  # never towards the wall it touches
 
 
+def test_plan_slides_off_the_item_only_the_failure_named(scene):
+    """The belief does not yet know the cup blocks the plate; only the cup's own failure names the plate under
+    it. plan() must slide the cup off that plate (before, it asked again without the failure and slid "off"
+    nothing)."""
+    cfg, world, planner, p, c = scene
+    poses = _poses(world)
+    cup = next(o for o in poses if o.instance_id == c)
+    notes = []
+    req = PlanRequest(obj=cup, targets=[], staged=None, task=None, belief=Belief(), planner=planner,
+                      joints=lambda: world.q.copy(), escape=lambda: True,
+                      note=lambda *a, **k: notes.append((a, k)), check_deadline=lambda: None, scene_objs=poses)
+    s = SlideOffBlocked()
+    assert s.applies(PlanFailure("no_collision_free_grasp", "", "pick", "direct_pick", p), cup, req.belief, req)
+    s.plan(req)
+    offs = [k["off"] for a, k in notes if a[:2] == ("command", "plan_slide")]
+    assert offs == [[p]], notes
+
+
 def test_mutual_blockers_the_upper_is_slid_off(scene, run_slide):
     cfg, world, planner, p, c = scene
     poses = _poses(world)
