@@ -350,16 +350,20 @@ def time_parameterise(
             return warped
         return whole
 
+    kept: list = []
+
     def at_path_speed() -> tuple[np.ndarray, np.ndarray] | None:
-        # resting at each vertex, each segment at its fastest path speed (on the checked polyline: no proof needed)
-        found = segments_at_path_speed(Q, vmax, amax, limits, ur, dt)
-        if found is None:
-            return None
-        try:
-            limits.check_trajectory(ur, *found)
-        except LimitViolation:
-            return None
-        return found
+        # resting at each vertex, each segment at its fastest path speed (on the checked polyline: no proof needed);
+        # made once per call
+        if not kept:
+            found = segments_at_path_speed(Q, vmax, amax, limits, ur, dt)
+            if found is not None:
+                try:
+                    limits.check_trajectory(ur, *found)
+                except LimitViolation:
+                    found = None
+            kept.append(found)
+        return kept[0]
 
     if mode == "blended":
         if free is None:
@@ -378,15 +382,13 @@ def time_parameterise(
             except LimitViolation:
                 pass
         # Resting at the vertices at the path speed is on the checked polyline; a blend is asked for its proof only
-        # where it is faster than that.
+        # where it is faster than that. Else the vertices are rested at (below: the fastest such profile).
         stops = at_path_speed()
         for times, q in sorted(found, key=lambda c: c[0][-1]):
             if stops is not None and stops[0][-1] <= times[-1]:
                 break
             if free(q):
                 return Trajectory(times, q, name)
-        if stops is not None:
-            return Trajectory(*stops, name)
         mode = "stop_at_vertices"
     if mode == "along_path":
         # Two candidates, the faster kept: the path speed free to vary along the path (planning/path_speed.py:
