@@ -164,6 +164,46 @@ def stop_at_vertices(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, dt: floa
     return np.asarray(times), np.asarray(qs)
 
 
+# Path-speed profiles along straight joint segments: the share of the acceleration kept for the path's curvature.
+# A straight joint segment has none (its pieces' direction changes only by rounding), so nearly all goes to the
+# path speed; a little is kept so that rounding noise never bounds the speed.
+STRAIGHT_CURVE_SHARE = 0.02
+SEGMENT_PIECE = 0.01  # rad: the largest joint change of one piece of a segment cut for its path-speed profile
+
+
+def segments_at_path_speed(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, limits: SafetyLimits, ur: URModel,
+                           dt: float = DT) -> tuple[np.ndarray, np.ndarray] | None:
+    """Rest at every vertex of the joint polyline Q, as ``stop_at_vertices``, but each straight segment at the
+    fastest path speed its joints' speed and acceleration and the TCP's speed allow (planning/path_speed.py on the
+    segment cut in pieces of at most SEGMENT_PIECE rad, the TCP position at each cut): where the TCP's speed
+    bounds a stretch (the arm stretched out while the base turns), only that stretch is slow, and the rest runs at
+    the joints' limits; a synchronised trapezoid slowed for its fastest TCP stretch, even warped
+    (``tcp_warped``), leaves time there. The samples lie on the segments (each vertex is a sample), so the path is
+    the checked polyline itself: no collision proof beyond the polyline's is needed. Returns (times, q), or None
+    where no profile passes the finite-difference limits (the caller keeps its other profiles)."""
+    Q = np.asarray(Q, float)
+    keep = np.r_[True, np.any(np.abs(np.diff(Q, axis=0)) > 1e-12, axis=1)]
+    Q = Q[keep]
+    if len(Q) < 2:
+        return None
+    T_ft = np.asarray(limits.T_flange_tcp, float)[:, 3]
+    for slow in (1.0, 1.05, 1.15, 1.3):
+        times, qs = [np.zeros(1)], [Q[:1]]
+        for a, b in zip(Q[:-1], Q[1:]):
+            n = max(2, int(np.ceil(np.max(np.abs(b - a)) / SEGMENT_PIECE)))
+            D = a + (np.arange(n + 1)[:, None] / n) * (b - a)
+            P = (fk_flange_batch(ur, D) @ T_ft)[:, :3]
+            t, q = path_speed_profile(D, vmax / slow, amax / slow**2, dt, P=P,
+                                      vtcp=limits.max_tcp_speed / TCP_HEADROOM / slow,
+                                      curve_share=STRAIGHT_CURVE_SHARE)
+            times.append(times[-1][-1] + t[1:])
+            qs.append(q[1:])
+        t_all, q_all = np.concatenate(times), np.vstack(qs)
+        if within(t_all, q_all, vmax, amax) and tcp_speed_ratio(limits, ur, t_all, q_all) <= 1.0:
+            return t_all, q_all
+    return None
+
+
 def _blend_schedule(Q: np.ndarray, vmax: np.ndarray, amax: np.ndarray, max_rounds: int = 60,
                     min_T: np.ndarray | None = None):
     """Segment durations T (knot to knot), segment velocities V and blend durations B (one per vertex, the ends
@@ -310,6 +350,21 @@ def time_parameterise(
             return warped
         return whole
 
+    kept: list = []
+
+    def at_path_speed() -> tuple[np.ndarray, np.ndarray] | None:
+        # resting at each vertex, each segment at its fastest path speed (on the checked polyline: no proof needed);
+        # made once per call
+        if not kept:
+            found = segments_at_path_speed(Q, vmax, amax, limits, ur, dt)
+            if found is not None:
+                try:
+                    limits.check_trajectory(ur, *found)
+                except LimitViolation:
+                    found = None
+            kept.append(found)
+        return kept[0]
+
     if mode == "blended":
         if free is None:
             raise ValueError("time_parameterise(mode='blended'): needs free=, the collision check of the blended path")
@@ -326,7 +381,12 @@ def time_parameterise(
                 found.append((times, q))
             except LimitViolation:
                 pass
+        # Resting at the vertices at the path speed is on the checked polyline; a blend is asked for its proof only
+        # where it is faster than that. Else the vertices are rested at (below: the fastest such profile).
+        stops = at_path_speed()
         for times, q in sorted(found, key=lambda c: c[0][-1]):
+            if stops is not None and stops[0][-1] <= times[-1]:
+                break
             if free(q):
                 return Trajectory(times, q, name)
         mode = "stop_at_vertices"
@@ -364,15 +424,18 @@ def time_parameterise(
         if mode == "stop_at_vertices":
             times, q = stop_at_vertices(Q, vmax / slow, amax / slow**2, dt, tcp_ratio=ratio)
             if attempt == 0:
-                # beside each segment slowed as a whole for the TCP: the time warp that slows only where it runs fast
+                # beside each segment slowed as a whole for the TCP: the time warp that slows only where it runs
+                # fast, and each segment at its fastest path speed; the fastest that passes is kept
                 t_raw, q_raw = stop_at_vertices(Q, vmax, amax, dt)
                 t_w = tcp_slowed(t_raw, q_raw)
-                if t_w[-1] < times[-1]:
-                    try:
-                        limits.check_trajectory(ur, t_w, q_raw)
-                        return Trajectory(t_w, q_raw, name)
-                    except LimitViolation:
-                        pass
+                try:
+                    limits.check_trajectory(ur, t_w, q_raw)
+                    warped = (t_w, q_raw)
+                except LimitViolation:
+                    warped = None
+                faster = [c for c in (warped, at_path_speed()) if c is not None and c[0][-1] < times[-1]]
+                if faster:
+                    return Trajectory(*min(faster, key=lambda c: c[0][-1]), name)
         else:
             times, q = along_path(Q, vmax / slow, amax / slow**2, dt)
             times = tcp_slowed(times, q)

@@ -334,9 +334,8 @@ def test_the_tcp_limit_slows_a_motion_only_where_the_tcp_runs_fast(planner, home
     slowed = np.diff(t_w) / np.diff(t_raw)
     assert slowed[0] < 0.85 * slowed[-1]
     assert np.all(slowed >= 1.0 - 1e-12)
-    traj = time_parameterise(Q, lim, ur, mode="stop_at_vertices")
-    np.testing.assert_array_equal(traj.q, q_raw)
-    assert traj.duration == pytest.approx(t_w[-1])
+    traj = time_parameterise(Q, lim, ur, mode="stop_at_vertices")  # the warp, or faster (test_segment_speed.py)
+    assert traj.duration <= t_w[-1] + 1e-9
 
 
 def test_the_batched_motion_check_answers_as_ompls_discrete_check(planner, wall_case):
