@@ -18,7 +18,11 @@ each collision (belief objects, map, grasp, trajectory, simulator poses) to PREF
 
 Options as `kitchenbot bench tasks`: --slip, --objects, --oracle-perception.
 
-Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events, log.
+Protective stops that are not collisions (a push of an item something rests on, a drag that jams on what the
+item rests on, fingers pressed too deep, a limit) are described the same way in `stops` (as the motion started;
+`--dump` writes PREFIX_stopK.pkl) and logged as PROTECTIVE_STOP.
+
+Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events, protective_stops, stops, log.
 """
 
 from __future__ import annotations
