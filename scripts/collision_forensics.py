@@ -18,7 +18,11 @@ each collision (belief objects, map, grasp, trajectory, simulator poses) to PREF
 
 Options as `kitchenbot bench tasks`: --slip, --objects, --oracle-perception.
 
-Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events, log.
+Protective stops that are not collisions (a push of an item something rests on, a drag that jams on what the
+item rests on, fingers pressed too deep, a limit) are described the same way in `stops` (as the motion started;
+`--dump` writes PREFIX_stopK.pkl) and logged as PROTECTIVE_STOP.
+
+Prints one JSON object: task, seed, delivered / wanted (truth), collisions, events, protective_stops, stops, log.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, o
     if objects is not None:  # as `kitchenbot bench tasks --objects`
         cfg.sim.min_objects = cfg.sim.max_objects = objects
     events: list[dict] = []
+    stops: list[dict] = []  # protective stops that were not collisions (a limit, a drag that jams, a loaded push)
     log: list[str] = []  # the runner's notes and results (not its device commands), in order
     moving = {"name": None}
 
@@ -66,6 +71,17 @@ def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, o
                     except Exception as ex:  # noqa: BLE001
                         log.append(f"dump failed: {ex}")
                 log.append(f"COLLISION {moving['name']}: {detail}")
+            elif kind == "motion" and "will stop" in detail:  # a stop other than a collision: described if protective
+                moving["stop"] = describe(runner, moving["name"], detail)
+            elif kind == "protective_stop" and "collision:" not in detail:
+                rec = moving.pop("stop", None) or {"motion": moving["name"], "detail": detail}
+                stops.append(rec)
+                if dump:
+                    try:
+                        _dump(runner, moving.get("traj"), f"{dump}_stop{len(stops)}.pkl")
+                    except Exception as ex:  # noqa: BLE001
+                        log.append(f"dump failed: {ex}")
+                log.append(f"PROTECTIVE_STOP {moving['name']}: {detail}")
             return event(kind, detail, t)
 
         def _log(self, kind, name, /, **payload):
@@ -79,7 +95,8 @@ def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, o
 
     rep = run_task(cfg, task, seed, progress=False, oracle_perception=oracle, journal_path=False, runner_hook=hook)
     return {"task": task, "seed": seed, "delivered": rep.truth["end"]["delivered"],
-            "wanted": rep.truth["start"]["in_sink"], "collisions": rep.collisions, "events": events, "log": log}
+            "wanted": rep.truth["start"]["in_sink"], "collisions": rep.collisions, "events": events,
+            "protective_stops": rep.protective_stops, "stops": stops, "log": log}
 
 
 def _dump(runner, traj, path: str) -> None:
