@@ -341,13 +341,18 @@ class SlideOffStack(Strategy):
     the next scan sees it overhanging the one below, where a lip pinch fits. At most MAX_SLIDES_PER_OBJECT."""
 
     name = "slide_off_stack"
-    when = "a plate with no collision-free grasp (`no_collision_free_grasp`: nested in a stack), not staged, " \
+    when = "a plate with no collision-free grasp (`no_collision_free_grasp`: nested in a stack) that the failure " \
+           "names nothing lying on or blocking, not staged, " \
            f"slid fewer than {M.MAX_SLIDES_PER_OBJECT} times"
     does = "press on its well with the closed fingers and slide it 6 cm sideways (`Planner.plan_slide`); the " \
            "next scan sees it overhanging the one below, where a lip pinch fits"
 
     def applies(self, failure, obj, belief, req):
         if failure is None or failure.stage != "pick" or failure.kind != "no_collision_free_grasp":
+            return False
+        # A plate under another item of its stack fails so too, naming the one on it (docs/planning.md): sliding
+        # it would drag what lies on it (the arm stops on a loaded push); that one is taken first (blocker_first).
+        if failure.blocking is not None and failure.blocking >= 0:
             return False
         return obj.cls in SLIDABLE and req.staged is None and _may_slide(belief, obj)
 

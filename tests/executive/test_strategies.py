@@ -247,6 +247,17 @@ def test_a_stop_within_the_margin_is_escaped_then_the_pick_planned_again(inv):
     assert plan.strategy == "escape_then_pick" and escaped == [1] and counts["direct_pick"]["planned"] == 0
 
 
+def test_a_plate_whose_failure_names_an_item_on_it_is_not_slid_that_item_goes_first(inv):
+    # the lower plate of a stack: no collision-free grasp, the plate on it named; a slide would push both
+    task, b = make_task("sink-pick", inv, Cell()), Belief()
+    on_it = NoCollisionFreeGrasp("test: the plate on it crowds every pinch", {"blocking": 7, "blocking_all": [(7, 0.02)]})
+    planner = Situation(lambda staging, n: on_it)
+    with pytest.raises(StepFailed) as e:
+        plan_item(request(task, b, item(inv, "dinner_plate"), planner), strategies_for(task), counts := {})
+    assert "slide" not in planner.calls and counts.get("slide_off_stack", {}).get("tried", 0) == 0
+    assert e.value.details.get("blocking") == 7  # blocker_first: the plate on it is selected next
+
+
 def test_a_nested_plate_with_no_grasp_is_slid_off_its_stack_a_cup_is_not(inv):
     task, b = make_task("sink-pick", inv, Cell()), Belief()
     planner = Situation(lambda staging, n: NoCollisionFreeGrasp("test: no pinch under its lip"))
