@@ -211,3 +211,12 @@ def fuse_instance(points: np.ndarray, view_idx: np.ndarray, pixel: np.ndarray, r
         Fi = np.zeros((len(P), 0))
     geo = l2n(Fp.mean(axis=0)) if len(Fp) and Fp.shape[1] else np.zeros(pt_enc.dim if point_features else 0)
     return FusedCloud(P, N, Fi, Fp, cls_token, geo)
+
+
+def with_point_features(cloud: FusedCloud, pt_enc: PointEncoder, voxel: float) -> FusedCloud:
+    """A cloud that `fuse_instance(..., point_features=False)` made, with the point features it left out: what
+    `fuse_instance(..., point_features=True)` gives for the same instance (the points, normals and image features
+    do not depend on the point features; these are computed from the points and normals alone)."""
+    Fp = l2n(pt_enc.encode(cloud.points, cloud.normals, voxel))
+    geo = l2n(Fp.mean(axis=0)) if len(Fp) and Fp.shape[1] else np.zeros(pt_enc.dim)
+    return FusedCloud(cloud.points, cloud.normals, cloud.img, Fp, cloud.cls_token, geo)

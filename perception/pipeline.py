@@ -23,7 +23,7 @@ from kitchenbot.perception.cell_check import CellCheck, check_cell
 from kitchenbot.perception.database import CadDatabase
 from kitchenbot.perception.detect import Detection, Detector, PassThroughSegmenter, Segmenter
 from kitchenbot.perception import backends
-from kitchenbot.perception.features import FusedCloud, fuse_instance, voxel_keys
+from kitchenbot.perception.features import FusedCloud, fuse_instance, voxel_keys, with_point_features
 from kitchenbot.world.inventory import Inventory
 from kitchenbot.perception.map import InstanceMap, align_to_cell, align_views, build_map, consolidate
 from kitchenbot.perception.register import (Hypothesis, RegistrationConfig, Scorer, clean_depths, propose, refine,
@@ -178,6 +178,7 @@ class Perceiver:
         self._normals: tuple[int, dict] | None = None  # per scan: (id of the map's points, {point set: normals})
         self._fine_ctx: tuple | None = None  # per map: (its points, their KD-tree, the fine tolerance)
         self._fine_memo: dict[tuple, object] = {}  # per map: the fine check's parts and pieces (`_fine_parts`)
+        self._query_memo: tuple[list, dict] | None = None  # per scan: (its views, {instance: query}) (`_query`)
         self.settings_seed = 0
         self.refit_memo = RefitMemo()  # re-fits beside what is left that failed, not tried again unchanged
         st = self.settings
@@ -226,6 +227,7 @@ class Perceiver:
         o3d.utility.random.seed(self.settings_seed)  # Open3D's RANSAC: same views, same answer
         self._depths = None
         self._normals = None
+        self._query_memo = None  # this scan's instance queries (`_query`)
         self._fine_ctx, self._fine_memo = None, {}  # the fine check's map context and memo (`_fine_context`)
         db = self.database
         # Scan poses off (arm repeatability, hand-eye error): with a known cell each view is registered onto the
@@ -1326,7 +1328,31 @@ class Perceiver:
 
     def _query(self, inst: InstanceMap, views: list[View], point_features: bool = True) -> FusedCloud:
         """One instance's map points as voxel centres with normals and fused features (`point_features=False`:
-        without the point encoder's, for a query that is only registered and scored: pose tracking)."""
+        without the point encoder's, for a query that is only registered and scored: pose tracking).
+
+        Remembered per scan (`_query_memo`, for these `views`): the query is a function of the instance's points,
+        views, pixels and camera centres and the views' images, so the same instance asked again gets the same
+        cloud, and one made without point features gets them added (`with_point_features`) instead of being
+        fused again: a tracked instance that moved is estimated, a re-fit's local refinement is followed by the
+        full estimate, a tracked pose the fine check rejects is estimated on its instance, each on the points
+        whose query was just made."""
+        if self._query_memo is None or self._query_memo[0] is not views:
+            self._query_memo = (views, {})
+        memo = self._query_memo[1]
+        key = (inst.points.tobytes(), inst.view.tobytes(), inst.pixel.tobytes(),
+               np.asarray(inst.cam_centres).tobytes())
+        if key in memo:
+            cloud, featured = memo[key]
+            if featured or not point_features:
+                return cloud
+            cloud = with_point_features(cloud, self.pt_enc, self.settings.voxel_size)
+        else:
+            cloud = self._fused(inst, views, point_features)
+        memo[key] = (cloud, point_features)
+        return cloud
+
+    def _fused(self, inst: InstanceMap, views: list[View], point_features: bool) -> FusedCloud:
+        """`_query` computed (features.fuse_instance)."""
         masks: list[np.ndarray | None] = []
         for k, v in enumerate(views):
             sel = inst.view == k
