@@ -27,6 +27,11 @@ The checks, each a share in [0, 1]:
   they cover, over the base's area (`overhang_area`): a lid seen from a camera facing the base end covers the ring
   all round, however many points the can's side gives the pose.
 
+- taper (cups, mugs, glasses, any way up): how much of the model's change of outer radius from the lower to the
+  upper half of its wall the depth lacks, over that change (`taper`): a drink can or a bottle's body is a straight
+  cylinder, a cup or a glass widens towards its rim; read at the fine fit's pose on the pose's unclaimed points
+  whose normals face out from the axis.
+
 verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
 1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - overhang_area / OVERHANG_AREA_FULL,
 1 - intruded / INTRUDED_FULL, 1 - taper / TAPER_FULL). Coverage both ways at one
