@@ -582,3 +582,60 @@ def _fine_verdict(perceiver, obj_id, T, own, extra):
     perceiver._active_cell = perceiver.cell
     perceiver._fine_check(m, [(h, 0, np.nonzero(ids == 0)[0])])
     return h.verification
+
+
+def _straight_cylinder(entry, T, seed: int = 3):
+    """A closed cylinder of a tapered vessel's size and place (`entry`, posed at `T`): its outer wall's mean radius,
+    from the model's base to its rim, with a lid at each end; the points a camera at +x +z sees (normals facing
+    it), 1.5 mm of noise along the normal. A drink can taken for the vessel."""
+    from kitchenbot.perception.verify import wall_profile
+
+    P, N = entry.dense_points, entry.dense_normals
+    axis = np.median(P[:, :2], axis=0)
+    z0, z1 = P[:, 2].min(), P[:, 2].max()
+    zs = np.linspace(z0 + 0.01, z1 - 0.01, 50)
+    r = float(np.nanmean(wall_profile(P, N, zs)))
+    rng = np.random.default_rng(seed)
+    a, z = rng.uniform(0, 2 * np.pi, 20000), rng.uniform(z0, z1, 20000)
+    side = np.column_stack([axis[0] + r * np.cos(a), axis[1] + r * np.sin(a), z])
+    n_side = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
+    rr, aa = r * np.sqrt(rng.uniform(0, 1, 8000)), rng.uniform(0, 2 * np.pi, 8000)
+    lids = np.column_stack([axis[0] + rr * np.cos(aa), axis[1] + rr * np.sin(aa), np.where(np.arange(8000) % 2, z0, z1)])
+    n_lids = np.column_stack([np.zeros((8000, 2)), np.where(np.arange(8000) % 2, -1.0, 1.0)])
+    Q, NQ = np.vstack([side, lids]) @ T[:3, :3].T + T[:3, 3], np.vstack([n_side, n_lids]) @ T[:3, :3].T
+    seen = NQ @ np.array([0.6, 0.0, 0.8]) > 0.2
+    return Q[seen] + rng.normal(0, 0.0015, (int(seen.sum()), 1)) * NQ[seen]
+
+
+def _cylinder_normals(points, T):
+    """Normals of points on a surface of revolution about the object z axis of `T`, facing out from the axis (the lids'
+    points, at the ends, get the axis direction)."""
+    q = (points - T[:3, 3]) @ T[:3, :3]
+    n = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
+    return n @ T[:3, :3].T
+
+
+def test_a_straight_cylinder_fitted_by_a_tapered_vessel_lacks_its_taper(perceiver, inventory):
+    """A drink can of a glass's or a cup's size (a closed straight cylinder, its outer wall's mean radius, as long
+    as the model) fitted by it, upright, upside down or lying: at a noisy camera's fine tolerance the can's side
+    is on the tapered model's surface over most of its length, but its radius does not change from one end to the
+    other where the model's does (a glass by 7 mm, a cup by 13 mm): `taper` near 1 at the vessel's pose. The vessel
+    itself, seen by the same camera with the same noise, tapers as its model: `taper` near 0, and the pose passes
+    the whole fine check."""
+    from kitchenbot.perception.verify import taper
+
+    for oid in (6, 4):  # the glass, the cup
+        entry = perceiver.database[oid]
+        for R in (np.eye(3), rot_x(np.pi)[:3, :3], rot_x(np.pi / 2)[:3, :3]):  # upright, upside down, lying
+            T = make_T(R, np.array([0.4, 0.0, 0.08]))
+            own, N = _cup_surface(entry, T, 0.0015)
+            t_own = taper(own, N, entry.dense_points, entry.dense_normals, T)
+            assert t_own < 0.15, (oid, t_own)
+            ver = _fine_verdict(perceiver, oid, T, own, np.zeros((0, 3)))
+            assert ver.score >= perceiver.settings.verify_threshold, (oid, ver)
+            # The can at the vessel's pose. (Through the fine check the fit's nudge leans the glass onto the side a
+            # single camera sees and the taper reads ~0.1: docs/perception_measurements.md, fp29.)
+            can = _straight_cylinder(entry, T)
+            t_can = taper(can, _cylinder_normals(can, T), entry.dense_points, entry.dense_normals, T)
+            assert t_can > 0.6, (oid, t_can)
