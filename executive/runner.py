@@ -376,9 +376,10 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
             self.recorder.views(views, self._sim_now())
 
     def _scene_token(self) -> tuple:
-        """What changes when the arm may have touched the scene or another scan was taken: grasp attempts, slides,
-        placements recorded, scans."""
-        return (self.report.attempts, self.report.slides, self.belief.scene_epoch, self.counts.scan_count)
+        """What changes when the arm may have touched the scene or another scan was taken: grasp attempts (every
+        pick, placement and put-down follows one), slides, scans. Not the belief's scene epoch: the perception of the
+        scan itself records the placement it verifies."""
+        return (self.report.attempts, self.report.slides, self.counts.scan_count)
 
     def _perceive(self) -> None:
         self._cmd("perceive", views=len(self.views))

@@ -123,7 +123,7 @@ class Verification(DoneCheck):
         to be the first of the scans that confirm the sink empty (RunOptions.confirm_empty_scans): it captures the
         views of the later ones at each waypoint too, and the next confirming scan takes those instead of visiting
         the same waypoints again. They are the views that visit would capture: the same joint configurations, and
-        nothing touched the scene in between (no grasp, slide or placement, no other scan: TaskRunner._scene_token,
+        nothing touched the scene in between (no grasp attempt, slide or other scan: TaskRunner._scene_token,
         and the scan before confirmed the sink empty). Otherwise the spare views are dropped and the waypoints
         visited."""
         spare, self.spare_scans = self.spare_scans, None
