@@ -63,14 +63,3 @@ def test_spare_views_are_not_used_after_a_pick(make_runner, safe_end):
     assert runner.counts.scan_count == 4 and _notes(runner, CONFIRMED) == 1
     assert moves["scan waypoint"] == 9
 
-
-def test_a_scan_with_work_left_captures_no_spare_views(make_runner):
-    """Where something is left to do as perceived, a scan is not expected to confirm the sink empty: one view per
-    waypoint."""
-    runner, world = make_runner(task="sink-pick", cups=2, waypoints=3,
-                                options=RunOptions(poll_period=0.05, confirm_empty_scans=2))
-    runner.views = runner._scan()
-    runner._perceive()
-    assert runner.spare_scans is None and not runner._expects_empty()
-    runner.views = runner._confirming_scan()
-    assert runner.spare_scans is None and len(runner.views) == 3
