@@ -78,6 +78,15 @@ class Counters:
 
 
 @dataclass
+class SpareScans:
+    """Views captured at the scan waypoints beside a scan's own (TaskRunner._scan, `frames`), each set what a later
+    scan of the same waypoints would capture while `token` (TaskRunner._scene_token) is unchanged."""
+
+    sets: list[list[View]]
+    token: tuple
+
+
+@dataclass
 class RunClock:
     """Wall and simulated time of the run, the current state and the current placement cycle."""
 
@@ -117,6 +126,7 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         self.item = Item()
         self.failure: Failure | None = None
         self.views: list[View] = []
+        self.spare_scans: SpareScans | None = None  # views for the scans that confirm the sink empty (_scan)
         self.latest_images: dict[str, np.ndarray] = {}
         self.counts = Counters()
         self.tracks = MotionTracks()
@@ -326,10 +336,15 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
                     "objects_total": rt.objects_total})
 
     # ---- scan, perceive, select ---------------------------------------------------------------------------------
-    def _scan(self) -> list[View]:
-        views = []
+    def _scan(self, frames: int = 1) -> list[View]:
+        """Visit the scan waypoints and capture a view at each. `frames` > 1: as many views at each waypoint; the
+        sets after the first are kept (``self.spare_scans``) for the scans that confirm the sink empty after this
+        one: they would visit the very same joint configurations of a scene nothing touched in between
+        (executive/verification.py, ``_confirming_scan``)."""
+        sets: list[list[View]] = [[] for _ in range(max(1, frames))]
         skipped: list[StepFailed] = []
         home = np.asarray(self.robot.config.robot.home, float)
+        self.spare_scans = None
         for k, q in enumerate(self.robot.config.scan_waypoints):
             try:
                 self._move_joints_via(np.asarray(q, float), f"scan waypoint {k}", home)
@@ -338,15 +353,33 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
                     raise
                 skipped.append(e)
                 continue
-            views.append(self._capture_view(f"scan{self.counts.scan_count}_wp{k}", f"scan_wp{k}"))
-        if not views:
+            sets[0].append(self._capture_view(f"scan{self.counts.scan_count}_wp{k}", f"scan_wp{k}"))
+            try:
+                for j, views in enumerate(sets[1:], 1):
+                    views.append(self._capture_view(f"scan{self.counts.scan_count + j}_wp{k}", f"scan_wp{k}"))
+            except (DriverError, StepFailed) as e:  # no spare frame here: no spare scans (each must be complete)
+                self._log("note", "no spare views for the confirming scans", reason=str(e))
+                sets = sets[:1]
+        if not sets[0]:
             raise skipped[0]
+        self._record_scan(sets[0])
+        if len(sets) > 1:
+            self.spare_scans = SpareScans(sets[1:], self._scene_token())
+        return sets[0]
+
+    def _record_scan(self, views: list[View]) -> None:
+        """A scan's views taken: counted, written to the dataset and the recording."""
         self.counts.scan_count += 1
         if self.dataset is not None:
             self.dataset.write_scan(views)
         if self.recorder is not None:
             self.recorder.views(views, self._sim_now())
-        return views
+
+    def _scene_token(self) -> tuple:
+        """What changes when the arm may have touched the scene or another scan was taken: grasp attempts (every
+        pick, placement and put-down follows one), slides, scans. Not the belief's scene epoch: the perception of the
+        scan itself records the placement it verifies."""
+        return (self.report.attempts, self.report.slides, self.counts.scan_count)
 
     def _perceive(self) -> None:
         self._cmd("perceive", views=len(self.views))

@@ -25,6 +25,7 @@ A mixin of TaskRunner (executive/runner.py).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -74,7 +75,7 @@ class Verification(DoneCheck):
         placement verifies it). Then decide: next object, done, give up."""
         if self._verified_from_target_view():
             return "next_object"
-        self.views = self._scan()
+        self.views = self._confirming_scan()
         self._perceive()
         b = self.belief
         if self._candidates() or b.staged_waiting():
@@ -116,6 +117,37 @@ class Verification(DoneCheck):
             return "give_up"
         self._name_things_left()  # still no pose for an item-sized thing: the run ends `unrecognised_left`
         return "complete"
+
+    def _confirming_scan(self) -> list:
+        """The verify state's scan. Where nothing is left to do as perceived (the picked item aside), it is expected
+        to be the first of the scans that confirm the sink empty (RunOptions.confirm_empty_scans): it captures the
+        views of the later ones at each waypoint too, and the next confirming scan takes those instead of visiting
+        the same waypoints again. They are the views that visit would capture: the same joint configurations, and
+        nothing touched the scene in between (no grasp attempt, slide or other scan: TaskRunner._scene_token,
+        and the scan before confirmed the sink empty). Otherwise the spare views are dropped and the waypoints
+        visited."""
+        spare, self.spare_scans = self.spare_scans, None
+        if spare is not None and self.counts.empty_scans >= 1 and spare.token == self._scene_token():
+            views, rest = spare.sets[0], spare.sets[1:]
+            self._record_scan(views)
+            if rest:  # for the confirming scan after this one (the token now counts this scan)
+                self.spare_scans = dataclasses.replace(spare, sets=rest, token=self._scene_token())
+            self._log("note", "confirming scan from the views captured with the one before: nothing touched since")
+            return views
+        frames = 1
+        if self._expects_empty():
+            frames = max(1, self.opt.confirm_empty_scans - self.counts.empty_scans)
+        return self._scan(frames)
+
+    def _expects_empty(self) -> bool:
+        """Nothing left to do as perceived (the item just released aside; none staged on the counter, none being
+        staged): the scan about to be taken should confirm the sink empty."""
+        b = self.belief
+        p = b.released
+        if p is not None and p.staging:
+            return False
+        left = [q for q in b.poses if p is None or q is not p.obj]
+        return not self.task.remaining(left) and not b.staged_waiting()
 
     def _why_left(self, left: list) -> str:
         """The run's message when it gives up with `left` still in the sink: each item with its reasons, what no
