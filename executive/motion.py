@@ -57,6 +57,15 @@ def spot_measured(view: View, p_base: np.ndarray, half: int = 20) -> float:
     return float(np.mean(np.isfinite(d) & (d > 0)))
 
 
+@dataclass
+class SpareScans:
+    """Views captured at the scan waypoints beside a scan's own (TaskRunner._scan, `frames`), each set what a later
+    scan of the same waypoints would capture while `token` (TaskRunner._scene_token) is unchanged."""
+
+    sets: list[list[View]]
+    token: tuple
+
+
 class Motions:
     def _wait_motion(self, what: str, expected_s: float, carrying: bool = False) -> None:
         """Poll a running motion until it ends (stop requests, time budget; `carrying`: the gripper too, so that an
@@ -263,6 +272,51 @@ class Motions:
             return bool(self.gripper.is_holding())
         except DriverError:
             return False
+
+    def _scan(self, frames: int = 1) -> list[View]:
+        """Visit the scan waypoints and capture a view at each. `frames` > 1: as many views at each waypoint; the
+        sets after the first are kept (``self.spare_scans``) for the scans that confirm the sink empty after this
+        one: they would visit the very same joint configurations of a scene nothing touched in between
+        (executive/verification.py, ``_confirming_scan``)."""
+        sets: list[list[View]] = [[] for _ in range(max(1, frames))]
+        skipped: list[StepFailed] = []
+        home = np.asarray(self.robot.config.robot.home, float)
+        self.spare_scans = None
+        for k, q in enumerate(self.robot.config.scan_waypoints):
+            try:
+                self._move_joints_via(np.asarray(q, float), f"scan waypoint {k}", home)
+            except StepFailed as e:  # blocked (e.g. by a pile on the counter): the other views still cover the sink
+                if e.kind != "no_path":
+                    raise
+                skipped.append(e)
+                continue
+            sets[0].append(self._capture_view(f"scan{self.counts.scan_count}_wp{k}", f"scan_wp{k}"))
+            try:
+                for j, views in enumerate(sets[1:], 1):
+                    views.append(self._capture_view(f"scan{self.counts.scan_count + j}_wp{k}", f"scan_wp{k}"))
+            except (DriverError, StepFailed) as e:  # no spare frame here: no spare scans (each must be complete)
+                self._log("note", "no spare views for the confirming scans", reason=str(e))
+                sets = sets[:1]
+        if not sets[0]:
+            raise skipped[0]
+        self._record_scan(sets[0])
+        if len(sets) > 1:
+            self.spare_scans = SpareScans(sets[1:], self._scene_token())
+        return sets[0]
+
+    def _record_scan(self, views: list[View]) -> None:
+        """A scan's views taken: counted, written to the dataset and the recording."""
+        self.counts.scan_count += 1
+        if self.dataset is not None:
+            self.dataset.write_scan(views)
+        if self.recorder is not None:
+            self.recorder.views(views, self._sim_now())
+
+    def _scene_token(self) -> tuple:
+        """What changes when the arm may have touched the scene or another scan was taken: grasp attempts (every
+        pick, placement and put-down follows one), slides, scans. Not the belief's scene epoch: the perception of the
+        scan itself records the placement it verifies."""
+        return (self.report.attempts, self.report.slides, self.counts.scan_count)
 
     def _capture_view(self, where: str, key: str | None = None, spot: bool = False) -> View:
         """Capture with bounded retries on dropped frames and unusable depth; View with its camera pose. `spot`:
