@@ -197,6 +197,12 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
                     est.append((po.obj_id, T, po.score))
                     estimates.append(Estimate(im.scene_id, im.im_id, po.obj_id, po.score, T, dt))
                 gt = [(g.obj_id, g.T_cam_obj) for g in im.gt if g.visib_fract >= min_visib and g.obj_id in pts]
+                # An estimate that is right about an object seen too little to be a target in this image (BOP:
+                # visib_fract < min_visib; multi-view scans see it from the other views), and right about no target,
+                # is ignored: neither matched (it would be paired with another target of its model and count as
+                # wrong, a miss there too) nor a false positive.
+                low = [(g.obj_id, g.T_cam_obj) for g in im.gt if g.visib_fract < min_visib and g.obj_id in pts]
+                est = [e for e in est if not _right_about_only(e, low, gt, pts, inventory)]
                 matches, unmatched = match_image(gt, est, pts)
                 ok_count = 0
                 for mt in matches:
@@ -208,16 +214,10 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
                     per_obj.setdefault(gt[mt.gt_index][0], []).append(bool(ok))
                     if mt.est_index >= 0 and not ok:
                         false_pos += 1
-                # An unmatched estimate that is right about an object seen too little to be a target in this
-                # image (BOP: visib_fract < min_visib; multi-view scans see it from the other views) is ignored.
-                low = [(g.obj_id, g.T_cam_obj) for g in im.gt if g.visib_fract < min_visib and g.obj_id in pts]
                 wrong = [mt.est_index for mt in matches if mt.est_index >= 0 and not mt.error < 0.1 * inventory[gt[mt.gt_index][0]].diameter]
                 for j in unmatched:
-                    oid, T, _ = est[j]
-                    d = inventory[oid].diameter
-                    if not any(o == oid and adi(T, Tg, pts[oid][::4]) < 0.1 * d for o, Tg in low):
-                        false_pos += 1
-                        wrong.append(j)
+                    false_pos += 1
+                    wrong.append(j)
                 # False positives that lie on an object outside the inventory (a box, a can, a sponge).
                 dis = [(g.obj_id, distractor_pts[g.obj_id] @ g.T_cam_obj[:3, :3].T + g.T_cam_obj[:3, 3])
                        for g in im.gt if g.obj_id in distractor_pts and g.visib_fract > 0]
@@ -278,6 +278,17 @@ def evaluate(dataset: str | Path, settings: PerceptionSettings | None = None, ce
             [t for v in grasp_err.values() for t in v[0]], [a for v in grasp_err.values() for a in v[1]],
             sum(v[2] for v in grasp_err.values()))
     return EvalResult(estimates, report, per_scan)
+
+
+def _right_about_only(e: tuple, low: list, gt: list, pts: dict, inventory: Inventory) -> bool:
+    """Estimate `e` (obj_id, T_cam_obj, score) lies within 0.1 d (ADI) of an object of its model in `low` and of
+    none in `gt`."""
+    oid, T, _ = e
+    thr = 0.1 * inventory[oid].diameter
+
+    def near(items):
+        return any(o == oid and adi(T, Tg, pts[oid][::4]) < thr for o, Tg in items)
+    return near(low) and not near(gt)
 
 
 def _scan_errors(group: list, poses: list, inventory: Inventory, min_visib: float, acc: dict) -> None:

@@ -143,3 +143,21 @@ def test_cell_dataset_uses_each_scenes_own_cell(tmp_path, monkeypatch):
     assert cells[-1].spec.sink.inner_size_xy == (0.50, 0.40)
     with pytest.raises(ValueError, match="--cell"):
         ev.evaluate(tmp_path, progress=False, use_cell="sometimes")
+
+
+def test_a_right_estimate_of_an_object_seen_too_little_is_ignored_not_paired_with_another():
+    """An estimate right about an item under the visibility floor is not matched to a visible item of its model
+    (it would count as a wrong pose there and a false positive); one right about a visible item is matched."""
+    from kitchenbot.world.inventory import Inventory
+
+    inv = Inventory.builtin()
+    m = next(x for x in inv if x.cls == "cup")
+    pts = {x.obj_id: x.points for x in inv}
+    hidden = make_T(np.eye(3), (0.0, 0.0, 0.6))
+    seen = make_T(np.eye(3), (0.2, 0.0, 0.6))
+    low, gt = [(m.obj_id, hidden)], [(m.obj_id, seen)]
+    assert ev._right_about_only((m.obj_id, hidden, 1.0), low, gt, pts, inv)
+    assert not ev._right_about_only((m.obj_id, seen, 1.0), low, gt, pts, inv)
+    assert not ev._right_about_only((m.obj_id, hidden, 1.0), low, [(m.obj_id, hidden)], pts, inv)  # a visible one there
+    other = next(x for x in inv if x.cls == "mug")
+    assert not ev._right_about_only((other.obj_id, hidden, 1.0), low, gt, pts, inv)  # another model: not about it
