@@ -292,3 +292,22 @@ def test_an_upside_down_flared_bowl_is_gripped_level_across_its_sloped_wall(sim_
             t, n = _cast(scene, (p + s * y * 0.1)[None], (-s * y)[None])
             assert np.isfinite(t[0]) and n[0] @ (s * y) >= cos_cone
     sim_holds(Inventory([bowl]), bowl, from_base[::4])
+
+
+def test_a_fifth_set_sized_from_catalogues_is_classed_and_held(own_dishware_e, tmp_path_factory, sim_holds):
+    """Set E (a tulip red-wine glass, a square plate with a raised rim, an oval serving bowl, an espresso cup on a foot
+    wider than its body, a ramekin, a tall latte mug, a thick-walled stoneware bowl, a coupe plate, a handle-less tea cup): the class from
+    the shape is the intended one, the round ones (and only they) get the symmetry about z, the config's one-line
+    override replaces the inferred class, and every item gets grasps from above that the simulated Fin-Ray holds."""
+    folder, expected = own_dishware_e
+    inventory = ensure_grasps(Inventory.load(folder), tmp_path_factory.mktemp("grasp_cache_e"))
+    round_ = {"red_wine_glass", "ramekin_e", "stoneware_bowl", "coupe_plate", "yunomi_cup"}
+    for m in inventory:
+        name, cls = expected[m.obj_id]
+        assert m.cls == cls, name
+        assert m.is_rotationally_symmetric == (name in round_), name
+        assert len(m.grasps) >= 40, name
+        assert any(g.T_obj_tcp[2, 2] < -0.7 for g in m.grasps), name
+        sim_holds(inventory, m, m.grasps[::15])
+    overridden = Inventory.load(folder, classes={4: "cup", 5: "cup"})
+    assert [m.cls for m in overridden] == [("cup" if m.obj_id in (4, 5) else expected[m.obj_id][1]) for m in overridden]
