@@ -670,10 +670,15 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
         # must cross the wall.
         span = _pad_spans(scene, y[todo], z[todo], t[todo])
         on_pair &= ~slant[todo] | (np.isfinite(span) & (span > 0) & (span < PINCH_MAX_WIDTH))
-        # Straight pairs too: the rigid pad faces may touch the wall deeper along the approach while the line through
-        # the TCP only grazes its lip (a rim leaning inwards, a tulip glass's mouth); the conforming pads close on
-        # that line, to less than MIN_SPAN, and hold nothing.
-        on_pair &= ~(np.isfinite(span) & (span < MIN_SPAN))
+        # Straight pairs too: the rigid pad faces may touch the wall deeper along the approach while the lines near
+        # the TCP only graze its lip (a rim leaning inwards, a tulip glass's mouth); the conforming pads close on
+        # those lines, to less than MIN_SPAN, and hold nothing.
+        # Where the pads first meet the item, then: the widest of the lines through the TCP and 5 mm either side
+        # across the pads' width and along their depth (as the simulated gripper judges it).
+        core = span
+        for dx in (-0.005, 0.005):
+            core = np.fmax(core, _pad_spans(scene, y[todo], z[todo], t[todo] + R[todo][:, :, 0] * dx))
+        on_pair &= ~(np.isfinite(core) & (core < MIN_SPAN))
         closed = np.where(slant[todo], span, closed)
         ok = np.isfinite(closed) & on_pair & (area >= MIN_CONTACT)
         d_centre = np.linalg.norm(np.cross(centroid - c[todo], y[todo]), axis=1)
