@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -215,7 +216,10 @@ class CadDatabase:
                             ("geo", r.geo_token), ("vcls", e.view_cls), ("vgeo", e.view_geo),
                             ("dense", e.dense_points), ("dense_n", e.dense_normals)):
                 arrs[f"{i}_{name}"] = a
-        tmp = path.with_suffix(".tmp.npz")
+        # A temporary file of this process's own, then an atomic rename: processes started together on the same
+        # inventory (parallel benchmark workers, the three tasks at once) build and save the same entry; with one
+        # shared temporary name the first rename took the other's file away (FileNotFoundError).
+        tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
         np.savez_compressed(tmp, ids=np.array(sorted(self.entries)), **arrs)
         tmp.replace(path)
 

@@ -409,6 +409,9 @@ CENTRE_WEIGHT = 0.5  # score = contact fraction - CENTRE_WEIGHT * (closing line 
 MAX_GRASPS = 160
 ROUND_COPIES = 12  # a round item's grasps are chosen at one azimuth and repeated every 30 degrees
 PINCH_MAX_WIDTH = 0.02  # m: narrower pairs pinch one wall (a rim), wider ones grip across the body
+MIN_SPAN = 0.002  # m: a Fin-Ray that closes to less than this along the line through the TCP has closed on a
+# sliver of the item (a lip the line only grazes): its pads meet, nothing is held (the simulated gripper counts a
+# stall below 2 mm as closed on nothing)
 # A Fin-Ray pinch of a thin wall need not close along the wall's normal: pads closing at a slant across a plate's
 # flat rim (one pad on it, one under its edge) wrap onto both faces. Pinch pairs are therefore also sought along
 # the inward normal turned by each of these angles (degrees, within WRAP_CONE_DEG), towards PINCH_TILT_AZIMUTHS
@@ -439,7 +442,7 @@ MAX_RIM_LEVEL = 36  # a vessel's level pinches kept, on top of the others
 LEVEL_ACROSS = "acrosslevel"
 MAX_LEVEL_ACROSS = 36
 LEVEL_ACROSS_MIN_TILT = 5.0
-SYNTHESIS_VERSION = 14  # part of the cache key: bump when the method changes
+SYNTHESIS_VERSION = 15  # part of the cache key: bump when the method changes
 
 
 def _cast(scene: o3d.t.geometry.RaycastingScene, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -667,6 +670,15 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
         # must cross the wall.
         span = _pad_spans(scene, y[todo], z[todo], t[todo])
         on_pair &= ~slant[todo] | (np.isfinite(span) & (span > 0) & (span < PINCH_MAX_WIDTH))
+        # Straight pairs too: the rigid pad faces may touch the wall deeper along the approach while the lines near
+        # the TCP only graze its lip (a rim leaning inwards, a tulip glass's mouth); the conforming pads close on
+        # those lines, to less than MIN_SPAN, and hold nothing.
+        # Where the pads first meet the item, then: the widest of the lines through the TCP and 5 mm either side
+        # across the pads' width and along their depth (as the simulated gripper judges it).
+        core = span
+        for dx in (-0.005, 0.005):
+            core = np.fmax(core, _pad_spans(scene, y[todo], z[todo], t[todo] + R[todo][:, :, 0] * dx))
+        on_pair &= ~(np.isfinite(core) & (core < MIN_SPAN))
         closed = np.where(slant[todo], span, closed)
         ok = np.isfinite(closed) & on_pair & (area >= MIN_CONTACT)
         d_centre = np.linalg.norm(np.cross(centroid - c[todo], y[todo]), axis=1)

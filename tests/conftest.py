@@ -216,3 +216,80 @@ def own_dishware_d(tmp_path_factory):
     """(models_dir, {obj_id: (name, expected class)}) of the fourth set (`write_own_dishware_d`)."""
     folder = tmp_path_factory.mktemp("own_dishware_d") / "models"
     return folder, write_own_dishware_d(folder)
+
+
+def write_own_dishware_e(folder):
+    """A fifth models/ folder of unseen dishware, sized from retail catalogues (rounded): a tulip-shaped red-wine
+    glass (22 cm tall, 9.2 cm bowl narrowing to a 7.2 cm mouth, 8 cm foot), a square plate with a raised rim
+    (21 x 21 cm, sharper corners than set C's), a small oval serving bowl (16 x 11 cm, 5.5 cm tall), an espresso
+    cup on a flared foot wider than its body (6 cm rim, 6.6 cm foot, 6 cm tall, an ear handle), a ramekin (9 cm,
+    4.5 cm tall, slightly flared), a tall latte mug (8.5 cm, 14 cm tall, a handle), a thick-walled stoneware
+    bowl (15 cm, 7 cm tall, 8 mm walls, a foot ring), a coupe plate (26 cm, no rim: one continuous curve) and a
+    handle-less tapered tea cup (7 cm rim, 8.5 cm tall: class cup, what cup-stacking takes). Meshes (mm) and diameters only. Returns {obj_id: (name, expected class)}."""
+    import open3d as o3d
+
+    from kitchenbot.world.dishware import _profile_closed, lathe, tube
+
+    def vessel(outer, thickness, foot=None):
+        return lathe(_profile_closed(np.array(outer, float), thickness, foot=foot), segments=96)
+
+    def warp(mesh, radius_factor):  # each vertex moved radially by radius_factor(azimuth): a closed mesh stays closed
+        V = np.asarray(mesh.vertices).copy()
+        V[:, :2] *= radius_factor(np.arctan2(V[:, 1], V[:, 0]))[:, None]
+        mesh.vertices = o3d.utility.Vector3dVector(V)
+        return mesh
+
+    def handle(mesh, r0, z0, reach, thickness):  # an ear handle on the +x side, centred at height z0
+        s = np.linspace(-np.pi / 2 + 0.3, np.pi / 2 - 0.3, 24)
+        return mesh + tube(np.stack([r0 + reach * np.cos(s), np.zeros_like(s), z0 + reach * np.sin(s)], 1),
+                           thickness)
+
+    # the red-wine glass: a disc foot, a thin stem, a tulip bowl (widest at a third of its height)
+    stem_h, bowl_h, bowl_r, t = 0.085, 0.135, 0.046, 0.0022
+    s = np.linspace(0, 1, 12)
+    shape = np.sin(s * np.pi * 0.78) ** 0.7
+    bowl = np.column_stack([0.0045 + (bowl_r - 0.0045) * shape / shape.max(), stem_h + s * bowl_h])
+    inner = np.column_stack([np.maximum(bowl[:, 0] - t, 0.0), bowl[:, 1] + t * 0.5])
+    inner[0] = (0.0, stem_h + 2 * t)
+    wine = lathe(np.vstack([[(0, 0), (0.040, 0), (0.040, 0.002), (0.025, 0.005), (0.008, 0.010), (0.004, 0.015),
+                             (0.004, stem_h * 0.95)], bowl[1:], [(bowl[-1, 0] - t * 0.5, stem_h + bowl_h + t * 0.3)],
+                            inner[::-1][:-1], [(0.0, inner[0, 1])]]), segments=96)
+    square = warp(vessel([(0, 0.004), (0.070, 0.004), (0.074, 0.006), (0.080, 0.016), (0.086, 0.024),
+                          (0.092, 0.027)], 0.0045, foot=(0.065, 0.004, 0.004)),
+                  lambda a: (np.abs(np.cos(a)) ** 10 + np.abs(np.sin(a)) ** 10) ** (-1 / 10) * 1.14)
+    oval = vessel([(0, 0.005), (0.032, 0.005), (0.036, 0.007), (0.050, 0.020), (0.060, 0.040), (0.064, 0.055)],
+                  0.0045, foot=(0.031, 0.004, 0.005))
+    oval = warp(oval, lambda a: 1.0 / np.sqrt((np.cos(a) / 1.25) ** 2 + (np.sin(a) / 0.86) ** 2))
+    espresso = vessel([(0, 0.008), (0.033, 0.008), (0.026, 0.012), (0.024, 0.016)]
+                      + [(0.024 + 0.006 * (z - 0.016) / 0.044, z) for z in np.linspace(0.022, 0.060, 5)], 0.0035,
+                      foot=(0.033, 0.006, 0.008))
+    espresso = handle(espresso, 0.027, 0.036, 0.017, 0.0045)
+    ramekin = vessel([(0, 0), (0.040, 0), (0.043, 0.003)] + [(0.043 + 0.002 * z / 0.045, z)
+                                                             for z in np.linspace(0.008, 0.045, 5)], 0.006)
+    latte = vessel([(0, 0), (0.038, 0), (0.042, 0.003)] + [(0.042 + 0.001 * z / 0.14, z)
+                                                           for z in np.linspace(0.010, 0.140, 9)], 0.004)
+    latte = handle(latte, 0.039, 0.075, 0.038, 0.0065)
+    stoneware = vessel([(0, 0.007), (0.040, 0.007), (0.044, 0.010), (0.060, 0.024), (0.070, 0.042), (0.074, 0.058),
+                        (0.075, 0.070)], 0.008, foot=(0.039, 0.006, 0.007))
+    # a handle-less stoneware tea cup (yunomi style: tapered, so it nests in its own kind; a 6 mm base)
+    yunomi = vessel([(0, 0), (0.026, 0), (0.029, 0.003)] + [(0.029 + 0.006 * (z / 0.085), z)
+                                                            for z in np.linspace(0.010, 0.085, 7)], 0.004)
+    coupe = vessel([(0, 0.004), (0.055, 0.004)] + [(r, 0.004 + 0.022 * ((r - 0.055) / 0.075) ** 1.8)
+                                                   for r in np.linspace(0.062, 0.130, 8)], 0.005,
+                   foot=(0.054, 0.004, 0.004))
+    specs = [("red_wine_glass", "glass", wine, (0.82, 0.88, 0.93)), ("square_rim_plate", "plate", square,
+                                                                      (0.93, 0.93, 0.90)),
+             ("oval_serving_bowl", "bowl", oval, (0.30, 0.40, 0.55)),
+             ("footed_espresso_cup", "mug", espresso, (0.20, 0.20, 0.22)),
+             ("ramekin_e", "bowl", ramekin, (0.85, 0.25, 0.20)), ("latte_mug", "mug", latte, (0.95, 0.95, 0.93)),
+             ("stoneware_bowl", "bowl", stoneware, (0.55, 0.45, 0.35)), ("coupe_plate", "plate", coupe,
+                                                                           (0.94, 0.92, 0.86)),
+             ("yunomi_cup", "cup", yunomi, (0.45, 0.50, 0.40))]
+    return _save_own_set(folder, specs)
+
+
+@pytest.fixture(scope="session")
+def own_dishware_e(tmp_path_factory):
+    """(models_dir, {obj_id: (name, expected class)}) of the fifth set (`write_own_dishware_e`)."""
+    folder = tmp_path_factory.mktemp("own_dishware_e") / "models"
+    return folder, write_own_dishware_e(folder)

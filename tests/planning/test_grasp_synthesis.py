@@ -292,3 +292,55 @@ def test_an_upside_down_flared_bowl_is_gripped_level_across_its_sloped_wall(sim_
             t, n = _cast(scene, (p + s * y * 0.1)[None], (-s * y)[None])
             assert np.isfinite(t[0]) and n[0] @ (s * y) >= cos_cone
     sim_holds(Inventory([bowl]), bowl, from_base[::4])
+
+
+def test_a_fifth_set_sized_from_catalogues_is_classed_and_held(own_dishware_e, tmp_path_factory, sim_holds):
+    """Set E (a tulip red-wine glass, a square plate with a raised rim, an oval serving bowl, an espresso cup on a foot
+    wider than its body, a ramekin, a tall latte mug, a thick-walled stoneware bowl, a coupe plate, a handle-less tea cup): the class from
+    the shape is the intended one, the round ones (and only they) get the symmetry about z, the config's one-line
+    override replaces the inferred class, and every item gets grasps from above that the simulated Fin-Ray holds."""
+    folder, expected = own_dishware_e
+    inventory = ensure_grasps(Inventory.load(folder), tmp_path_factory.mktemp("grasp_cache_e"))
+    round_ = {"red_wine_glass", "ramekin_e", "stoneware_bowl", "coupe_plate", "yunomi_cup"}
+    for m in inventory:
+        name, cls = expected[m.obj_id]
+        assert m.cls == cls, name
+        assert m.is_rotationally_symmetric == (name in round_), name
+        assert len(m.grasps) >= 40, name
+        assert any(g.T_obj_tcp[2, 2] < -0.7 for g in m.grasps), name
+        sim_holds(inventory, m, m.grasps[::15])
+    overridden = Inventory.load(folder, classes={4: "cup", 5: "cup"})
+    assert [m.cls for m in overridden] == [("cup" if m.obj_id in (4, 5) else expected[m.obj_id][1]) for m in overridden]
+
+
+def test_a_mouth_leaning_inwards_is_not_pinched_where_the_pads_only_graze_its_lip(sim_holds):
+    """A tulip wine glass (2.2 mm wall) whose mouth leans inwards: near the rim the rigid pad faces touch the wall
+    deeper along the tilted approach, while the line through the TCP only grazes the rounded lip (1.7 mm, or less
+    for a slanted pinch). The conforming pads close on that line and meet: the simulated Fin-Ray held none of those
+    (36 of 300 grasps). No grasp closes to less than the gripper's 2 mm along the TCP's line now, and the simulated
+    Fin-Ray holds every distinct grasp taken in the upper half of the bowl."""
+    from kitchenbot.fakes.gripper import MIN_HOLDING_OPENING
+    from kitchenbot.planning.grasp_synthesis import synthesise_grasps
+    from kitchenbot.world.dishware import lathe
+    from kitchenbot.world.inventory import ObjectModel
+
+    stem_h, bowl_h, bowl_r, t = 0.085, 0.135, 0.046, 0.0022
+    s = np.linspace(0, 1, 12)
+    shape = np.sin(s * np.pi * 0.78) ** 0.7  # widest at 2/3 of pi/2's height, then leaning inwards to the mouth
+    bowl = np.column_stack([0.0045 + (bowl_r - 0.0045) * shape / shape.max(), stem_h + s * bowl_h])
+    inner = np.column_stack([np.maximum(bowl[:, 0] - t, 0.0), bowl[:, 1] + t * 0.5])
+    inner[0] = (0.0, stem_h + 2 * t)
+    mesh = lathe(np.vstack([[(0, 0), (0.040, 0), (0.040, 0.002), (0.025, 0.005), (0.008, 0.010), (0.004, 0.015),
+                             (0.004, stem_h * 0.95)], bowl[1:], [(bowl[-1, 0] - t * 0.5, stem_h + bowl_h + t * 0.3)],
+                            inner[::-1][:-1], [(0.0, inner[0, 1])]]), segments=96)
+    mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
+    mesh.compute_vertex_normals()
+    glass = ObjectModel(1, "tulip_glass", "glass", mesh, 0.24, symmetries_continuous=[{"axis": [0, 0, 1], "offset": [0, 0, 0]}])
+    glass.grasps = synthesise_grasps(glass)
+    assert len(glass.grasps) >= 40
+    spans = [pad_span(glass, g.T_obj_tcp) for g in glass.grasps]
+    assert all(v is None or v >= MIN_HOLDING_OPENING for v in spans)
+    z_top = np.asarray(mesh.vertices)[:, 2].max()
+    upper = [g for g in glass.grasps if g.T_obj_tcp[2, 3] > z_top - 0.07 and g.name.endswith("_00")]
+    assert len(upper) >= 4
+    sim_holds(Inventory([glass]), glass, upper)
