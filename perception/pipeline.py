@@ -37,7 +37,7 @@ from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (BASE_SEEN, base_seen, claimed_by, continuation, facing_unclaimed, filled,
                                           fine_fit, fine_tolerance, intruded, overhang, overhang_area, patch_normals,
-                                          surface_noise, taper, verify, within_wall)
+                                          surface_noise, verify, within_wall)
 from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
 
@@ -809,9 +809,6 @@ class Perceiver:
             parts["overhang"], parts["overhang_area"] = \
                 self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
             parts["intruded"] = self._intruded(m, tree, tol, hyp, found, T_fine)
-            # (its own points that no neighbour claims, at the pose the fine fit nudged onto them)
-            e = db[hyp.obj_id]
-            parts["taper"] = taper(m.points[own][~claimed], normals[~claimed], e.dense_points, e.dense_normals, T_fine)
         return parts
 
     def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:

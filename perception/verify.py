@@ -27,14 +27,9 @@ The checks, each a share in [0, 1]:
   they cover, over the base's area (`overhang_area`): a lid seen from a camera facing the base end covers the ring
   all round, however many points the can's side gives the pose.
 
-- taper (cups, mugs, glasses, any way up): how much of the model's change of outer radius from the lower to the
-  upper half of its wall the depth lacks, over that change (`taper`): a drink can or a bottle's body is a straight
-  cylinder, a cup or a glass widens towards its rim; read at the fine fit's pose on the pose's unclaimed points
-  whose normals face out from the axis.
-
 verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
 1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - overhang_area / OVERHANG_AREA_FULL,
-1 - intruded / INTRUDED_FULL, 1 - taper / TAPER_FULL). Coverage both ways at one
+1 - intruded / INTRUDED_FULL). Coverage both ways at one
 voxel (seen, explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
 query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
 evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
@@ -135,21 +130,6 @@ INTRUDED_FULL = 0.13
 # `intruded`; points are binned in voxels of this size (metres) so that the area, not the point density, counts.
 INTRUDE_MARGIN = 0.004
 INTRUDE_VOXEL = 0.005
-# The taper (see `taper`: how much of the model's change of outer radius between the lower and the upper half of
-# its wall the depth lacks, over that change) at which a pose scores 0 (linear from 0 at none); with the threshold
-# 0.85 a pose is rejected above 0.15 x TAPER_FULL. Calibrated on development scenes with distractors
-# (docs/perception_measurements.md, "twenty-ninth session: fp29").
-TAPER_FULL = 0.5 / 0.15
-# Points on the outer wall: their normal faces out from the axis (cos over TAPER_OUTWARD with the radial
-# direction), within TAPER_BAND (metres) of the model's outer radius; the model's profile in TAPER_SLICE slices
-# of height; each half of the judged heights needs TAPER_MIN_POINTS points, and the model must change its radius by
-# TAPER_MIN_CHANGE (metres) between them (between the halves' median heights the glass changes ~2.4 mm, the cup
-# ~6 mm, the mug ~1 mm: the mug is not judged).
-TAPER_OUTWARD = 0.7
-TAPER_BAND = 0.012
-TAPER_SLICE = 0.005
-TAPER_MIN_POINTS = 40
-TAPER_MIN_CHANGE = 0.0015
 
 
 @dataclass
@@ -164,14 +144,13 @@ class Verification:
     overhang: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang)
     intruded: float = 0.0  # set by the pipeline on the final poses of tall vessels not facing up (intruded)
     overhang_area: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang_area)
-    taper: float = 0.0  # set by the pipeline on the final poses of tall vessels (taper)
     normals_segment: float | None = None  # `normals` as judged on the whole segment (the pipeline's fine check
     # may raise `normals` to its value over the points no other pose explains: facing_unclaimed)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
                 "fine": self.fine, "continued": self.continued, "filled": self.filled, "overhang": self.overhang,
-                "intruded": self.intruded, "overhang_area": self.overhang_area, "taper": self.taper}
+                "intruded": self.intruded, "overhang_area": self.overhang_area}
 
     @property
     def score(self) -> float:
@@ -180,7 +159,7 @@ class Verification:
         return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL,
                             1.0 - self.continued / CONTINUED_FULL, 1.0 - self.filled / FILLED_FULL,
                             1.0 - self.overhang / OVERHANG_FULL, 1.0 - self.overhang_area / OVERHANG_AREA_FULL,
-                            1.0 - self.intruded / INTRUDED_FULL, 1.0 - self.taper / TAPER_FULL))
+                            1.0 - self.intruded / INTRUDED_FULL))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
@@ -526,70 +505,3 @@ def intruded(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarra
     cells = len(np.unique(np.floor(q[inside] / voxel).astype(np.int64), axis=0))
     r_rim = r_model[model_points[:, 2] > z1 - 0.005].max()
     return float(cells * voxel ** 2 / (np.pi * r_rim ** 2))
-
-
-def wall_profile(dense_points: np.ndarray, dense_normals: np.ndarray, z: np.ndarray,
-                 slice_h: float = TAPER_SLICE) -> np.ndarray:
-    """The outer wall's radius at heights `z` of a surface of revolution about z (object frame; `dense_points` and
-    `dense_normals`, the model's): per `slice_h` of height, the median radius of the model's points whose normal
-    faces out from the axis (the outer wall; a mug's handle is a small share of a slice). NaN where a slice has
-    no outer wall (a base)."""
-    axis = np.median(dense_points[:, :2], axis=0)
-    xy = dense_points[:, :2] - axis
-    r = np.linalg.norm(xy, axis=1)
-    out = np.einsum("ij,ij->i", dense_normals[:, :2], xy) > TAPER_OUTWARD * np.maximum(r, 1e-9)
-    z0 = dense_points[:, 2].min()
-    b_model = np.floor((dense_points[out, 2] - z0) / slice_h).astype(int)
-    nb = int(np.floor((dense_points[:, 2].max() - z0) / slice_h)) + 1
-    prof = np.full(nb, np.nan)
-    for b in np.unique(b_model):
-        if 0 <= b < nb:
-            prof[b] = np.median(r[out][b_model == b])
-    return prof[np.clip(np.floor((z - z0) / slice_h).astype(int), 0, nb - 1)]
-
-
-def taper(points: np.ndarray, normals: np.ndarray, dense_points: np.ndarray, dense_normals: np.ndarray,
-          T_base_obj: np.ndarray, band: float = TAPER_BAND, min_points: int = TAPER_MIN_POINTS) -> float:
-    """How far the outer wall's taper that the depth shows falls short of (or beyond) the model's: a vessel of a
-    surface of revolution about z (`dense_points`, `dense_normals`, object frame), posed at `T_base_obj`, and the
-    points on its outer wall (`points`, base frame, and their `normals` facing the cameras; NaN: no direction;
-    only those facing out from the axis and within `band` of the wall count, between a tenth of the height from
-    either end). Each point's radius from the axis less the model's outer radius at its height; the median of
-    that over the lower half of the judged heights and over the upper half differ by what the data's taper lacks
-    of the model's. Returned over the model's own change of radius between those heights: 0 where the data
-    tapers as the model does, 1 for a straight cylinder fitted by a tapered model (a drink can or a bottle's body
-    taken for a cup or a glass: at one voxel, or within the fine tolerance of a noisy camera, a cylinder
-    "explains" a glass whose radius changes 7 mm over its height). 0 (not judged) where either half holds under
-    `min_points` points or the model changes its radius by under `TAPER_MIN_CHANGE` there (a mug is nearly
-    straight: nothing to tell)."""
-    if len(points) == 0:
-        return 0.0
-    Ti = inv(T_base_obj)
-    q = points @ Ti[:3, :3].T + Ti[:3, 3]
-    nq = normals @ Ti[:3, :3].T
-    axis = np.median(dense_points[:, :2], axis=0)
-    z0, z1 = dense_points[:, 2].min(), dense_points[:, 2].max()
-    h = z1 - z0
-    xy = q[:, :2] - axis
-    r = np.linalg.norm(xy, axis=1)
-    ok = np.isfinite(nq).all(axis=1)
-    ok &= np.einsum("ij,ij->i", np.nan_to_num(nq[:, :2]), xy) > TAPER_OUTWARD * np.maximum(r, 1e-9)
-    ok &= (q[:, 2] > z0 + 0.1 * h) & (q[:, 2] < z1 - 0.1 * h)
-    if ok.sum() < 2 * min_points:
-        return 0.0
-    wall = wall_profile(dense_points, dense_normals, q[ok, 2])
-    d = r[ok] - wall
-    z = q[ok, 2]
-    keep = np.isfinite(d) & (np.abs(d) < band)
-    d, z = d[keep], z[keep]
-    if len(z) < 2 * min_points:
-        return 0.0
-    zm = np.median(z)
-    lo, hi = z < zm, z >= zm
-    if lo.sum() < min_points or hi.sum() < min_points:
-        return 0.0
-    w_lo, w_hi = wall_profile(dense_points, dense_normals, np.array([np.median(z[lo]), np.median(z[hi])]))
-    change = float(w_hi - w_lo)
-    if not np.isfinite(change) or abs(change) < TAPER_MIN_CHANGE:
-        return 0.0
-    return float(abs((np.median(d[hi]) - np.median(d[lo])) / change))
