@@ -62,25 +62,24 @@ def main(task: str, seed: int, slip: float = 0.05, objects: int | None = None, o
             moving["name"] = f"move_joints: {what}"
             return move_joints(self, q, what)
 
+        def dump_here(path):
+            if dump:
+                try:
+                    _dump(runner, moving.get("traj"), path)
+                except Exception as ex:  # noqa: BLE001
+                    log.append(f"dump failed: {ex}")
+
         def _event(kind, detail="", t=None):
             if kind == "motion" and "collision:" in detail:
                 events.append(describe(runner, moving["name"], detail))
-                if dump:
-                    try:
-                        _dump(runner, moving.get("traj"), f"{dump}_{len(events)}.pkl")
-                    except Exception as ex:  # noqa: BLE001
-                        log.append(f"dump failed: {ex}")
+                dump_here(f"{dump}_{len(events)}.pkl")
                 log.append(f"COLLISION {moving['name']}: {detail}")
             elif kind == "motion" and "will stop" in detail:  # a stop other than a collision: described if protective
                 moving["stop"] = describe(runner, moving["name"], detail)
             elif kind == "protective_stop" and "collision:" not in detail:
                 rec = moving.pop("stop", None) or {"motion": moving["name"], "detail": detail}
                 stops.append(rec)
-                if dump:
-                    try:
-                        _dump(runner, moving.get("traj"), f"{dump}_stop{len(stops)}.pkl")
-                    except Exception as ex:  # noqa: BLE001
-                        log.append(f"dump failed: {ex}")
+                dump_here(f"{dump}_stop{len(stops)}.pkl")
                 log.append(f"PROTECTIVE_STOP {moving['name']}: {detail}")
             return event(kind, detail, t)
 

@@ -30,16 +30,24 @@ def _notes(runner, name: str) -> int:
 CONFIRMED = "confirming scan from the views captured with the one before: nothing touched since"
 
 
+def _run_cups(make_runner, safe_end, cups, prepare=None):
+    """A sink-pick run on `cups` cups (two confirmations of the empty sink); every cup placed, no collision."""
+    runner, world = make_runner(task="sink-pick", cups=cups, waypoints=3,
+                                options=RunOptions(poll_period=0.05, confirm_empty_scans=2))
+    if prepare is not None:
+        prepare(world)
+    moves = _count_moves(runner)
+    report = runner.run()
+    safe_end(runner, world)
+    assert report.status == "succeeded" and report.truth["end"]["delivered"] == cups and report.collisions == 0
+    return runner, moves, report
+
+
 def test_the_second_confirming_scan_visits_no_waypoint(make_runner, safe_end):
     """One cup: the first scan, then (the cup placed, nothing left as perceived) a scan that confirms the sink
     empty and captures the second confirmation's views with its own; the second takes them: 3 scans, the
     waypoints visited twice (6 moves), not three times."""
-    runner, world = make_runner(task="sink-pick", cups=1, waypoints=3,
-                                options=RunOptions(poll_period=0.05, confirm_empty_scans=2))
-    moves = _count_moves(runner)
-    report = runner.run()
-    safe_end(runner, world)
-    assert report.status == "succeeded" and report.truth["end"]["delivered"] == 1 and report.collisions == 0
+    runner, moves, report = _run_cups(make_runner, safe_end, 1)
     assert runner.counts.scan_count == 3 and _notes(runner, CONFIRMED) == 1
     assert moves["scan waypoint"] == 6
 
@@ -50,14 +58,11 @@ def test_spare_views_are_not_used_after_a_pick(make_runner, safe_end):
     pick are not used; the scan after it visits the waypoints, and its own spare views confirm the sink empty."""
     from tests.executive.test_verify_no_rescan import _cups_apart
 
-    runner, world = make_runner(task="sink-pick", cups=2, waypoints=3,
-                                options=RunOptions(poll_period=0.05, confirm_empty_scans=2))
-    _cups_apart(world)
-    world.faults.missed_detection = 1
-    moves = _count_moves(runner)
-    report = runner.run()
-    safe_end(runner, world)
-    assert report.status == "succeeded" and report.truth["end"]["delivered"] == 2 and report.collisions == 0
+    def miss_one(world):
+        _cups_apart(world)
+        world.faults.missed_detection = 1
+
+    runner, moves, report = _run_cups(make_runner, safe_end, 2, miss_one)
     # first scan; after cup 1 (spares captured, cup 2 found); after cup 2 (spares captured); the confirmation from
     # the spares
     assert runner.counts.scan_count == 4 and _notes(runner, CONFIRMED) == 1
