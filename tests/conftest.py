@@ -218,6 +218,28 @@ def own_dishware_d(tmp_path_factory):
     return folder, write_own_dishware_d(folder)
 
 
+def tulip_glass_mesh():
+    """Set E's red-wine glass: a disc foot, a thin stem, a tulip bowl (2.2 mm wall) widest at a third of its height,
+    its mouth leaning inwards."""
+    from kitchenbot.world.dishware import lathe
+
+    stem_h, bowl_h, bowl_r, t = 0.085, 0.135, 0.046, 0.0022
+    s = np.linspace(0, 1, 12)
+    shape = np.sin(s * np.pi * 0.78) ** 0.7  # widest at 2/3 of pi/2's height, then leaning inwards to the mouth
+    bowl = np.column_stack([0.0045 + (bowl_r - 0.0045) * shape / shape.max(), stem_h + s * bowl_h])
+    inner = np.column_stack([np.maximum(bowl[:, 0] - t, 0.0), bowl[:, 1] + t * 0.5])
+    inner[0] = (0.0, stem_h + 2 * t)
+    return lathe(np.vstack([[(0, 0), (0.040, 0), (0.040, 0.002), (0.025, 0.005), (0.008, 0.010), (0.004, 0.015),
+                             (0.004, stem_h * 0.95)], bowl[1:], [(bowl[-1, 0] - t * 0.5, stem_h + bowl_h + t * 0.3)],
+                            inner[::-1][:-1], [(0.0, inner[0, 1])]]), segments=96)
+
+
+@pytest.fixture
+def tulip_glass():
+    """A fresh tulip_glass_mesh() (callers move it)."""
+    return tulip_glass_mesh()
+
+
 def write_own_dishware_e(folder):
     """A fifth models/ folder of unseen dishware, sized from retail catalogues (rounded): a tulip-shaped red-wine
     glass (22 cm tall, 9.2 cm bowl narrowing to a 7.2 cm mouth, 8 cm foot), a square plate with a raised rim
@@ -244,16 +266,7 @@ def write_own_dishware_e(folder):
         return mesh + tube(np.stack([r0 + reach * np.cos(s), np.zeros_like(s), z0 + reach * np.sin(s)], 1),
                            thickness)
 
-    # the red-wine glass: a disc foot, a thin stem, a tulip bowl (widest at a third of its height)
-    stem_h, bowl_h, bowl_r, t = 0.085, 0.135, 0.046, 0.0022
-    s = np.linspace(0, 1, 12)
-    shape = np.sin(s * np.pi * 0.78) ** 0.7
-    bowl = np.column_stack([0.0045 + (bowl_r - 0.0045) * shape / shape.max(), stem_h + s * bowl_h])
-    inner = np.column_stack([np.maximum(bowl[:, 0] - t, 0.0), bowl[:, 1] + t * 0.5])
-    inner[0] = (0.0, stem_h + 2 * t)
-    wine = lathe(np.vstack([[(0, 0), (0.040, 0), (0.040, 0.002), (0.025, 0.005), (0.008, 0.010), (0.004, 0.015),
-                             (0.004, stem_h * 0.95)], bowl[1:], [(bowl[-1, 0] - t * 0.5, stem_h + bowl_h + t * 0.3)],
-                            inner[::-1][:-1], [(0.0, inner[0, 1])]]), segments=96)
+    wine = tulip_glass_mesh()
     square = warp(vessel([(0, 0.004), (0.070, 0.004), (0.074, 0.006), (0.080, 0.016), (0.086, 0.024),
                           (0.092, 0.027)], 0.0045, foot=(0.065, 0.004, 0.004)),
                   lambda a: (np.abs(np.cos(a)) ** 10 + np.abs(np.sin(a)) ** 10) ** (-1 / 10) * 1.14)

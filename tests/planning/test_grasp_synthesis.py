@@ -313,7 +313,7 @@ def test_a_fifth_set_sized_from_catalogues_is_classed_and_held(own_dishware_e, t
     assert [m.cls for m in overridden] == [("cup" if m.obj_id in (4, 5) else expected[m.obj_id][1]) for m in overridden]
 
 
-def test_a_mouth_leaning_inwards_is_not_pinched_where_the_pads_only_graze_its_lip(sim_holds):
+def test_a_mouth_leaning_inwards_is_not_pinched_where_the_pads_only_graze_its_lip(sim_holds, tulip_glass):
     """A tulip wine glass (2.2 mm wall) whose mouth leans inwards: near the rim the rigid pad faces touch the wall
     deeper along the tilted approach, while the line through the TCP only grazes the rounded lip (1.7 mm, or less
     for a slanted pinch). The conforming pads close on that line and meet: the simulated Fin-Ray held none of those
@@ -321,18 +321,9 @@ def test_a_mouth_leaning_inwards_is_not_pinched_where_the_pads_only_graze_its_li
     Fin-Ray holds every distinct grasp taken in the upper half of the bowl."""
     from kitchenbot.fakes.gripper import MIN_HOLDING_OPENING
     from kitchenbot.planning.grasp_synthesis import synthesise_grasps
-    from kitchenbot.world.dishware import lathe
     from kitchenbot.world.inventory import ObjectModel
 
-    stem_h, bowl_h, bowl_r, t = 0.085, 0.135, 0.046, 0.0022
-    s = np.linspace(0, 1, 12)
-    shape = np.sin(s * np.pi * 0.78) ** 0.7  # widest at 2/3 of pi/2's height, then leaning inwards to the mouth
-    bowl = np.column_stack([0.0045 + (bowl_r - 0.0045) * shape / shape.max(), stem_h + s * bowl_h])
-    inner = np.column_stack([np.maximum(bowl[:, 0] - t, 0.0), bowl[:, 1] + t * 0.5])
-    inner[0] = (0.0, stem_h + 2 * t)
-    mesh = lathe(np.vstack([[(0, 0), (0.040, 0), (0.040, 0.002), (0.025, 0.005), (0.008, 0.010), (0.004, 0.015),
-                             (0.004, stem_h * 0.95)], bowl[1:], [(bowl[-1, 0] - t * 0.5, stem_h + bowl_h + t * 0.3)],
-                            inner[::-1][:-1], [(0.0, inner[0, 1])]]), segments=96)
+    mesh = tulip_glass  # set E's glass (tests/conftest.py, tulip_glass_mesh)
     mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
     mesh.compute_vertex_normals()
     glass = ObjectModel(1, "tulip_glass", "glass", mesh, 0.24, symmetries_continuous=[{"axis": [0, 0, 1], "offset": [0, 0, 0]}])
