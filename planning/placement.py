@@ -21,7 +21,7 @@ import open3d as o3d
 
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import NoFreeSlot, PlaceTarget
-from kitchenbot.transforms import make_T, rot_x, rot_y, trans
+from kitchenbot.transforms import rot_x, rot_y, trans
 from kitchenbot.world.cell import Cell
 from kitchenbot.world.gripper import DROP_HEIGHT
 from kitchenbot.world.inventory import ObjectModel
@@ -112,23 +112,20 @@ def stack_target(model: ObjectModel, base: ObjectPose, drop: float = DROP_HEIGHT
 
 
 class SlotBook:
-    """Free/taken rack slots and drop-zone spots for one task run."""
+    """Free/taken dishwasher rack slots for one task run. (The counter drop zone has no list of spots: the
+    tasks find room there from what was already put down, `tasks/base.py` `_drop_zone_targets`.)"""
 
-    def __init__(self, cell: Cell, drop_spacing: float = 0.12):
+    def __init__(self, cell: Cell):
         self.cell = cell
         self.taken: set[str] = set()
         self.footprints: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # slot -> xy AABB of what was put there
         self.slots = {s.name: s for s in cell.slots}
-        a = cell.spec.drop_zone
-        xs = np.arange(a.origin_xy[0] + drop_spacing / 2, a.origin_xy[0] + a.size_xy[0], drop_spacing)
-        ys = np.arange(a.origin_xy[1] + drop_spacing / 2, a.origin_xy[1] + a.size_xy[1], drop_spacing)
-        self.drop_spots = {f"drop_{i}_{j}": make_T(t=(x, y, a.z)) for i, x in enumerate(xs) for j, y in enumerate(ys)}
 
     # ---- bookkeeping ---------------------------------------------------------------------------------
     def fill(self, name: str, T_base_obj: np.ndarray | None = None, model: ObjectModel | None = None) -> None:
-        """Mark a slot/spot taken; with the object's pose and model, also remember its footprint so that
+        """Mark a rack slot taken; with the object's pose and model, also remember its footprint so that
         neighbouring slots it overlaps (a dinner plate spans two plate slots) are not offered."""
-        if name not in self.slots and name not in self.drop_spots:
+        if name not in self.slots:
             raise KeyError(f"SlotBook.fill: unknown slot {name!r}")
         self.taken.add(name)
         if T_base_obj is not None and model is not None:
@@ -173,15 +170,3 @@ class SlotBook:
         if not t:
             return NoFreeSlot(f"no free {rack_kind_for(model.cls)} slot for a {model.cls}", {"taken": sorted(self.taken)})
         return t[0]
-
-    def drop_targets(self, model: ObjectModel) -> list[PlaceTarget]:
-        """Free spots in the counter drop zone, object upright."""
-        h = _half_extents(model)
-        out = []
-        for name, T in self.drop_spots.items():
-            if name in self.taken:
-                continue
-            if self._overlaps(model, T @ trans(0, 0, h[2])):
-                continue
-            out.append(PlaceTarget(T @ trans(0, 0, h[2] + DROP_HEIGHT), "drop", name, free_yaw=True, support="counter"))
-        return out
