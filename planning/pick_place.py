@@ -24,7 +24,8 @@ from kitchenbot.drivers.safety import SafetyLimits
 from kitchenbot.drivers.ur_kinematics import ur_model
 from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scene, SceneObject, coal_transform
-from kitchenbot.planning.doubtful_support import approaches_points, own_axis_directions, pose_doubtful
+from kitchenbot.planning.doubtful_support import (NARROWING_TOL, POINT_REACH, POSE_ERROR, approaches_points,
+                                                  own_axis_directions, pose_doubtful)
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_legs, sidesteps
@@ -569,6 +570,10 @@ class Planner:
         # Every lift may leave those start contacts with other items, none may meet one again once left (see
         # _contact_comes_back): the margins above see one unbroken contact where the items part and meet again.
         held_item_pairs = [p for p in start_contacts if any(x in by_name for x in p)]
+        # ... allowing, for a support whose fitted pose is doubtful (planning/doubtful_support.py), for that pose's
+        # error: a gap to it that narrows again after parting, within that error, may be the contact coming back
+        doubtful = {x for p in held_item_pairs for x in p
+                    if x in by_name and pose_doubtful(by_name[x], s.visible_fraction_unoccluded)}
         # An item lying on the held one is checked from the lift's first state (above): where the held item is
         # already within the margin of it at the grasp, every lift (each direction, each sidestep) fails at that
         # first state, and so does every other grasp of the item (the held item's pose is the same). Said once.
@@ -619,7 +624,8 @@ class Planner:
             else:
                 lift, q_lifted = r
                 back = self._contact_comes_back(lift_scene, lift.q, held_item_pairs)
-                maybe = None if back is not None else self._remade_in_fit(lift_scene, lift.q, held_item_pairs)
+                maybe = None if back is not None else self._remade_in_fit(lift_scene, lift.q, held_item_pairs,
+                                                                          doubtful)
                 if back is not None or maybe is not None:
                     if back is not None:
                         lift_objects.update(n[4:] for n in back if n.startswith("obj:"))
@@ -658,7 +664,8 @@ class Planner:
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
                 continue
             lift, q_lifted = r
-            if self._contact_comes_back(lift_scene, lift.q, held_item_pairs) is not None:
+            if self._contact_comes_back(lift_scene, lift.q, held_item_pairs) is not None or \
+                    self._may_meet_doubtful_again(lift_scene, lift.q, held_item_pairs, doubtful) is not None:
                 continue
             if held_scene.valid(q_lifted):
                 return with_approach(lift, LIFT_CONTACT_TRAVEL, lift_sidestep_m=float(np.linalg.norm(leg[:2])))
@@ -676,7 +683,7 @@ class Planner:
         touching = [p for p in start_contacts if any(x.startswith("cell:") for x in p)]
         if touching and not keep_wall_gaps:
             r = self._up_then_away(lift_scene, vertical_start_scene, start_scene, held_scene, q_grasp, g.T_base_tcp,
-                                   centre, held_item_pairs)
+                                   centre, held_item_pairs, doubtful)
             if r is not None:
                 return with_approach(r[0], UP_THEN_AWAY[0] + UP_THEN_AWAY[1], lift_up_then_away=1.0)
         if walls and not keep_wall_gaps:
@@ -756,19 +763,45 @@ class Planner:
                 return p
         return None
 
-    def _remade_in_fit(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]]) -> tuple[str, str] | None:
+    def _remade_in_fit(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]],
+                       doubtful: set[str] = frozenset()) -> tuple[str, str] | None:
         """The first of `pairs` (the held item with a neighbour it touches at the start of the lift `Q`) whose contact
         may, within the fits' resolution, break and be made again (_remade_within_fit on the half-step samples'
-        signed gaps), or None. A lift refused for it alone is the last resort (Planner._plan_pick_with): the other
-        directions, and first of all the one that parts the item from what it touches, come before it."""
+        signed gaps), or, for a neighbour named in `doubtful` (its pose doubtful), within that pose's error
+        (_may_meet_doubtful_again); or None. A lift refused for it alone is the last resort
+        (Planner._plan_pick_with): the other directions, and first of all the one that parts the item from what it
+        touches, come before it."""
         if not pairs or len(Q) < 2:
             return None
-        Q = np.asarray(Q, float)
-        Q = np.vstack([np.vstack([a, (a + b) / 2]) for a, b in zip(Q[:-1], Q[1:])] + [Q[-1:]])  # half steps
+        Qh = self._half_steps(Q)
         for p in pairs:
-            if self._remade_within_fit(scene.signed_gaps(Q, p, self.GAP_SPAN)):
+            if self._remade_within_fit(scene.signed_gaps(Qh, p, self.GAP_SPAN)):
+                return p
+        return self._may_meet_doubtful_again(scene, Q, pairs, doubtful)
+
+    def _may_meet_doubtful_again(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]],
+                                 doubtful: set[str]) -> tuple[str, str] | None:
+        """The first of `pairs` with a neighbour named in `doubtful` (a support whose fitted pose is doubtful,
+        doubtful_support.pose_doubtful) whose gap to the held item, along the lift `Q` (half steps), narrows again
+        after parting while within doubtful_support.POSE_ERROR of the start's (each by more than NARROWING_TOL), or
+        None. In the world the two touch at the start, and the support's wall may be POSE_ERROR nearer than its fit
+        says: a bowl lifted along its own axis out of a bowl seen 11 % parted from its fitted pose to 1.9 mm and
+        narrowed back to 1.6 mm; in the world the gap opened to 0.9 mm and closed (the simulator's collision). A lift
+        straight up, parting steadily, passes."""
+        mine = [p for p in pairs if doubtful.intersection(p)]
+        if not mine or len(Q) < 2:
+            return None
+        Qh = self._half_steps(Q)
+        for p in mine:
+            if self._remade_within(scene.signed_gaps(Qh, p, 2 * POSE_ERROR), POSE_ERROR, NARROWING_TOL):
                 return p
         return None
+
+    @staticmethod
+    def _half_steps(Q: np.ndarray) -> np.ndarray:
+        """The configurations of `Q` and the midpoints between them."""
+        Q = np.asarray(Q, float)
+        return np.vstack([np.vstack([a, (a + b) / 2]) for a, b in zip(Q[:-1], Q[1:])] + [Q[-1:]])
 
     # m: how far the fitted poses may be off in how deep two resting items overlap (fits within a few tenths of a
     # millimetre): in the world the two only touch where the fitted poses overlap by up to this much
@@ -787,13 +820,18 @@ class Planner:
         within FIT_RESOLUTION of the start's. Both by more than CONTACT_REMAKE_TOL. A bowl lying tilted in another,
         lifted straight up, slides along the lower one's wall: in the world the two parted by 0.16 mm and met again,
         while the fitted poses overlapped by 0.73 to 0.85 mm and then deeper, one contact at zero gap."""
+        return cls._remade_within(s, cls.FIT_RESOLUTION, cls.CONTACT_REMAKE_TOL)
+
+    @staticmethod
+    def _remade_within(s: np.ndarray, reach: float, tol: float) -> bool:
+        """Whether the signed gaps `s` (m, along a lift from its start) get wider than at the start and then narrow
+        again, both by more than `tol`, to within `reach` of the start's."""
         s = np.asarray(s, float)
         if len(s) < 3:
             return False
         peak = np.maximum.accumulate(s)[:-1]  # the shallowest overlap (or widest gap) before each state
         later = s[1:]
-        return bool(np.any((peak > s[0] + cls.CONTACT_REMAKE_TOL) & (peak - later > cls.CONTACT_REMAKE_TOL)
-                           & (later <= s[0] + cls.FIT_RESOLUTION)))
+        return bool(np.any((peak > s[0] + tol) & (peak - later > tol) & (later <= s[0] + reach)))
 
     def _separating_lift(self, lift_scene: Scene, start_scene: Scene, held_scene: Scene, q_grasp: np.ndarray,
                          g: Grasp, pairs: list[tuple[str, str]],
@@ -842,10 +880,11 @@ class Planner:
         pairs' names) have poses too poorly supported by what was seen of them to choose a direction
         (doubtful_support.pose_doubtful): a lift in two legs, first LIFT_CONTACT_TRAVEL along the held item's own
         axis or in a cone about it (doubtful_support.own_axis_directions: off whatever it rests on, wherever that
-        is), then straight up. Those items' fitted poses are not checked against the held item; their own points
-        are instead (doubtful_support.approaches_points: no point may come nearer the swept item than at the grasp
-        while within the collision margin). Everything else is checked as on the separating lift. None where no
-        such lift plans."""
+        is), then straight up. Those items' fitted poses are not checked for collisions with the held item; their
+        own points are instead (doubtful_support.approaches_points: no point may come nearer the swept item than at
+        the grasp while within POINT_REACH of it), and the gap to their fitted poses may not narrow again after
+        parting within their error (_may_meet_doubtful_again). Everything else is checked as on the separating lift.
+        None where no such lift plans."""
         skip = [p for p in lift_scene.pair_names if "held" in p and any(x in doubtful for x in p)]
         trusted = [p for p in pairs if not any(x in doubtful for x in p)]
         lift_free, start_free = lift_scene.allowing(skip), start_scene.allowing(skip)
@@ -859,10 +898,11 @@ class Planner:
                 continue
             lift, q_lifted = r
             if not held_scene.valid(q_lifted) or self._contact_comes_back(lift_scene, lift.q, trusted) is not None \
-                    or self._remade_in_fit(lift_scene, lift.q, trusted) is not None:
+                    or self._remade_in_fit(lift_scene, lift.q, trusted) is not None \
+                    or self._may_meet_doubtful_again(lift_scene, lift.q, pairs, set(doubtful)) is not None:
                 continue
             path = [self.robot.fk_tcp(q) @ T_tcp_obj for q in lift.q]
-            if approaches_points(held_bvh, path, points, self.settings.collision_margin):
+            if approaches_points(held_bvh, path, points, POINT_REACH):
                 continue
             return lift, q_lifted, leg
         return None
@@ -910,7 +950,7 @@ class Planner:
 
     def _up_then_away(self, lift_scene: Scene, vertical_start_scene: Scene, start_scene: Scene, held_scene: Scene,
                       q_grasp: np.ndarray, T_grasp: np.ndarray, centre: np.ndarray,
-                      held_item_pairs) -> tuple[Trajectory, np.ndarray] | None:
+                      held_item_pairs, doubtful: set[str] = frozenset()) -> tuple[Trajectory, np.ndarray] | None:
         """(lift, end) in two straight legs for an item that touches a basin wall at the grasp, or None: straight up by
         UP_THEN_AWAY[0] (its start contacts may last, as on any lift straight up), then tilted towards the sink's
         middle (planning.lift.base_directions' tilts) by lift_height, its start contacts allowed for the first
@@ -919,7 +959,8 @@ class Planner:
         every line straight up, and drags its lower end through the neighbour on every line tilted from the grasp;
         up out of the neighbour first, then away from the wall, it comes out. The simulator, like a real arm,
         tolerates a start contact that lasts unbroken for 10 cm of travel (fakes/collision.py); here at most
-        UP_THEN_AWAY[0] + UP_THEN_AWAY[1], and a neighbour's contact, once left, may not come back."""
+        UP_THEN_AWAY[0] + UP_THEN_AWAY[1], and a neighbour's contact, once left, may not come back (nor come near
+        again within the error of a doubtful support's pose: _may_meet_doubtful_again)."""
         up, keep = UP_THEN_AWAY
         info1: dict = {}
         r = self._line(vertical_start_scene, q_grasp, trans(0.0, 0.0, up) @ T_grasp, "lift", check_start=False,
@@ -935,7 +976,8 @@ class Planner:
             if isinstance(r, PlanningFailure) or not held_scene.valid(r[1]):
                 continue
             Q = np.vstack([info1["path"], info2["path"][1:]])
-            if self._contact_comes_back(lift_scene, Q, held_item_pairs) is not None:
+            if self._contact_comes_back(lift_scene, Q, held_item_pairs) is not None or \
+                    self._may_meet_doubtful_again(lift_scene, Q, held_item_pairs, doubtful) is not None:
                 continue
             traj = self._time(Q, "lift", "along_path")
             if not isinstance(traj, PlanningFailure):
