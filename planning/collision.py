@@ -238,33 +238,46 @@ def _surface_distance(model: ObjectModel, P_obj: np.ndarray) -> np.ndarray:
 
 
 _NEAR_CELL = 0.005  # m: cells of the grid that settles most "within r of the surface" questions without a query
-_NEAR_GRIDS: dict[tuple, tuple] = {}  # (id(mesh), r) -> (mesh, origin, shape, cells surely within r)
+# m: the grid covers the model's box grown by this much (the farthest any query asks: OWN_REACH), so one grid per
+# model answers every radius (the fit radii of the grasp target and the held item vary by the millimetre); a point
+# outside it is left to the exact distance
+_NEAR_GRID_REACH = OWN_REACH
+# m: kept off the bounds both ways, for the float32 distances (the grid's and the exact query's)
+_NEAR_SLACK = 1e-5
+_NEAR_GRIDS: dict[int, tuple] = {}  # id(mesh) -> (mesh, origin, cell centres' distances to the surface, NaN: not yet)
 
 
-def _near_grid(model: ObjectModel, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per model and radius, once: the object-frame grid over its box grown by `radius` and the cells whose every
-    point lies within `radius` of its surface (the centre within `radius` less the half-diagonal)."""
-    key = (id(model.mesh), float(radius))
-    hit = _NEAR_GRIDS.get(key)
+def _near_grid(model: ObjectModel) -> tuple[np.ndarray, np.ndarray]:
+    """Per model, once: the object-frame grid over its box grown by _NEAR_GRID_REACH, as (origin, each cell
+    centre's distance to the surface), the distances NaN until a point in the cell is first asked about
+    (_near_by_grid fills them: a query touches a few thousand of its ~10^5 cells)."""
+    hit = _NEAR_GRIDS.get(id(model.mesh))
     if hit is None or hit[0] is not model.mesh:
         bb = model.mesh.get_axis_aligned_bounding_box()
-        lo = np.asarray(bb.get_min_bound()) - radius
-        shape = np.ceil((np.asarray(bb.get_max_bound()) + radius - lo) / _NEAR_CELL).astype(int) + 1
-        centres = lo + (np.indices(shape).reshape(3, -1).T + 0.5) * _NEAR_CELL
-        sure = _surface_distance(model, centres) <= radius - np.sqrt(3) / 2 * _NEAR_CELL
-        hit = _NEAR_GRIDS[key] = (model.mesh, lo, shape, sure.reshape(shape))
-    return hit[1], hit[3]
+        lo = np.asarray(bb.get_min_bound()) - _NEAR_GRID_REACH
+        shape = np.ceil((np.asarray(bb.get_max_bound()) + _NEAR_GRID_REACH - lo) / _NEAR_CELL).astype(int) + 1
+        hit = _NEAR_GRIDS[id(model.mesh)] = (model.mesh, lo, np.full(tuple(shape), np.nan))
+    return hit[1], hit[2]
 
 
-def _surely_near(model: ObjectModel, P_obj: np.ndarray, radius: float) -> np.ndarray:
-    """Points (object frame) that surely lie within `radius` of the model's surface, by the grid alone (False:
-    not known; the exact distance decides)."""
-    lo, sure = _near_grid(model, radius)
+def _near_by_grid(model: ObjectModel, P_obj: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """(surely within `radius` of the model's surface, surely farther than it) for points in the object frame, by
+    their grid cells (both False: not known, the exact distance decides). A point lies within its cell centre's
+    distance to the surface -/+ the cell's half-diagonal; the cells' distances are computed when first needed."""
+    lo, dist = _near_grid(model)
     ijk = np.floor((P_obj - lo) / _NEAR_CELL).astype(np.int64)
-    ok = np.all((ijk >= 0) & (ijk < np.array(sure.shape)), axis=1)
-    out = np.zeros(len(P_obj), bool)
-    out[ok] = sure[ijk[ok, 0], ijk[ok, 1], ijk[ok, 2]]
-    return out
+    ok = np.all((ijk >= 0) & (ijk < np.array(dist.shape)), axis=1)
+    flat = np.ravel_multi_index(tuple(ijk[ok].T), dist.shape)
+    d = np.full(len(P_obj), np.nan)
+    d[ok] = dist.reshape(-1)[flat]
+    todo = np.unique(flat[np.isnan(d[ok])])
+    if len(todo):
+        centres = lo + (np.column_stack(np.unravel_index(todo, dist.shape)) + 0.5) * _NEAR_CELL
+        dist.reshape(-1)[todo] = _surface_distance(model, centres)
+        d[ok] = dist.reshape(-1)[flat]
+    half = np.sqrt(3) / 2 * _NEAR_CELL
+    with np.errstate(invalid="ignore"):
+        return d <= radius - half - _NEAR_SLACK, d > radius + half + _NEAR_SLACK
 
 
 def _digest(a: np.ndarray) -> bytes:
@@ -286,11 +299,12 @@ class _ObjectPoints:
 
     def near(self, idx: np.ndarray, radius: float) -> np.ndarray:
         """Whether points `idx` (indices) lie within `radius` of the model's surface: a grid cell surely that near
-        settles it (most map points lie on some surface; the exact query is the costly part), the exact distance
-        the rest. The same answer as the distance alone."""
-        out = _surely_near(self.model, self.Pl[idx], radius)
-        if not out.all():
-            out[~out] = self.distance(idx[~out]) <= radius
+        settles it (most map points lie on some surface; the exact query is the costly part), as does a cell surely
+        farther out; the exact distance the rest. The same answer as the distance alone."""
+        out, far = _near_by_grid(self.model, self.Pl[idx], radius)
+        ask = ~(out | far)
+        if ask.any():
+            out[ask] = self.distance(idx[ask]) <= radius
         return out
 
     def distance(self, idx: np.ndarray) -> np.ndarray:
