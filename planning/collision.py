@@ -457,6 +457,11 @@ TOOL_PARTS = ("palm", "pad_a", "pad_b", "camera")
 PADS = ("pad_a", "pad_b")
 
 
+def _tool_meets_item(a: str, b: str) -> bool:
+    """A (tool part, perceived object or the map's voxels) pair."""
+    return (a in TOOL_PARTS and b.startswith(("obj:", "voxels"))) or (b in TOOL_PARTS and a.startswith(("obj:", "voxels")))
+
+
 def _camera_near_item(a: str, b: str) -> bool:
     """A (camera, item or voxels) pair: it keeps the full margin in the grasp and release scenes too."""
     return (a == "camera" and b.startswith(("obj:", "voxels"))) or (b == "camera" and a.startswith(("obj:", "voxels")))
@@ -732,6 +737,7 @@ class Scene:
         self._gripper_pair = [(a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held")
                               and not _camera_near_item(a, b) for a, b in self.pair_names]
         self._zone: tuple[Scene, int, float] | None = None  # (strict variant, target geometry, radius): for_grasp
+        self._tool_split: tuple[Scene, Scene] | None = None  # only_tool_touches' variants, made when first asked
         self._set_margins({}, world.margin)
 
     @property
@@ -908,6 +914,7 @@ class Scene:
         other._bp = None
         other._pools = {}  # its own pair activations and margins
         other._zone = None
+        other._tool_split = None
         return other
 
     def for_grasp(self, target_name: str | None, *, pads_only: bool = True) -> "Scene":
@@ -1052,6 +1059,30 @@ class Scene:
             if not v.all():
                 return s + int(np.argmin(v))
         return -1
+
+    def only_tool_touches(self, q: np.ndarray) -> bool:
+        """Whether all that collides at q is the tool meeting perceived objects or the map's voxels (at least one
+        such pair, no other pair): what ``colliding_pairs(q)`` says read that way (a grasp's near miss), from two
+        broad-phase checks, one over those pairs and one over all the others, instead of a check of every pair."""
+        if self._zone is not None:
+            p = tcp_positions(self.world.robot, np.asarray(q, float).reshape(1, 6))
+            if not self._in_contact_zone(p)[0]:
+                return self._zone[0].only_tool_touches(q)
+        if self._tool_split is None:
+            mine = {p for p in self.pair_names if _tool_meets_item(*p)}
+            tool = self._variant()
+            for k, pr in enumerate(self.pair_names):
+                tool.gd.collisionRequests[k].security_margin = self.gd.collisionRequests[k].security_margin
+                if self.gd.activeCollisionPairs[k] and pr in mine:
+                    tool.gd.activateCollisionPair(k)
+                else:
+                    tool.gd.deactivateCollisionPair(k)
+            self._tool_split = (tool, self.allowing(mine))
+        tool, others = self._tool_split
+        q = np.asarray(q, float)
+        if not pin.computeCollisions(self.model, tool.data, tool._broadphase(), q, True):
+            return False
+        return not pin.computeCollisions(self.model, others.data, others._broadphase(), q, True)
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         if self._zone is not None:
