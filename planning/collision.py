@@ -238,33 +238,46 @@ def _surface_distance(model: ObjectModel, P_obj: np.ndarray) -> np.ndarray:
 
 
 _NEAR_CELL = 0.005  # m: cells of the grid that settles most "within r of the surface" questions without a query
-_NEAR_GRIDS: dict[tuple, tuple] = {}  # (id(mesh), r) -> (mesh, origin, shape, cells surely within r)
+# m: the grid covers the model's box grown by this much (the farthest any query asks: OWN_REACH), so one grid per
+# model answers every radius (the fit radii of the grasp target and the held item vary by the millimetre); a point
+# outside it is left to the exact distance
+_NEAR_GRID_REACH = OWN_REACH
+# m: kept off the bounds both ways, for the float32 distances (the grid's and the exact query's)
+_NEAR_SLACK = 1e-5
+_NEAR_GRIDS: dict[int, tuple] = {}  # id(mesh) -> (mesh, origin, cell centres' distances to the surface, NaN: not yet)
 
 
-def _near_grid(model: ObjectModel, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per model and radius, once: the object-frame grid over its box grown by `radius` and the cells whose every
-    point lies within `radius` of its surface (the centre within `radius` less the half-diagonal)."""
-    key = (id(model.mesh), float(radius))
-    hit = _NEAR_GRIDS.get(key)
+def _near_grid(model: ObjectModel) -> tuple[np.ndarray, np.ndarray]:
+    """Per model, once: the object-frame grid over its box grown by _NEAR_GRID_REACH, as (origin, each cell
+    centre's distance to the surface), the distances NaN until a point in the cell is first asked about
+    (_near_by_grid fills them: a query touches a few thousand of its ~10^5 cells)."""
+    hit = _NEAR_GRIDS.get(id(model.mesh))
     if hit is None or hit[0] is not model.mesh:
         bb = model.mesh.get_axis_aligned_bounding_box()
-        lo = np.asarray(bb.get_min_bound()) - radius
-        shape = np.ceil((np.asarray(bb.get_max_bound()) + radius - lo) / _NEAR_CELL).astype(int) + 1
-        centres = lo + (np.indices(shape).reshape(3, -1).T + 0.5) * _NEAR_CELL
-        sure = _surface_distance(model, centres) <= radius - np.sqrt(3) / 2 * _NEAR_CELL
-        hit = _NEAR_GRIDS[key] = (model.mesh, lo, shape, sure.reshape(shape))
-    return hit[1], hit[3]
+        lo = np.asarray(bb.get_min_bound()) - _NEAR_GRID_REACH
+        shape = np.ceil((np.asarray(bb.get_max_bound()) + _NEAR_GRID_REACH - lo) / _NEAR_CELL).astype(int) + 1
+        hit = _NEAR_GRIDS[id(model.mesh)] = (model.mesh, lo, np.full(tuple(shape), np.nan))
+    return hit[1], hit[2]
 
 
-def _surely_near(model: ObjectModel, P_obj: np.ndarray, radius: float) -> np.ndarray:
-    """Points (object frame) that surely lie within `radius` of the model's surface, by the grid alone (False:
-    not known; the exact distance decides)."""
-    lo, sure = _near_grid(model, radius)
+def _near_by_grid(model: ObjectModel, P_obj: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """(surely within `radius` of the model's surface, surely farther than it) for points in the object frame, by
+    their grid cells (both False: not known, the exact distance decides). A point lies within its cell centre's
+    distance to the surface -/+ the cell's half-diagonal; the cells' distances are computed when first needed."""
+    lo, dist = _near_grid(model)
     ijk = np.floor((P_obj - lo) / _NEAR_CELL).astype(np.int64)
-    ok = np.all((ijk >= 0) & (ijk < np.array(sure.shape)), axis=1)
-    out = np.zeros(len(P_obj), bool)
-    out[ok] = sure[ijk[ok, 0], ijk[ok, 1], ijk[ok, 2]]
-    return out
+    ok = np.all((ijk >= 0) & (ijk < np.array(dist.shape)), axis=1)
+    flat = np.ravel_multi_index(tuple(ijk[ok].T), dist.shape)
+    d = np.full(len(P_obj), np.nan)
+    d[ok] = dist.reshape(-1)[flat]
+    todo = np.unique(flat[np.isnan(d[ok])])
+    if len(todo):
+        centres = lo + (np.column_stack(np.unravel_index(todo, dist.shape)) + 0.5) * _NEAR_CELL
+        dist.reshape(-1)[todo] = _surface_distance(model, centres)
+        d[ok] = dist.reshape(-1)[flat]
+    half = np.sqrt(3) / 2 * _NEAR_CELL
+    with np.errstate(invalid="ignore"):
+        return d <= radius - half - _NEAR_SLACK, d > radius + half + _NEAR_SLACK
 
 
 def _digest(a: np.ndarray) -> bytes:
@@ -286,11 +299,12 @@ class _ObjectPoints:
 
     def near(self, idx: np.ndarray, radius: float) -> np.ndarray:
         """Whether points `idx` (indices) lie within `radius` of the model's surface: a grid cell surely that near
-        settles it (most map points lie on some surface; the exact query is the costly part), the exact distance
-        the rest. The same answer as the distance alone."""
-        out = _surely_near(self.model, self.Pl[idx], radius)
-        if not out.all():
-            out[~out] = self.distance(idx[~out]) <= radius
+        settles it (most map points lie on some surface; the exact query is the costly part), as does a cell surely
+        farther out; the exact distance the rest. The same answer as the distance alone."""
+        out, far = _near_by_grid(self.model, self.Pl[idx], radius)
+        ask = ~(out | far)
+        if ask.any():
+            out[ask] = self.distance(idx[ask]) <= radius
         return out
 
     def distance(self, idx: np.ndarray) -> np.ndarray:
@@ -441,6 +455,11 @@ _EXPLAIN_MEMO = _ExplainMemo()
 ROBOT_GROUP = "robot"
 TOOL_PARTS = ("palm", "pad_a", "pad_b", "camera")
 PADS = ("pad_a", "pad_b")
+
+
+def _tool_meets_item(a: str, b: str) -> bool:
+    """A (tool part, perceived object or the map's voxels) pair."""
+    return (a in TOOL_PARTS and b.startswith(("obj:", "voxels"))) or (b in TOOL_PARTS and a.startswith(("obj:", "voxels")))
 
 
 def _camera_near_item(a: str, b: str) -> bool:
@@ -718,6 +737,7 @@ class Scene:
         self._gripper_pair = [(a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held")
                               and not _camera_near_item(a, b) for a, b in self.pair_names]
         self._zone: tuple[Scene, int, float] | None = None  # (strict variant, target geometry, radius): for_grasp
+        self._tool_split: tuple[Scene, Scene] | None = None  # only_tool_touches' variants, made when first asked
         self._set_margins({}, world.margin)
 
     @property
@@ -894,6 +914,7 @@ class Scene:
         other._bp = None
         other._pools = {}  # its own pair activations and margins
         other._zone = None
+        other._tool_split = None
         return other
 
     def for_grasp(self, target_name: str | None, *, pads_only: bool = True) -> "Scene":
@@ -1038,6 +1059,30 @@ class Scene:
             if not v.all():
                 return s + int(np.argmin(v))
         return -1
+
+    def only_tool_touches(self, q: np.ndarray) -> bool:
+        """Whether all that collides at q is the tool meeting perceived objects or the map's voxels (at least one
+        such pair, no other pair): what ``colliding_pairs(q)`` says read that way (a grasp's near miss), from two
+        broad-phase checks, one over those pairs and one over all the others, instead of a check of every pair."""
+        if self._zone is not None:
+            p = tcp_positions(self.world.robot, np.asarray(q, float).reshape(1, 6))
+            if not self._in_contact_zone(p)[0]:
+                return self._zone[0].only_tool_touches(q)
+        if self._tool_split is None:
+            mine = {p for p in self.pair_names if _tool_meets_item(*p)}
+            tool = self._variant()
+            for k, pr in enumerate(self.pair_names):
+                tool.gd.collisionRequests[k].security_margin = self.gd.collisionRequests[k].security_margin
+                if self.gd.activeCollisionPairs[k] and pr in mine:
+                    tool.gd.activateCollisionPair(k)
+                else:
+                    tool.gd.deactivateCollisionPair(k)
+            self._tool_split = (tool, self.allowing(mine))
+        tool, others = self._tool_split
+        q = np.asarray(q, float)
+        if not pin.computeCollisions(self.model, tool.data, tool._broadphase(), q, True):
+            return False
+        return not pin.computeCollisions(self.model, others.data, others._broadphase(), q, True)
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         if self._zone is not None:

@@ -538,7 +538,7 @@ def select_grasps(
                     return True
             else:
                 scenes[k].set_opening(spec.opening)
-                if _tool_only(scenes[k].colliding_pairs(x)):
+                if scenes[k].only_tool_touches(x):  # _tool_only(colliding_pairs(x)), by two broad-phase checks
                     return True
         return False
 
