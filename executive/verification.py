@@ -408,8 +408,10 @@ class Verification(DoneCheck):
     def _look_at_staged(self, st: Placed) -> Placed:
         """One view straight down at the staged item `st` before its regrasp; the item of its class the view shows
         within STAGED_SEARCH of the record (and nearer to it than to any other record) replaces the record, at the
-        record's height (it rests on the counter: the lowest points agree). The record returned: the new one, or
-        `st` when no view is had or the view does not show it."""
+        record's height (it rests on the counter: the lowest points agree) or as fitted, whichever explains the
+        view's depth better (tilted across an edge its lowest point is not the record's), where it explains it
+        better than the record does. The record returned: the new one, or `st` when no view is had or the view
+        does not show it."""
         b = self.belief
         site = np.asarray(st.T_base_obj, float)[:3, 3]
         seen = None
@@ -429,7 +431,8 @@ class Verification(DoneCheck):
             self._log("result", "staged item", cls=st.cls, xyz=site, seen=False)
             return st
         m = self.robot.inventory[st.obj_id]
-        T = np.array(seen.T_base_obj, float)
+        T_fit = np.array(seen.T_base_obj, float)  # the view's pose as fitted
+        T = T_fit.copy()
         T[2, 3] += _lowest(m, st.T_base_obj) - _lowest(m, T)
         R0 = np.asarray(st.T_base_obj, float)[:3, :3]
         moved = float(np.linalg.norm(T[:3, 3] - site))
@@ -444,7 +447,11 @@ class Verification(DoneCheck):
             # Which pose does the view bear out? A mug's fit from above can put its handle on the wrong side (its
             # origin, the box centre, then 3 cm off): the record, where it was put down, may be the right one. The
             # view's pose replaces it only where it explains the view's depth better.
-            rec_fit, new_fit = (depth_agreement(view, m, X) for X in (st.T_base_obj, T))
+            # The view's pose is compared at the record's height and as fitted: where it lies otherwise than put
+            # down (tilted across an edge, on something), the record's height says nothing of its own.
+            rec_fit, new_fit, fit_fit = (depth_agreement(view, m, X) for X in (st.T_base_obj, T, T_fit))
+            if fit_fit.agree > new_fit.agree:
+                T, new_fit = T_fit, fit_fit
             fits = {"record_fit": round(rec_fit.agree, 3), "view_fit": round(new_fit.agree, 3)}
             agrees = rec_fit.decided and rec_fit.agree >= new_fit.agree
         self._log("result", "staged item", cls=st.cls, xyz=T[:3, 3], seen=True, agrees=agrees,
