@@ -9,7 +9,7 @@ import pytest
 from kitchenbot.perception import pipeline
 from kitchenbot.perception.metrics import adi
 from kitchenbot.perception.synthetic import render, resting_pose, scan_poses
-from kitchenbot.perception.track import moved, unchanged
+from kitchenbot.perception.track import KEEP_MIN_POINTS, KEEP_SHARE, KEEP_TOL, MapChange, moved, unchanged
 from kitchenbot.transforms import make_T
 
 
@@ -262,3 +262,53 @@ def _plate_believed_off(perceiver, inventory, cell):
     off[0, 3] += 0.04
     again, _ = render(inventory, placed, scan_poses(cell), cell, noise=0.002, rng=np.random.default_rng(7))
     return placed, first, again, plate, off
+
+
+def _unchanged_per_prior(now, before, centre, radius, tol=KEEP_TOL, share=KEEP_SHARE):
+    """The comparison as each prior made it before `MapChange`: trees of both maps' points within its reach."""
+    from scipy.spatial import cKDTree
+
+    def within(P, r):
+        return P[np.sum((P - centre) ** 2, axis=1) <= r ** 2]
+
+    a, b = within(now, radius), within(before, radius)
+    if len(a) < KEEP_MIN_POINTS or len(b) < KEEP_MIN_POINTS:
+        return False
+    for P, Q in ((a, within(before, radius + tol)), (b, within(now, radius + tol))):
+        if len(Q) == 0 or np.isfinite(cKDTree(Q).query(P, distance_upper_bound=tol)[0]).mean() < share:
+            return False
+    return True
+
+
+def test_one_comparison_of_the_two_maps_answers_every_prior_as_its_own_comparison_did(monkeypatch):
+    """`MapChange` compares the maps once per scan; for every centre and radius its answer is the answer of the
+    comparison each prior made of the points within its reach (a hole, points added, points moved by a few
+    millimetres, the border of the radius at the tolerance), and it builds one tree per map, not two per prior."""
+    from kitchenbot.perception import track as track_mod
+
+    rng = np.random.default_rng(3)
+    g = np.stack(np.meshgrid(np.arange(0, 0.3, 0.003), np.arange(0, 0.3, 0.003)), -1).reshape(-1, 2)
+    before = np.column_stack([g, 0.01 * np.sin(20 * g[:, 0])])
+    now = before + rng.normal(0, 0.0012, before.shape)
+    now = now[np.linalg.norm(now[:, :2] - [0.20, 0.12], axis=1) > 0.035]  # an item taken away
+    patch = before[np.linalg.norm(before[:, :2] - [0.08, 0.22], axis=1) < 0.03]
+    now = np.vstack([now, patch + [0, 0, 0.03], patch[::3] + [0.0, 0.0, 0.005]])  # something put there; a shift
+    trees = []
+    real = track_mod.cKDTree
+
+    def counted(*a, **kw):
+        trees.append(len(a[0]))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(track_mod, "cKDTree", counted)
+    change = MapChange(now, before)
+    assert len(trees) == 2
+    answers = []
+    for centre in rng.uniform([0.0, 0.0, 0.0], [0.3, 0.3, 0.01], (60, 3)):
+        for radius in (0.01, 0.04, 0.09, 0.16):
+            for share in (0.9, KEEP_SHARE, 0.99):
+                want = _unchanged_per_prior(now, before, centre, radius, share=share)
+                assert change.unchanged(centre, radius, share) == want, (centre, radius, share)
+                answers.append(want)
+    assert len(trees) == 2  # no tree per question
+    assert any(answers) and not all(answers)  # both answers were asked for
