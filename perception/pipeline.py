@@ -285,7 +285,8 @@ class Perceiver:
             ids_out = m.ids.copy()
             used: set[int] = set()  # priors kept (tracked): one instance each
             # which points of this map and of the priors' map are still there: made when a prior first asks
-            change = _LazyChange(m.points, prior_map) if priors and prior_map is not None else None
+            change = _LazyChange(m.points, prior_map, priors, db, 1.5 * vox) \
+                if priors and prior_map is not None else None
             tracked_at: dict[int, tuple[np.ndarray, int]] = {}  # index in `found` of a tracked pose -> (its
             # instance's points, the prior's index)
             splits = 0
@@ -1459,15 +1460,19 @@ FREE_SPACE_CLEARED = 1 / 3
 
 
 class _LazyChange:
-    """A scan's `MapChange` of its map against the priors' map, made on the first `get` (a scan whose instances
-    no prior explains never compares the maps)."""
+    """A scan's `MapChange` of its map against the priors' map, with the surface the priors still seen where they
+    were put on the points new in this map counted as still there (`MapChange.count_revealed`, at `tol`), made
+    on the first `get` (a scan whose instances no prior explains never compares the maps)."""
 
-    def __init__(self, now: np.ndarray, before: np.ndarray):
-        self.now, self.before, self.change = now, before, None
+    def __init__(self, now: np.ndarray, before: np.ndarray, priors: list[ObjectPose], database: CadDatabase,
+                 tol: float):
+        self.now, self.before, self.priors, self.database, self.tol = now, before, priors, database, tol
+        self.change: MapChange | None = None
 
     def get(self) -> MapChange:
         if self.change is None:
             self.change = MapChange(self.now, self.before)
+            self.change.count_revealed(self.priors, self.database, self.tol)
         return self.change
 
 
