@@ -23,7 +23,12 @@ what its own checks and its neighbours' read) are the same points as then, withi
 is the same item in the same scene: its pose, score and verification are kept as they were, with no refinement
 and no fine check (the fine check of every pose was most of a re-scan's pose stage). A pick, a slip or a knock
 near it changes those points (an item gone leaves a hole, one moved or added puts points where there were none),
-and then the prior is tracked and checked as above. Which points of either map are still there is computed once
+and then the prior is tracked and checked as above. One change is not counted: new points that lie on the
+surface of a prior still seen where it was (`MapChange.count_revealed`: the surface a picked item hid, of the
+plate it stood on or the glass beside it; the caller's map has the picked item's points taken out already). The
+pose they lie on is confirmed by them, and for its neighbours they are explained by a known pose, as what their
+checks read of them must be; new points no such prior explains (an item uncovered that no prior knows, one moved
+or put there) still count. Which points of either map are still there is computed once
 per scan (`MapChange`), and each prior's surroundings are judged by counting. Base frame, metres.
 """
 
