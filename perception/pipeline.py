@@ -1425,7 +1425,7 @@ class Perceiver:
         names = Verification.__dataclass_fields__.keys() - {"normals_segment"}
         if not names <= prior.checks.keys():
             return None
-        if not change.unchanged(prior.T_base_obj[:3, 3], self.inventory[prior.obj_id].diameter):
+        if not change.unchanged(prior.T_base_obj[:3, 3], self.inventory[prior.obj_id].diameter, prior=prior):
             return None
         h = Hypothesis(prior.obj_id, prior.T_base_obj.copy(), prior.score, visible_fraction=prior.visible_fraction,
                        source=KEPT)
