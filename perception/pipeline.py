@@ -33,7 +33,7 @@ from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.refit import RefitMemo, refit_beside_unexplained
-from kitchenbot.perception.track import best_prior, moved, unchanged
+from kitchenbot.perception.track import MapChange, best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (BASE_SEEN, base_seen, claimed_by, continuation, facing_unclaimed, filled,
                                           fine_fit, fine_tolerance, intruded, overhang, overhang_area, patch_normals,
@@ -210,7 +210,7 @@ class Perceiver:
         `priors`: the poses believed before this scan (a re-scan); an instance one of them still explains keeps
         it after a local refinement instead of the global search (pose tracking, perception/track.py).
         `prior_map`: the map points the priors were perceived on; a prior whose surroundings are the same points
-        now is kept as it was, with its verification, and not checked again (track.unchanged)."""
+        now is kept as it was, with its verification, and not checked again (track.MapChange.unchanged)."""
         timings: dict[str, float] = {}
 
         cpu: dict[str, float] = {}
@@ -284,6 +284,9 @@ class Perceiver:
                 queue = [i for i in queue if np.mean(region(m.points[m.ids == i])) >= REGION_SHARE]
             ids_out = m.ids.copy()
             used: set[int] = set()  # priors kept (tracked): one instance each
+            # which points of this map and of the priors' map are still there: made when a prior first asks
+            change = _LazyChange(m.points, prior_map, priors, db, 1.5 * vox) \
+                if priors and prior_map is not None else None
             tracked_at: dict[int, tuple[np.ndarray, int]] = {}  # index in `found` of a tracked pose -> (its
             # instance's points, the prior's index)
             splits = 0
@@ -301,7 +304,7 @@ class Perceiver:
                     ids_out[sel] = -1
                     continue
                 t0, c0 = time.perf_counter(), time.process_time()
-                hyp, prior_k = self._track(m.select(sel), views, priors, used, m.points, prior_map) \
+                hyp, prior_k = self._track(m.select(sel), views, priors, used, change) \
                     if priors else (None, None)
                 if hyp is not None:
                     used.add(prior_k)
@@ -1386,20 +1389,19 @@ class Perceiver:
         return best
 
     def _track(self, inst: InstanceMap, views: list[View], priors: list[ObjectPose], used: set[int],
-               map_points: np.ndarray | None = None,
-               prior_map: np.ndarray | None = None) -> tuple[Hypothesis | None, int | None]:
+               change: "_LazyChange | None" = None) -> tuple[Hypothesis | None, int | None]:
         """Pose tracking (perception/track.py): the prior (not in `used`) that puts most of the instance's points
         on its surface, refined by a few ICP iterations from its pose, if it did not move and passes the checks
         every pose must pass (`_accepted`); with the prior's index. (None, None): the instance gets the full
-        estimate. With `prior_map` (the map the priors were perceived on) and this scan's `map_points`, a prior
-        whose surroundings did not change is kept as it was (`_kept`)."""
+        estimate. With `change` (this scan's map against the map the priors were perceived on), a prior whose
+        surroundings did not change is kept as it was (`_kept`)."""
         vox = self.settings.voxel_size
         k = best_prior(inst.points, priors, self.database, used, 1.5 * vox)
         if k is None:
             return None, None
         prior = priors[k]
-        if prior_map is not None and map_points is not None:
-            kept = self._kept(prior, map_points, prior_map)
+        if change is not None:
+            kept = self._kept(prior, change.get())
             if kept is not None:
                 return kept, k
         query = self._query(inst, views, point_features=False)  # registered and scored only: no FPFH
@@ -1416,14 +1418,14 @@ class Perceiver:
         h = self._accepted(query, h, scorer)
         return (h, k) if h is not None else (None, None)
 
-    def _kept(self, prior: ObjectPose, map_points: np.ndarray, prior_map: np.ndarray) -> Hypothesis | None:
+    def _kept(self, prior: ObjectPose, change: MapChange) -> Hypothesis | None:
         """`prior` as it was (pose, score, visible fraction, verification parts; source KEPT), if the map points
         within its model's diameter of its origin (what its checks and its neighbours' read) are the points they
-        were when it was perceived (track.unchanged) and it carries its verification's parts; else None."""
+        were when it was perceived (track.MapChange.unchanged) and it carries its verification's parts; else None."""
         names = Verification.__dataclass_fields__.keys() - {"normals_segment"}
         if not names <= prior.checks.keys():
             return None
-        if not unchanged(map_points, prior_map, prior.T_base_obj[:3, 3], self.inventory[prior.obj_id].diameter):
+        if not change.unchanged(prior.T_base_obj[:3, 3], self.inventory[prior.obj_id].diameter, prior=prior):
             return None
         h = Hypothesis(prior.obj_id, prior.T_base_obj.copy(), prior.score, visible_fraction=prior.visible_fraction,
                        source=KEPT)
@@ -1455,6 +1457,23 @@ FREE_SPACE_SHIFT = 0.01
 # ... and counts only a shift that clears most of it (at most this share left): a fit merely off is cleared by one
 # shift, a wrong one only in part.
 FREE_SPACE_CLEARED = 1 / 3
+
+
+class _LazyChange:
+    """A scan's `MapChange` of its map against the priors' map, with the surface the priors still seen where they
+    were put on the points new in this map counted as still there (`MapChange.count_revealed`, at `tol`), made
+    on the first `get` (a scan whose instances no prior explains never compares the maps)."""
+
+    def __init__(self, now: np.ndarray, before: np.ndarray, priors: list[ObjectPose], database: CadDatabase,
+                 tol: float):
+        self.now, self.before, self.priors, self.database, self.tol = now, before, priors, database, tol
+        self.change: MapChange | None = None
+
+    def get(self) -> MapChange:
+        if self.change is None:
+            self.change = MapChange(self.now, self.before)
+            self.change.count_revealed(self.priors, self.database, self.tol)
+        return self.change
 
 
 def free_space_within(scorer: Scorer, T_base_obj: np.ndarray, shift: float) -> tuple[float, float]:
