@@ -369,7 +369,8 @@ IK_CHUNK = 8  # candidates whose IK (at every bite) is solved in one batch (Robo
 TOOL_PARTS = ("pad_a", "pad_b", "palm", "camera")
 # m: the pads' opening beyond the item's width (both sides together) of a grasp approached narrowly, where nothing
 # fits as given only because an open pad meets something (a basin wall beside a glass standing in a corner): the
-# widest slack the grasp synthesis gives any grasp is 30 mm, the narrowest (rim and foot pinches) this one
+# widest slack the grasp synthesis gives any grasp is 30 mm, the narrowest (leaning and narrow rim pinches, foot
+# pinches: grasp_synthesis) this one
 NARROW_SLACK = 0.016
 PADS = ("pad_a", "pad_b")
 

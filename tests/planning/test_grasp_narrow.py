@@ -4,8 +4,8 @@
 Hand-made from a sink where it happened (a task run): a glass standing upside down on the basin's floor in a
 corner, its rim 13 mm from the back wall and 15 mm from the left one, nothing else in the sink. Its grasps open the
 pads 30 mm wider than the glass; from above, the palm meets the walls; from the side, each grasp coming in along
-the corner's diagonal has one open pad in a wall. Opened 16 mm wider than the glass (the slack rim and foot pinches
-are given anyway), both pads clear the walls and the grasp is free: the independent checker agrees."""
+the corner's diagonal has one open pad in a wall. Opened 16 mm wider than the glass (the slack leaning rim and foot
+pinches are given anyway), both pads clear the walls and the grasp is free: the independent checker agrees."""
 
 from __future__ import annotations
 
