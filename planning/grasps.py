@@ -34,7 +34,7 @@ from kitchenbot.planning.types import (
 )
 from kitchenbot.transforms import from_rotvec, make_T, rot_y, trans
 from kitchenbot.world.gripper import PAD_DEPTH
-from kitchenbot.world.inventory import GraspSpec, Inventory, grasp_base_name, spun_name, tilted_name
+from kitchenbot.world.inventory import GraspSpec, Inventory, grasp_base_name, narrowed_name, spun_name, tilted_name
 
 
 def too_hidden(o: ObjectPose, settings) -> bool:
@@ -64,6 +64,7 @@ class GraspStats:
     pad_contact: int = 0  # feasible with the pads brushing a neighbour within their give (ranked after clear ones)
     swivelled: int = 0  # collision-free only swivelled about its closing axis (second pass, SWIVELS)
     spun: int = 0  # found only with the grasps turned about a round item's axis between their copies (SPIN_STEPS)
+    narrowed: int = 0  # collision-free only approached with the pads opened NARROW_SLACK wider than the item
     # perceived objects (names) the rejected grasps collided with or took in, and how often; filled only when no
     # grasp is feasible (what crowds the item: Planner.plan_pick names the most frequent one as its blocker)
     crowded_by: dict = field(default_factory=dict)
@@ -367,6 +368,17 @@ MAX_MISSES = 4  # rejections of one grasp kept to tell whether it missed narrowl
 BITES = (0.0, 0.004, 0.008)
 IK_CHUNK = 8  # candidates whose IK (at every bite) is solved in one batch (RobotModel.ik_all_batch)
 TOOL_PARTS = ("pad_a", "pad_b", "palm", "camera")
+# m: the pads' opening beyond the item's width (both sides together) of a grasp approached narrowly, where nothing
+# fits as given only because an open pad meets something (a basin wall beside a glass standing in a corner): the
+# widest slack the grasp synthesis gives any grasp is 30 mm, the narrowest (leaning and narrow rim pinches, foot
+# pinches: grasp_synthesis) this one
+NARROW_SLACK = 0.016
+PADS = ("pad_a", "pad_b")
+
+
+def _pads_only(pairs) -> bool:
+    """Whether every colliding pair has an open pad in it (nothing else of the arm or the tool is in the way)."""
+    return bool(pairs) and all(a in PADS or b in PADS for a, b in pairs)
 
 
 def _tool_only(pairs) -> bool:
@@ -384,6 +396,21 @@ def _swivel_fits(model, spec, T_obj_tcp: np.ndarray) -> bool:
     if model.mesh is None or not len(model.mesh.triangles):
         return True
     return synth.pads_clear(_model_surface(model), T_obj_tcp, spec.opening)
+
+
+def narrowed_grasp(model, spec) -> GraspSpec | None:
+    """Grasp `spec` approached with its pads open only NARROW_SLACK wider than the item (same pose, same width),
+    or None where it already opens no wider than that or where the narrower open pads would cut into the item's own
+    mesh (the planner lets the pads touch their target, so that is checked here)."""
+    from kitchenbot.planning import grasp_synthesis as synth
+
+    opening = spec.width + NARROW_SLACK
+    if opening >= spec.opening - 1e-4:
+        return None
+    if model.mesh is not None and len(model.mesh.triangles) and \
+            not synth.pads_clear(_model_surface(model), spec.T_obj_tcp, opening):
+        return None
+    return GraspSpec(narrowed_name(spec.name, NARROW_SLACK), spec.T_obj_tcp, opening, spec.width)
 
 
 def select_grasps(
@@ -546,6 +573,17 @@ def select_grasps(
                     return True
         return False
 
+    def pads_in_the_way(k, spec, misses) -> bool:
+        """Whether a rejected grasp was rejected (at some bite and IK branch) only for its open pads: they met
+        something, or their closing sweep took in a neighbour."""
+        for kind, x, _others in misses:
+            if kind == "taken":
+                return True
+            scenes[k].set_opening(spec.opening)
+            if _pads_only(scenes[k].colliding_pairs(x)):
+                return True
+        return False
+
     def accept(k, o, spec, T, q_grasp, q_pre, brush, made_from=None) -> bool:
         """Rank a collision-free grasp and keep it (False: its placement is unreachable); `made_from`: the grasp a
         swivelled one was made from (it ranks as that one)."""
@@ -639,6 +677,23 @@ def select_grasps(
                     st.swivelled += 1
                     if accept(k, o, swivelled, Tg, q_grasp, q_pre, brush, made_from=spec):
                         break
+    # Third pass, only where nothing fits even swivelled: the grasps whose open pads were all that met something
+    # (a basin wall, a neighbour; nothing else of the arm or the tool) approached with the pads opened only
+    # NARROW_SLACK wider than the item (narrowed_grasp): each pad comes down nearer the item, farther from what
+    # is beside it. Less room for an error of the fitted pose, so only where the usual opening leaves none.
+    if not out:
+        for k, o, spec, T, misses in near:
+            if limit is not None and len(out) >= limit:
+                break
+            if not pads_in_the_way(k, spec, misses):
+                continue
+            narrowed = narrowed_grasp(inventory[o.obj_id], spec)
+            if narrowed is None:
+                continue
+            q_grasp, q_pre, Tg, brush, _, _, _ = fit(k, o, narrowed, T)
+            if q_grasp is not None:
+                st.narrowed += 1
+                accept(k, o, narrowed, Tg, q_grasp, q_pre, brush, made_from=spec)
     if out:
         out.sort(key=lambda g: -g.score)
         return out
@@ -649,11 +704,14 @@ def select_grasps(
     if not spin and any(getattr(inventory.models.get(o.obj_id), "is_rotationally_symmetric", False)
                         and not too_hidden(o, settings) for _, o in cands):
         for frac in SPIN_STEPS:
+            sub = GraspStats()
             res = select_grasps(robot, scene, inventory, objects, q_current, settings=settings, target=target,
-                                grasp_filter=grasp_filter, limit=limit, avoid=avoid, q_rest=q_rest, spin=frac)
+                                grasp_filter=grasp_filter, stats=sub, limit=limit, avoid=avoid, q_rest=q_rest,
+                                spin=frac)
             if not isinstance(res, PlanningFailure):
                 st.spun += 1
                 st.feasible += len(res)
+                st.narrowed += sub.narrowed
                 return res
     st.crowded_by = _crowded_by(scenes, names, collided, taken, objects)
     details = st.__dict__.copy()

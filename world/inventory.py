@@ -48,9 +48,11 @@ class GraspSpec:
 
 # A grasp's name says where it came from: ``kind_NN`` is copy NN of one grasp turned about a round item's axis (the
 # same pinch, elsewhere round the rim), ``<grasp>_tilt+15`` is a grasp tilted about its closing axis by planning, and
-# ``<grasp>_spin+15`` one turned about a round item's axis by planning (between the copies).
+# ``<grasp>_spin+15`` one turned about a round item's axis by planning (between the copies), ``<grasp>_narrow16``
+# the grasp approached with its pads opened only 16 mm wider than the item (planning.grasps, NARROW_SLACK).
 TILT_TAG = "_tilt"
 SPIN_TAG = "_spin"
+NARROW_TAG = "_narrow"
 
 
 def tilted_name(name: str, tilt: float) -> str:
@@ -63,9 +65,14 @@ def spun_name(name: str, spin: float) -> str:
     return f"{name}{SPIN_TAG}{np.degrees(spin):+.0f}"
 
 
+def narrowed_name(name: str, slack: float) -> str:
+    """The name of grasp `name` approached with its pads open `slack` (m) wider than the item."""
+    return f"{name}{NARROW_TAG}{slack * 1000:.0f}"
+
+
 def grasp_base_name(name: str) -> str:
-    """The grasp a tilted or spun variant was made from (`name` itself when it is neither)."""
-    return name.split(TILT_TAG)[0].split(SPIN_TAG)[0]
+    """The grasp a tilted, spun or narrowed variant was made from (`name` itself when it is none of them)."""
+    return name.split(TILT_TAG)[0].split(SPIN_TAG)[0].split(NARROW_TAG)[0]
 
 
 def grasp_kind(name: str) -> str | None:
