@@ -29,11 +29,11 @@ The checks, each a share in [0, 1]:
 - straight (cups, mugs, glasses, any way up): how much better a straight cylinder explains the pose's outer wall
   than the vessel's own profile does, each fitted to the same points with the same freedom, over what the cylinder
   would lose on the vessel's own surface there (perception/straight.py): a drink can or a bottle's body is
-  straight where a cup or a glass tapers.
+  straight where a cup or a glass tapers (not a share: about -1 for the vessel, +1 for a straight cylinder).
 
 verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
 1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - overhang_area / OVERHANG_AREA_FULL,
-1 - intruded / INTRUDED_FULL, 1 - straight / STRAIGHT_FULL). Coverage both ways at one
+1 - intruded / INTRUDED_FULL, 1 - max(0, straight) / STRAIGHT_FULL). Coverage both ways at one
 voxel (seen, explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
 query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
 evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
