@@ -56,10 +56,12 @@ STRAIGHT_SPREAD = 0.5
 # from its axis, over its height) counts as inside it (the neighbour's fit is a few millimetres off).
 NEST_MARGIN = 0.005
 # The fits' freedom (object frame of the pose): the axis moved across itself by up to STRAIGHT_SHIFT (metres),
-# tilted by up to STRAIGHT_TILT (radians), the vessel slid along it by up to STRAIGHT_SHIFT; distances beyond
-# STRAIGHT_BAND count as STRAIGHT_BAND (a stray point is one point), the fits' robust scale STRAIGHT_SCALE (metres).
+# tilted by up to STRAIGHT_TILT (radians), the vessel slid along it by up to STRAIGHT_SLIDE (metres: as free as the
+# cylinder's radius is; a pose 1-2 cm off along its axis is still the vessel's, its profile must be allowed there);
+# the fits' robust scale STRAIGHT_SCALE (metres).
 STRAIGHT_SHIFT = 0.012
 STRAIGHT_TILT = 0.15
+STRAIGHT_SLIDE = 0.03
 STRAIGHT_SCALE = 0.001
 # The costs' scale is at least this (metres; see `straightness`).
 STRAIGHT_MIN_SCALE = 0.0003
@@ -126,7 +128,7 @@ def _fit(q: np.ndarray, residual, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray
     """Least squares (robust: soft L1 at STRAIGHT_SCALE) of `residual(p, q)` from `x0` within bounds; the
     parameters and the residuals."""
     sol = least_squares(residual, x0, args=(q,), bounds=(lo, hi), loss="soft_l1", f_scale=STRAIGHT_SCALE,
-                        x_scale=np.array([0.01, 0.01, 0.1, 0.1, 0.01]), max_nfev=60)
+                        x_scale=np.array([0.01, 0.01, 0.1, 0.1, 0.01]), max_nfev=100)
     return sol.x, residual(sol.x, q)
 
 
@@ -141,12 +143,21 @@ def _fit_both(q: np.ndarray, zs: np.ndarray, rs: np.ndarray,
     def cylinder(p, q):
         return _radial(q, p)[1] - p[4]
 
-    s, t = STRAIGHT_SHIFT, STRAIGHT_TILT
-    lo, hi = np.array([-s, -s, -t, -t, -s]), np.array([s, s, t, t, s])
-    pv, res_v = (None, None) if cylinder_only else _fit(q, vessel, np.zeros(5), lo, hi)
+    s, t, a = STRAIGHT_SHIFT, STRAIGHT_TILT, STRAIGHT_SLIDE
+    lo, hi = np.array([-s, -s, -t, -t, -a]), np.array([s, s, t, t, a])
     r0 = float(np.median(_radial(q, np.zeros(5))[1]))
-    lo[4], hi[4] = 0.5 * r0, 2.0 * r0
-    _, res_c = _fit(q, cylinder, np.array([0.0, 0.0, 0.0, 0.0, r0]), lo, hi)
+    pc, res_c = _fit(q, cylinder, np.array([0.0, 0.0, 0.0, 0.0, r0]), np.r_[lo[:4], 0.5 * r0],
+                     np.r_[hi[:4], 2.0 * r0])
+    if cylinder_only:
+        return None, res_c, None
+    # The profile is not convex in its parameters: started at the pose and at the cylinder's axis (slid to where
+    # the profile's radius is the cylinder's, within bounds); the better fit is the vessel's.
+    slide = float(np.clip(zs[np.argmin(np.abs(rs - pc[4]))] - np.median(_radial(q, pc)[0]), -a, a))
+    pv, res_v = None, None
+    for x0 in (np.zeros(5), np.r_[pc[:4], 0.0], np.r_[pc[:4], slide]):
+        p, res = _fit(q, vessel, np.clip(x0, lo, hi), lo, hi)
+        if res_v is None or _costs(res, STRAIGHT_SCALE).sum() < _costs(res_v, STRAIGHT_SCALE).sum():
+            pv, res_v = p, res
     return res_v, res_c, pv
 
 
