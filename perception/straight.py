@@ -8,10 +8,11 @@ hidden (the twenty-ninth session's `taper`, docs/perception_measurements.md "fp2
 
 So the wall is judged against the best other explanation of the same points, each fitted with the same freedom:
 the vessel's own outer profile (its axis moved and tilted, slid along itself: a cone of the model's slope where
-the model is a cone) and a straight cylinder (its axis moved and tilted, any radius). Each fit's mean squared
-distance of the points to it; what the straight cylinder saves over the vessel's profile, over what it would lose
-on the vessel's own surface seen where the points are (the same directions and heights, no noise):
-    straight = (SS_vessel - SS_cylinder) / SS_cylinder_on_the_vessel
+the model is a cone) and a straight cylinder (its axis moved and tilted, any radius). Each fit's mean cost of the
+points' distances to it (soft L1: the square for small distances, linear for stray points; one scale for both,
+the points' spread about the cylinder); what the straight cylinder saves over the vessel's profile, over what it
+would lose on the vessel's own surface seen where the points are (the same directions and heights, no noise):
+    straight = (cost_vessel - cost_cylinder) / cost_cylinder_on_the_vessel
 about -1 for the vessel itself (its profile fits to the noise, the cylinder misses the taper), about +1 for a
 straight cylinder fitted by the vessel. The last term also says how much the points can tell: seen from one side
 over a short height, a cylinder leaned by the half-angle misses the vessel by little, and the pose is not judged.
@@ -193,7 +194,7 @@ def straightness(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_b
     """The `straight` part of a pose of a tall vessel (`entry`, a surface of revolution about its z axis, posed at
     `T_base_obj`) on its own points (base frame; camera-facing `normals`, NaN rows: no direction), less those
     inside a neighbouring pose's envelope (`others`: (entry, T_base_obj)): what a straight cylinder saves over the
-    vessel's profile in mean squared distance, over what it loses on the vessel's own surface where the points are
+    vessel's profile in mean cost per point, over what it loses on the vessel's own surface where the points are
     (see the module's doc); `tol` the fine tolerance (verify.fine_tolerance). Near -1: the vessel; near +1: a
     straight cylinder. 0 (not judged) with under
     STRAIGHT_MIN_POINTS wall points or where the cylinder misses the vessel by under STRAIGHT_MIN_MISS."""
