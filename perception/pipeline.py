@@ -33,7 +33,12 @@ from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.refit import RefitMemo, refit_beside_unexplained
+<<<<<<< HEAD
 from kitchenbot.perception.track import MapChange, best_prior, moved
+=======
+from kitchenbot.perception.track import best_prior, moved, unchanged
+from kitchenbot.perception.straight import straightness
+>>>>>>> fp30
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (BASE_SEEN, base_seen, claimed_by, continuation, facing_unclaimed, filled,
                                           fine_fit, fine_tolerance, intruded, overhang, overhang_area, patch_normals,
@@ -812,6 +817,9 @@ class Perceiver:
             parts["overhang"], parts["overhang_area"] = \
                 self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
             parts["intruded"] = self._intruded(m, tree, tol, hyp, found, T_fine)
+            # (its own points no neighbour claims, at the pose the fine fit nudged onto them)
+            parts["straight"] = straightness(m.points[own][~claimed], normals[~claimed], db[hyp.obj_id], T_fine,
+                                             tol, others)
         return parts
 
     def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:

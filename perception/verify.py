@@ -26,10 +26,14 @@ The checks, each a share in [0, 1]:
   that no pose explains, per point of its own (`overhang`): a can's lid is wider than a glass's base; and the area
   they cover, over the base's area (`overhang_area`): a lid seen from a camera facing the base end covers the ring
   all round, however many points the can's side gives the pose.
+- straight (cups, mugs, glasses, any way up): how much better a straight cylinder explains the pose's outer wall
+  than the vessel's own profile does, each fitted to the same points with the same freedom, over what the cylinder
+  would lose on the vessel's own surface there (perception/straight.py): a drink can or a bottle's body is
+  straight where a cup or a glass tapers (not a share: about -1 for the vessel, +1 for a straight cylinder).
 
 verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
 1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - overhang_area / OVERHANG_AREA_FULL,
-1 - intruded / INTRUDED_FULL). Coverage both ways at one
+1 - intruded / INTRUDED_FULL, 1 - max(0, straight) / STRAIGHT_FULL). Coverage both ways at one
 voxel (seen, explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
 query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
 evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
@@ -130,6 +134,9 @@ INTRUDED_FULL = 0.13
 # `intruded`; points are binned in voxels of this size (metres) so that the area, not the point density, counts.
 INTRUDE_MARGIN = 0.004
 INTRUDE_VOXEL = 0.005
+# The straight part (perception/straight.py: about -1 for the vessel's own wall, +1 for a straight cylinder) at
+# which a pose scores 0 (linear from 0 at 0 and below); with the threshold 0.85 a pose is rejected above 0.3.
+STRAIGHT_FULL = 0.3 / 0.15
 
 
 @dataclass
@@ -144,13 +151,14 @@ class Verification:
     overhang: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang)
     intruded: float = 0.0  # set by the pipeline on the final poses of tall vessels not facing up (intruded)
     overhang_area: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang_area)
+    straight: float = 0.0  # set by the pipeline on the final poses of tall vessels (straight.straightness)
     normals_segment: float | None = None  # `normals` as judged on the whole segment (the pipeline's fine check
     # may raise `normals` to its value over the points no other pose explains: facing_unclaimed)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
                 "fine": self.fine, "continued": self.continued, "filled": self.filled, "overhang": self.overhang,
-                "intruded": self.intruded, "overhang_area": self.overhang_area}
+                "intruded": self.intruded, "overhang_area": self.overhang_area, "straight": self.straight}
 
     @property
     def score(self) -> float:
@@ -159,7 +167,7 @@ class Verification:
         return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL,
                             1.0 - self.continued / CONTINUED_FULL, 1.0 - self.filled / FILLED_FULL,
                             1.0 - self.overhang / OVERHANG_FULL, 1.0 - self.overhang_area / OVERHANG_AREA_FULL,
-                            1.0 - self.intruded / INTRUDED_FULL))
+                            1.0 - self.intruded / INTRUDED_FULL, 1.0 - max(0.0, self.straight) / STRAIGHT_FULL))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
