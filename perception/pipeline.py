@@ -33,12 +33,8 @@ from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.refit import RefitMemo, refit_beside_unexplained
-<<<<<<< HEAD
-from kitchenbot.perception.track import MapChange, best_prior, moved
-=======
-from kitchenbot.perception.track import best_prior, moved, unchanged
 from kitchenbot.perception.straight import straightness
->>>>>>> fp30
+from kitchenbot.perception.track import MapChange, best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (BASE_SEEN, base_seen, claimed_by, continuation, facing_unclaimed, filled,
                                           fine_fit, fine_tolerance, intruded, overhang, overhang_area, patch_normals,
