@@ -133,6 +133,10 @@ class JointPlan:
     simplify_ms: float
     recheck_ms: float
     used_rrt: bool = True  # False: the straight joint line was free
+    # the RRT path shortened for the arm's time along it (planning/shortcut.py), densely re-checked; None where
+    # not asked for, or where no shortcut was found. The caller times both and keeps the faster.
+    shortcut: np.ndarray | None = None
+    shortcut_ms: float = 0.0
 
 
 def plan_joint_path(
@@ -146,9 +150,15 @@ def plan_joint_path(
     validity_resolution: float = 0.004,
     max_iterations: int | None = None,
     seed: int | None = None,
+    shortcut_rounds: int = 0,
+    joint_speeds: np.ndarray | None = None,
+    tcp_speed: float | None = None,
 ) -> JointPlan | PlanningFailure:
     """Collision-free joint polyline from q_start to q_goal (RRT-Connect, simplified, densely re-checked).
-    `max_iterations` replaces the wall-clock budgets by a work budget; `seed` makes the search repeatable."""
+    `max_iterations` replaces the wall-clock budgets by a work budget; `seed` makes the search repeatable.
+    With `shortcut_rounds` > 0 and the arm's `joint_speeds` (rad/s) and `tcp_speed` (m/s), an RRT path is also
+    shortened for the time the arm takes along it (:func:`kitchenbot.planning.shortcut.shortcut_path`, every new
+    segment checked at `validity_resolution`; the draws seeded by `seed`, else 0) and returned beside it."""
     if max_iterations is not None and max_iterations < 1:
         return InvalidInput(f"max_iterations {max_iterations}: expected a positive number of iterations")
     q_start, q_goal = np.asarray(q_start, float), np.asarray(q_goal, float)
@@ -177,8 +187,28 @@ def plan_joint_path(
         bad = check_segment(scene, path, r, validity_resolution)
         recheck_ms = (time.perf_counter() - t1) * 1e3
         if bad < 0:
-            return JointPlan(path, plan_ms, simp_ms, recheck_ms)
+            plan = JointPlan(path, plan_ms, simp_ms, recheck_ms)
+            if shortcut_rounds > 0 and joint_speeds is not None and tcp_speed is not None:
+                _shortcut(plan, scene, r, validity_resolution, shortcut_rounds, joint_speeds, tcp_speed, seed)
+            return plan
     return PlannerTimeout("no path passed the dense re-check", {"resolution": validity_resolution})
+
+
+def _shortcut(plan: JointPlan, scene: Scene, r: np.ndarray, resolution: float, rounds: int,
+              joint_speeds: np.ndarray, tcp_speed: float, seed: int | None) -> None:
+    """Sets ``plan.shortcut``: the plan's path shortened for the arm's time, where that changed it and the whole
+    shortened path passes the dense check at `resolution` (its new segments were checked so already)."""
+    from kitchenbot.planning.collision import tcp_positions
+    from kitchenbot.planning.shortcut import shortcut_path
+
+    t0 = time.perf_counter()
+    robot = scene.world.robot
+    P = shortcut_path(plan.path, lambda Q: check_segment(scene, Q, r, resolution) < 0,
+                      np.asarray(joint_speeds, float), float(tcp_speed), lambda Q: tcp_positions(robot, Q),
+                      rounds=rounds, rng=np.random.default_rng(0 if seed is None else seed))
+    if (P.shape != plan.path.shape or not np.array_equal(P, plan.path)) and check_segment(scene, P, r, resolution) < 0:
+        plan.shortcut = P
+    plan.shortcut_ms = (time.perf_counter() - t0) * 1e3
 
 
 def _bisection_order(nd: int) -> np.ndarray:

@@ -247,7 +247,9 @@ class Planner:
         res = plan_joint_path(
             scene, q0, q1, timeout=s.planner_timeout * timeout_scale, simplify_timeout=s.simplify_timeout,
             planning_resolution=self.planning_resolution, validity_resolution=s.validity_resolution,
-            max_iterations=iterations, seed=s.planner_seed,
+            max_iterations=iterations, seed=s.planner_seed, shortcut_rounds=s.shortcut_rounds,
+            joint_speeds=np.asarray(self.limits.max_joint_speed, float) * s.velocity_scale,
+            tcp_speed=self.limits.max_tcp_speed,
         )
         timings[f"{name}_plan_ms"] = (time.perf_counter() - t0) * 1e3
         if isinstance(res, PlanningFailure):
@@ -257,22 +259,36 @@ class Planner:
         timings[f"{name}_simplify_ms"] = res.simplify_ms
         timings[f"{name}_recheck_ms"] = res.recheck_ms
         timings[f"{name}_rrt"] = float(res.used_rrt)
-        if len(res.path) < 3:
-            return self._time(res.path, name, "stop_at_vertices")
-        # Through the path's vertices without stopping where the blended path is proven free at the planner's
-        # dense re-check resolution (planning/timing.py); else it stops at each vertex, on the checked polyline.
+        timings[f"{name}_shortcut_ms"] = res.shortcut_ms
+        # The RRT path and its shortcut (planning/shortcut.py; both densely checked): each timed, the faster kept
+        # (the shortcut is chosen on an estimate of the arm's time; the timing below is the arm's time itself).
         t1 = time.perf_counter()
+        best: Trajectory | PlanningFailure | None = None
+        for k, path in enumerate([res.path] + ([res.shortcut] if res.shortcut is not None else [])):
+            traj, blended = self._timed_path(scene, path, name)
+            if best is None or (not isinstance(traj, PlanningFailure)
+                                and (isinstance(best, PlanningFailure) or traj.duration < best.duration)):
+                best = traj
+                timings[f"{name}_shortcut"] = float(k)
+                timings[f"{name}_blended"] = float(blended)
+        timings[f"{name}_blend_ms"] = (time.perf_counter() - t1) * 1e3
+        return best
+
+    def _timed_path(self, scene: Scene, path: np.ndarray, name: str) -> tuple[Trajectory | PlanningFailure, bool]:
+        """A checked joint polyline timed: through its vertices without stopping where the blended path is proven
+        free at the planner's dense re-check resolution (planning/timing.py); else it stops at each vertex, on the
+        checked polyline. With whether the blend was proven free."""
+        if len(path) < 3:
+            return self._time(path, name, "stop_at_vertices"), False
         r = reach_bounds(scene)
         proof: dict = {}
 
         def free(q: np.ndarray) -> bool:
-            proof["free"] = check_segment(scene, q, r, s.validity_resolution) < 0
+            proof["free"] = check_segment(scene, q, r, self.settings.validity_resolution) < 0
             return proof["free"]
 
-        traj = self._time(res.path, name, "blended", free=free)
-        timings[f"{name}_blend_ms"] = (time.perf_counter() - t1) * 1e3
-        timings[f"{name}_blended"] = float(proof.get("free", False))
-        return traj
+        traj = self._time(path, name, "blended", free=free)
+        return traj, bool(proof.get("free", False))
 
     def _line(self, scene: Scene, q0, T_goal, name: str, *, check_start: bool = True, start_scene: Scene | None = None,
               start_travel: float = 0.0, clear_within: float = 0.0, clear_scene: Scene | None = None,

@@ -40,6 +40,11 @@ class PlanningSettings(BaseModel):
         description="when set, OMPL is reseeded before every query, so a plan does not depend on the queries "
                     "planned before it in the process",
     )
+    shortcut_rounds: int = Field(
+        30, ge=0, le=1000,
+        description="random shortcuts tried on an RRT-Connect path for the arm's time along it (planning/shortcut.py; "
+                    "each new segment densely checked, the faster of the path and its shortcut kept); 0: none",
+    )
     validity_resolution: float = Field(0.004, gt=0.0, le=0.05, description="max TCP travel (m) between checked states")
     approach_distance: float = Field(0.10, gt=0.0, le=0.3, description="straight approach/retreat, metres")
     lift_height: float = Field(0.15, gt=0.0, le=0.5)
