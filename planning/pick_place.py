@@ -679,6 +679,11 @@ class Planner:
                                    centre, held_item_pairs)
             if r is not None:
                 return with_approach(r[0], UP_THEN_AWAY[0] + UP_THEN_AWAY[1], lift_up_then_away=1.0)
+        if not separated and held_item_pairs and not keep_wall_gaps:
+            r = self._separating_lift(lift_scene, start_scene, held_scene, q_grasp, g, held_item_pairs, by_name)
+            if r is not None:
+                return with_approach(r[0], LIFT_CONTACT_TRAVEL, lift_separate_m=float(np.linalg.norm(r[2])),
+                                     lift_separate_last=1.0)
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
