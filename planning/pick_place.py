@@ -679,6 +679,10 @@ class Planner:
                                    centre, held_item_pairs)
             if r is not None:
                 return with_approach(r[0], UP_THEN_AWAY[0] + UP_THEN_AWAY[1], lift_up_then_away=1.0)
+        # No line planned, so none reached the lift that first parts the item from what it touches: where a fitted
+        # pose of what it nests in reaches deep into it (a bowl under it seen in part, fitted a centimetre off), every
+        # line keeps that overlap past the travel a start contact may last. Parted first (off a doubtful support:
+        # along its own axis, checked against that support's seen points), it comes out.
         if not separated and held_item_pairs and not keep_wall_gaps:
             r = self._separating_lift(lift_scene, start_scene, held_scene, q_grasp, g, held_item_pairs, by_name)
             if r is not None:
