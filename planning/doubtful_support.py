@@ -50,6 +50,11 @@ POSE_ERROR = 0.003
 # m: a narrowing of the gap to a doubtful support that counts (the overlap of two meshes, measured along a lift,
 # wobbles by up to 0.07 mm where nothing moves nearer; the narrowing where the lift above met the bowl again: 0.44 mm)
 NARROWING_TOL = 0.0001
+# m: a support's seen point within this of the held item's fitted surface at the grasp is, as far as the camera can
+# tell, on the held item (segmentation hands a nested item's points near the rim it rests in to either one; depth
+# noise and the fit are about a millimetre): not checked, it moves with the item. A support the lift would drive
+# into is seen as a patch, and its points farther off than this are approached too.
+POINT_ON_HELD = 0.0015
 # most points of a support checked (nearest the held item first)
 MAX_POINTS = 400
 # m: the held item's travel between the poses at which the points are checked
@@ -115,8 +120,9 @@ def _thinned(T_path: list[np.ndarray]) -> list[np.ndarray]:
 def approaches_points(held_bvh, T_path: list[np.ndarray], points: np.ndarray, near: float) -> bool:
     """Whether the held item, moved through the base-frame poses `T_path` (the first: at the grasp), brings one of
     a support's seen `points` nearer to it than it was at the grasp (by more than POINT_APPROACH_TOL) while that
-    point is within `near` (the collision margin) of it. Only points within `near` plus the path's travel of the item
-    at the grasp can come within `near`; of those at most MAX_POINTS, the nearest."""
+    point is within `near` (the collision margin) of it. Points within POINT_ON_HELD of the item at the grasp are
+    its own surface and not checked. Only points within `near` plus the path's travel of the item at the grasp can
+    come within `near`; of those at most MAX_POINTS, the nearest."""
     P = np.asarray(points, float).reshape(-1, 3)
     if not len(P) or len(T_path) < 2:
         return False
@@ -125,6 +131,8 @@ def approaches_points(held_bvh, T_path: list[np.ndarray], points: np.ndarray, ne
     travel = float(np.max(np.linalg.norm(c - c[0], axis=1)))
     P = P[np.argsort(np.linalg.norm(P - c[0], axis=1))[:4 * MAX_POINTS]]  # the nearest the item's centre
     d0 = _point_distances(held_bvh, T_path[0], P)
+    off_held = d0 > POINT_ON_HELD  # those nearer are on the held item as far as the camera can tell
+    P, d0 = P[off_held], d0[off_held]
     nearest = np.argsort(d0)[:MAX_POINTS]
     nearest = nearest[d0[nearest] <= near + travel]
     if not len(nearest):

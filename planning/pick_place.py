@@ -702,6 +702,17 @@ class Planner:
                                    centre, held_item_pairs, doubtful)
             if r is not None:
                 return with_approach(r[0], UP_THEN_AWAY[0] + UP_THEN_AWAY[1], lift_up_then_away=1.0)
+        # No line planned, so none reached the lift that first parts the item from what it touches. Where the fitted
+        # pose of what it nests in is doubtful (doubtful_support.pose_doubtful: a bowl under it seen in part, fitted a
+        # centimetre off) and reaches deep into it, every line keeps that overlap past the travel a start contact may
+        # last; lifted first along its own axis, checked against that support's seen points, it comes out. Only off
+        # a doubtful support: tried for every support, it changed picks elsewhere whose grasps then missed.
+        if not separated and not keep_wall_gaps and any(
+                pose_doubtful(by_name[x], s.visible_fraction_unoccluded) for p in held_item_pairs for x in p if x in by_name):
+            r = self._separating_lift(lift_scene, start_scene, held_scene, q_grasp, g, held_item_pairs, by_name)
+            if r is not None:
+                return with_approach(r[0], LIFT_CONTACT_TRAVEL, lift_separate_m=float(np.linalg.norm(r[2])),
+                                     lift_separate_last=1.0)
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
