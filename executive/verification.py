@@ -530,6 +530,12 @@ class Verification(DoneCheck):
         T_settled = p.T_base_obj.copy()
         if presence is not None and presence.decided:
             T_settled[2, 3] += presence.dz  # where it came to rest (it was released a little above)
+            # ... but not lower than its target's resting pose (DROP_HEIGHT below the target, which stands it on
+            # what the belief holds under it: the counter, a rack, the item it nests on). Where the depth cannot
+            # tell offsets apart, a lower one can agree best: a cup nested on a stack of cups agrees 2 cm down,
+            # where the cup under it is. Recorded there, 1.6 cm below where it stood, a later transfer planned
+            # 1.2 cm over the record ran the held bowl into it.
+            T_settled[2, 3] = max(T_settled[2, 3], float(p.target.T_base_obj[2, 3]) - DROP_HEIGHT)
         if p.staging:
             # Set down on the flat counter, it rests DROP_HEIGHT below its target pose (which stands it on the
             # counter): the depth fit's offset can put an upside-down cup lower than it rests (its rim and the
