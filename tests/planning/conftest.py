@@ -13,6 +13,7 @@ from kitchenbot.planning.fcl_check import FclChecker
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import object_name
 from kitchenbot.planning.pick_place import Planner
+from kitchenbot.planning.placement import SlotBook
 from kitchenbot.world.inventory import Inventory
 
 
@@ -75,6 +76,30 @@ def _resting(planner: Planner, name: str, xy, instance_id: int, upside_down: boo
 def resting(planner):
     """resting(name, xy, instance_id, upside_down=False, z_floor=None) -> ObjectPose on the sink floor."""
     return lambda *a, **k: _resting(planner, *a, **k)
+
+
+def _translated(T0: np.ndarray, d: np.ndarray, length: float, n: int) -> list[np.ndarray]:
+    """`n` base-frame poses of `T0` moved along the unit direction `d`, from 0 to `length` (m)."""
+    out = []
+    for s in np.linspace(0.0, length, n):
+        T = np.array(T0, float)
+        T[:3, 3] += s * np.asarray(d, float)
+        out.append(T)
+    return out
+
+
+@pytest.fixture(scope="session")
+def translated():
+    return _translated
+
+
+@pytest.fixture
+def cup_for_the_upper_rack(planner, resting):
+    """(cup, objects, targets): an upside-down cup in the sink with a side plate beside it, and the cup's first three
+    upper-rack targets."""
+    cup = resting("cup", (0.55, -0.05), 1, upside_down=True)
+    plate = resting("side_plate", (0.40, 0.08), 2)
+    return cup, [cup, plate], SlotBook(planner.cell).targets_for(planner.inventory[cup.obj_id])[:3]
 
 
 def _straight_up(planner: Planner, q_grasp: np.ndarray, step: float, top: float) -> np.ndarray:

@@ -119,7 +119,7 @@ def test_trusting_the_misfitted_pose_drives_the_held_bowl_into_the_real_one(plan
     assert contact is not None and contact.other == f"obj:{objs[1].instance_id}", contact
 
 
-def test_a_lift_that_nears_a_seen_point_is_refused(planner, inventory, nested_on_misfit):
+def test_a_lift_that_nears_a_seen_point_is_refused(planner, inventory, nested_on_misfit, translated):
     """approaches_points on the held bowl moved level towards the seen strip (refused), and up along its own axis
     (off the bowl under it: not refused)."""
     _, objs, _ = nested_on_misfit
@@ -131,12 +131,7 @@ def test_a_lift_that_nears_a_seen_point_is_refused(planner, inventory, nested_on
     towards /= np.linalg.norm(towards)
 
     def path(d):
-        out = []
-        for s in np.linspace(0.0, 0.02, 11):
-            T = T0.copy()
-            T[:3, 3] += s * d
-            out.append(T)
-        return out
+        return translated(T0, d, 0.02, 11)
 
     margin = planner.settings.collision_margin
     assert doubtful_support.approaches_points(bvh, path(towards), objs[1].points, margin)

@@ -74,7 +74,7 @@ def test_the_middle_bowl_is_doubtful_and_its_points_hold_a_patch_of_the_top_bowl
     assert np.quantile(d, 0.9) < doubtful_support.POINT_ON_HELD, np.quantile(d, 0.9)
 
 
-def test_the_top_bowls_own_points_do_not_refuse_its_lift_along_its_axis(planner, three_nested, inventory):
+def test_the_top_bowls_own_points_do_not_refuse_its_lift_along_its_axis(planner, three_nested, inventory, translated):
     """Moved along its own axis, the top bowl slides past the points on its own surface (the patch): those are not
     checked; moved level into the middle bowl's strip, it is still refused."""
     _, objs, patch = three_nested
@@ -84,12 +84,7 @@ def test_the_top_bowls_own_points_do_not_refuse_its_lift_along_its_axis(planner,
     margin = planner.settings.collision_margin
 
     def path(d):
-        out = []
-        for s in np.linspace(0.0, 0.03, 16):
-            T = T0.copy()
-            T[:3, 3] += s * d
-            out.append(T)
-        return out
+        return translated(T0, d, 0.03, 16)
 
     axis = T0[:3, 2] * np.sign(T0[2, 2])
     assert not doubtful_support.approaches_points(bvh, path(axis), objs[1].points, margin)

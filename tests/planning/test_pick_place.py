@@ -18,12 +18,9 @@ def checker(planner):
     return FclChecker(planner.robot, planner.cell, planner.world.T_flange_cam)
 
 
-def test_pick_and_place_a_cup_into_the_upper_rack(planner, home, resting, checker):
+def test_pick_and_place_a_cup_into_the_upper_rack(planner, home, cup_for_the_upper_rack, checker):
     # upside down in the sink: a grasp from above keeps coming from above when it goes upside down into the rack
-    cup = resting("cup", (0.55, -0.05), 1, upside_down=True)
-    plate = resting("side_plate", (0.40, 0.08), 2)
-    objs = [cup, plate]
-    targets = SlotBook(planner.cell).targets_for(planner.inventory[cup.obj_id])[:3]
+    cup, objs, targets = cup_for_the_upper_rack
     pick = planner.plan_pick(home, objs, target=cup, place_target=targets)
     assert isinstance(pick, PickPlan), pick
     assert pick.grasp.obj is cup

@@ -9,7 +9,6 @@ import pytest
 from kitchenbot.planning.collision import tcp_positions
 from kitchenbot.planning.fcl_check import FclChecker, verify_place
 from kitchenbot.planning.motion import check_segment, reach_bounds
-from kitchenbot.planning.placement import SlotBook
 from kitchenbot.planning.shortcut import path_time_estimate, shortcut_path
 from kitchenbot.planning.types import PickPlan, PlacePlan
 
@@ -74,13 +73,10 @@ def test_path_time_estimate_counts_the_slowest_joint_and_the_tcp():
     assert path_time_estimate(Q, VMAX, 5.0, _planar_tcp) == pytest.approx(0.2)
 
 
-def test_a_transfer_to_the_rack_is_shortened_free_and_within_limits(planner, home, resting):
+def test_a_transfer_to_the_rack_is_shortened_free_and_within_limits(planner, home, cup_for_the_upper_rack):
     # an upside-down cup carried from the sink (a plate beside it) into the upper rack: the transfer's straight
     # joint line collides, so it is an RRT-Connect path; its shortcut is faster, free and within every limit
-    cup = resting("cup", (0.55, -0.05), 1, upside_down=True)
-    plate = resting("side_plate", (0.40, 0.08), 2)
-    objs = [cup, plate]
-    targets = SlotBook(planner.cell).targets_for(planner.inventory[cup.obj_id])[:3]
+    cup, objs, targets = cup_for_the_upper_rack
     pick = planner.plan_pick(home, objs, target=cup, place_target=targets)
     assert isinstance(pick, PickPlan), pick
     rounds = planner.settings.shortcut_rounds
