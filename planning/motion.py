@@ -33,8 +33,9 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
-from kitchenbot.planning.collision import Scene
+from kitchenbot.planning.collision import Scene, tcp_positions
 from kitchenbot.planning.robot import RobotModel
+from kitchenbot.planning.shortcut import shortcut_path
 from kitchenbot.planning.types import (
     CartesianPathFailed,
     GoalInCollision,
@@ -198,9 +199,6 @@ def _shortcut(plan: JointPlan, scene: Scene, r: np.ndarray, resolution: float, r
               joint_speeds: np.ndarray, tcp_speed: float, seed: int | None) -> None:
     """Sets ``plan.shortcut``: the plan's path shortened for the arm's time, where that changed it and the whole
     shortened path passes the dense check at `resolution` (its new segments were checked so already)."""
-    from kitchenbot.planning.collision import tcp_positions
-    from kitchenbot.planning.shortcut import shortcut_path
-
     t0 = time.perf_counter()
     robot = scene.world.robot
     P = shortcut_path(plan.path, lambda Q: check_segment(scene, Q, r, resolution) < 0,
@@ -477,8 +475,6 @@ def _check_leaving_contacts(robot: RobotModel, scene: Scene, start_scene: Scene,
     within `clear_within` (the contact is left and not made again: the simulator, like a real arm's contact
     detection, tolerates a resting contact that lasts while the item is lifted out, not one that breaks and
     comes back)."""
-    from kitchenbot.planning.collision import tcp_positions
-
     dense = densify(Q, r, check_step)
     travel = np.linalg.norm(tcp_positions(robot, dense) - p0, axis=1)
     ok_start = start_scene.valid_batch(dense)
