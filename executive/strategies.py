@@ -336,13 +336,29 @@ def _may_slide(belief, obj) -> bool:
     return t is None or t.slides < M.MAX_SLIDES_PER_OBJECT
 
 
+def _lies_on_named(req: PlanRequest, instance_id: int | None) -> bool:
+    """Whether `req.obj` lies on the perceived item `instance_id` (the planner's `items_on`): that item is under
+    it, so it cannot be taken first."""
+    if instance_id is None or instance_id < 0 or instance_id == req.obj.instance_id:
+        return False
+    under = [p for p in req.scene_objs if p.instance_id == instance_id]
+    return any(any(o is req.obj or (req.obj.instance_id >= 0 and o.instance_id == req.obj.instance_id)
+                   for o in req.planner.items_on(p, req.scene_objs)) for p in under)
+
+
 class SlideOffStack(Strategy):
     """Nested in a stack (the top plate): no pinch fits under its lip. Slide it sideways with the closed fingers;
-    the next scan sees it overhanging the one below, where a lip pinch fits. At most MAX_SLIDES_PER_OBJECT."""
+    the next scan sees it overhanging the one below, where a lip pinch fits. At most MAX_SLIDES_PER_OBJECT.
+
+    The top plate of a messy stack (plates landed off-centre and tipped) fails naming the plate under it: its
+    pinches collide with that plate's rim, so the planner names it as crowding them (`crowded_by`). That plate
+    cannot go first (this one lies on it, and its own failure names this one), so such a failure does not keep the
+    slide from applying; a failure naming an item lying on the plate, or one beside it, still does (that item is
+    taken first: `blocker_first`)."""
 
     name = "slide_off_stack"
     when = "a plate with no collision-free grasp (`no_collision_free_grasp`: nested in a stack) that the failure " \
-           "names nothing lying on or blocking, not staged, " \
+           "names nothing lying on or blocking but what it lies on itself (the plate under it), not staged, " \
            f"slid fewer than {M.MAX_SLIDES_PER_OBJECT} times"
     does = "press on its well with the closed fingers and slide it 6 cm sideways (`Planner.plan_slide`); the " \
            "next scan sees it overhanging the one below, where a lip pinch fits"
@@ -350,11 +366,12 @@ class SlideOffStack(Strategy):
     def applies(self, failure, obj, belief, req):
         if failure is None or failure.stage != "pick" or failure.kind != "no_collision_free_grasp":
             return False
+        if obj.cls not in SLIDABLE or req.staged is not None or not _may_slide(belief, obj):
+            return False
         # A plate under another item of its stack fails so too, naming the one on it (docs/planning.md): sliding
         # it would drag what lies on it (the arm stops on a loaded push); that one is taken first (blocker_first).
-        if failure.blocking is not None and failure.blocking >= 0:
-            return False
-        return obj.cls in SLIDABLE and req.staged is None and _may_slide(belief, obj)
+        # The top plate names the plate it lies on (its pinches meet that one's rim): that one cannot go first.
+        return failure.blocking is None or failure.blocking < 0 or _lies_on_named(req, failure.blocking)
 
     def plan(self, req):
         req.note("command", "plan_slide", cls=req.obj.cls)

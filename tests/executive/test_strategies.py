@@ -258,6 +258,38 @@ def test_a_plate_whose_failure_names_an_item_on_it_is_not_slid_that_item_goes_fi
     assert e.value.details.get("blocking") == 7  # blocker_first: the plate on it is selected next
 
 
+class _Stacked(Situation):
+    """A Situation whose items lie on others as `on` says: {instance id below: [items lying on it]}."""
+
+    def __init__(self, pick, on):
+        super().__init__(pick)
+        self.on = on
+
+    def items_on(self, target, objects):
+        return list(self.on.get(target.instance_id, []))
+
+
+def test_a_plate_whose_failure_names_the_plate_under_it_is_slid(inv):
+    """The top plate of a messy stack: its pinches meet the rim of the plate under it, and the failure names that
+    plate (it crowds them). That plate cannot go first (the top plate lies on it): the top plate is slid. A plate
+    whose failure names a neighbour it does not lie on still waits for that one (blocker_first)."""
+    task, b = make_task("sink-pick", inv, Cell()), Belief()
+    top, under, beside = item(inv, "dinner_plate", k=3), item(inv, "dinner_plate", k=2), item(inv, "cup", k=5)
+    crowded = NoCollisionFreeGrasp("test: the rim under it crowds every pinch", {"blocking": 2, "blocking_all": [(2, "plate")]})
+    planner = _Stacked(lambda staging, n: crowded, {2: [top]})
+    req = request(task, b, top, planner)
+    req.scene_objs = [top, under, beside]
+    plan = plan_item(req, strategies_for(task), counts := {})
+    assert plan.strategy == "slide_off_stack" and counts["slide_off_stack"] == {"tried": 1, "planned": 1}
+    by_cup = NoCollisionFreeGrasp("test: the cup beside it crowds every pinch", {"blocking": 5, "blocking_all": [(5, "cup")]})
+    planner = _Stacked(lambda staging, n: by_cup, {2: [top]})
+    req = request(task, b, top, planner)
+    req.scene_objs = [top, under, beside]
+    with pytest.raises(StepFailed) as e:
+        plan_item(req, strategies_for(task), counts := {})
+    assert "slide" not in planner.calls and e.value.details.get("blocking") == 5
+
+
 def test_a_nested_plate_with_no_grasp_is_slid_off_its_stack_a_cup_is_not(inv):
     task, b = make_task("sink-pick", inv, Cell()), Belief()
     planner = Situation(lambda staging, n: NoCollisionFreeGrasp("test: no pinch under its lip"))
