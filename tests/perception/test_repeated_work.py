@@ -95,3 +95,32 @@ def test_a_pose_scored_again_is_not_computed_again(mug_screening, monkeypatch):
     moved[2, 3] += 0.003
     assert fresh(moved) != a and len(batches) == 3
     assert c == tuple(float(x[0]) for x in batch(fresh, T_mug[None], True))
+
+
+def test_a_pick_that_is_an_earlier_picks_pose_is_not_refined_again(perceiver, inventory, cell, monkeypatch):
+    # The screening hands one pose up under two names (a yaw turn of the best hypothesis that is also the best
+    # tilted one): the estimate refines it once, and finds what it finds without the repeat.
+    views = render(inventory, [(MUG, resting_pose(inventory, MUG, 0.45, 0.05, 0.7, cell))], scan_poses(cell), cell,
+                   noise=0.002)[0]
+    screen = pl.screen_candidate
+
+    def repeated(*a, **k):
+        out = screen(*a, **k)
+        return [out[0], (out[0][0], out[0][1] + "-again", out[0][2].copy())] + out[1:]
+
+    refined = []
+    refine = pl.refine
+
+    def logged(query, entry, scorer, T, *a, **k):
+        refined.append((query.points.tobytes(), entry.obj_id, np.asarray(T).tobytes(), k.get("upright", False),
+                        k.get("local", False)))
+        return refine(query, entry, scorer, T, *a, **k)
+
+    monkeypatch.setattr(pl, "refine", logged)
+    plain = perceiver.perceive(views).poses
+    monkeypatch.setattr(pl, "screen_candidate", repeated)
+    refined.clear()
+    again = perceiver.perceive(views).poses
+    assert len(refined) == len(set(refined))  # no pose refined twice with the same settings
+    assert [p.obj_id for p in again] == [p.obj_id for p in plain] == [MUG]
+    assert np.array_equal(again[0].T_base_obj, plain[0].T_base_obj) and again[0].score == plain[0].score
