@@ -1289,7 +1289,13 @@ class Perceiver:
                 picks.append(t)
                 seen.add(t[1])
         best: Hypothesis | None = None
+        refined: set[tuple[int, bytes]] = set()
         for _, oid, name, T, w in picks:
+            # A pick that is an earlier pick's pose exactly (one start screened under two names: a yaw turn of the
+            # best hypothesis that is also the best tilted one) refines to the same fit and score: it cannot win.
+            if (oid, T.tobytes()) in refined:
+                continue
+            refined.add((oid, T.tobytes()))
             h = refine(query, self.database[oid], scorers[oid], T, self.reg_cfg, name,
                        symmetric=self.inventory[oid].is_rotationally_symmetric)
             h.score *= self._colour_weight(query, h, w)

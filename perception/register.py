@@ -156,10 +156,17 @@ class Scorer:
         self.views = views
         self.depths = depths if depths is not None else clean_depths(views)
         self.eps = eps
+        self._scores: dict[tuple[bytes, bool], tuple[float, ...]] = {}  # `__call__`'s answers by pose
 
     def __call__(self, T_base_obj: np.ndarray, coarse: bool = False) -> tuple[float, float, float, float, float]:
-        """(score, or_query, or_model, free_space, visible_fraction); `coarse` uses a third of the points."""
-        return tuple(float(x[0]) for x in self.batch(np.asarray(T_base_obj)[None], coarse))
+        """(score, or_query, or_model, free_space, visible_fraction); `coarse` uses a third of the points.
+        Remembered per pose: the estimate asks again for the score of the pose it holds (the colour weight of
+        each refinement it tries from there: flipped, turned, held upright)."""
+        T = np.ascontiguousarray(T_base_obj, dtype=np.float64)
+        key = (T.tobytes(), bool(coarse))
+        if key not in self._scores:
+            self._scores[key] = tuple(float(x[0]) for x in self.batch(T[None], coarse))
+        return self._scores[key]
 
     def batch(self, T_base_obj: np.ndarray, coarse: bool = False) -> tuple[np.ndarray, ...]:
         """`__call__` for H poses at once ((H, 4, 4) -> five (H,) arrays): every point of every pose goes
@@ -444,6 +451,21 @@ def _pose(axis: np.ndarray, yaw: float, centre: np.ndarray) -> np.ndarray:
     return make_T(_rot_from_z(axis) @ Rz, centre)
 
 
+def same_starts(starts: list[tuple[np.ndarray, bool]]) -> tuple[list[int], list[int]]:
+    """Screening starts (T_base_obj, keep axis) told apart exactly: the index of each distinct start's first
+    occurrence, and for every start the position of its own in that list."""
+    first: list[int] = []
+    where: list[int] = []
+    at: dict[tuple[bytes, bool], int] = {}
+    for i, (T, keep) in enumerate(starts):
+        key = (np.ascontiguousarray(T, dtype=np.float64).tobytes(), bool(keep))
+        if key not in at:
+            at[key] = len(first)
+            first.append(i)
+        where.append(at[key])
+    return first, where
+
+
 def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, scorer: Scorer,
                      cfg: RegistrationConfig, up: np.ndarray | None = None,
                      stacked_on: list[np.ndarray] = (), bar: float = -math.inf) -> list[tuple[float, str, np.ndarray]]:
@@ -461,12 +483,17 @@ def screen_candidate(query: FusedCloud, entry: ModelEntry, model: ObjectModel, s
         # Coarse ICP (all starts at once) estimates T_obj_base (query points -> model frame); then each is scored.
         if not starts:
             return
-        T0 = np.array([inv(T) for _, T, _ in starts])
+        # A start given twice (the same pose and axis lock: a yaw turn of a hypothesis that is also the best
+        # tilted one, the same stacking shift of two poses found) is fitted and scored once: each hypothesis's
+        # ICP and score depend on its own start only (`same_starts`).
+        first, where = same_starts([(T, k) for _, T, k in starts])
+        T0 = np.array([inv(starts[i][1]) for i in first])
         Ts = icp_batch(qs, entry, T0, (4 * v, 1.5 * v), iters=5, coarse=True,
-                       keep_axis=np.array([k for _, _, k in starts]), symmetric=model.is_rotationally_symmetric)
+                       keep_axis=np.array([starts[i][2] for i in first]), symmetric=model.is_rotationally_symmetric)
         Tbs = np.array([inv(T_ob) for T_ob in Ts])
-        for (name, _, _), sc, Tb in zip(starts, scorer.batch(Tbs, coarse=True)[0], Tbs):
-            scored.append((float(sc), name, Tb))
+        scores = scorer.batch(Tbs, coarse=True)[0]
+        for (name, _, _), u in zip(starts, where):
+            scored.append((float(scores[u]), name, Tbs[u].copy()))
         starts.clear()
 
     # (0) stacking: the same model nested in / stacked on one already found, shifted along its axis (by its
