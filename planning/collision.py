@@ -742,6 +742,7 @@ class Scene:
         self._gripper_pair = [(a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held")
                               and not _camera_near_item(a, b) for a, b in self.pair_names]
         self._zone: tuple[Scene, int, float] | None = None  # (strict variant, target geometry, radius): for_grasp
+        self._zone_at: dict[bytes, bool] = {}  # q -> whether its TCP is within the contact zone (_tcp_in_zone)
         # only_tool_touches' / only_pads_touch's variants (the pairs asked about, all the others), made when first asked
         self._splits: dict[str, tuple[Scene, Scene]] = {}
         self._set_margins({}, world.margin)
@@ -920,6 +921,7 @@ class Scene:
         other._bp = None
         other._pools = {}  # its own pair activations and margins
         other._zone = None
+        other._zone_at = {}
         other._splits = {}
         return other
 
@@ -1083,10 +1085,8 @@ class Scene:
         ``colliding_pairs(q)`` says, read so): a broad-phase check over the scene's variant with only those pairs
         active, then one over the variant without them (both made once per scene and kept under `name`). Where the
         grasp's contact zone applies, as colliding_pairs: outside it, the strict variant answers."""
-        if self._zone is not None:
-            p = tcp_positions(self.world.robot, np.asarray(q, float).reshape(1, 6))
-            if not self._in_contact_zone(p)[0]:
-                return self._zone[0]._only_pairs_touch(q, name, which)
+        if self._zone is not None and not self._tcp_in_zone(q):
+            return self._zone[0]._only_pairs_touch(q, name, which)
         split = self._splits.get(name)
         if split is None:
             mine = {p for p in self.pair_names if which(*p)}
@@ -1104,11 +1104,23 @@ class Scene:
             return False
         return not pin.computeCollisions(self.model, others.data, others._broadphase(), q, True)
 
+    def _tcp_in_zone(self, q: np.ndarray) -> bool:
+        """Whether the TCP at q is within the grasp target's contact zone (where this scene's pad contacts apply;
+        outside it the strict variant answers the pair queries). Kept per configuration: a rejected grasp's
+        configurations are asked about again and again (its near miss, its pads alone in the way, what crowds it)."""
+        q = np.asarray(q, float).reshape(6)
+        key = q.tobytes()
+        hit = self._zone_at.get(key)
+        if hit is None:
+            hit = bool(self._in_contact_zone(tcp_positions(self.world.robot, q.reshape(1, 6)))[0])
+            if len(self._zone_at) >= 4096:
+                self._zone_at.clear()
+            self._zone_at[key] = hit
+        return hit
+
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
-        if self._zone is not None:
-            p = tcp_positions(self.world.robot, np.asarray(q, float).reshape(1, 6))
-            if not self._in_contact_zone(p)[0]:
-                return self._zone[0].colliding_pairs(q)
+        if self._zone is not None and not self._tcp_in_zone(q):
+            return self._zone[0].colliding_pairs(q)
         pin.computeCollisions(self.model, self.data, self.gm, self.gd, np.asarray(q, float), False)
         out = []
         for k, r in enumerate(self.gd.collisionResults):

@@ -20,7 +20,7 @@ import coal
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.bite import fingers_reach
+from kitchenbot.planning.bite import fingers_reach_backed_off
 from kitchenbot.planning.collision import Scene, coal_transform
 from kitchenbot.planning.pad_give import pad_contacts
 from kitchenbot.planning.robot import RobotModel
@@ -524,9 +524,8 @@ def select_grasps(
         Ts = bites(T)
         if ik is None:
             ik = robot.ik_all_batch(Ts, q_current)
-        T_obj_base = np.linalg.inv(np.asarray(o.T_base_obj, float))
         for back, Tb, branches in zip(BITES, Ts, ik):
-            if back > 0.0 and not fingers_reach(inventory[o.obj_id], T_obj_base @ Tb):
+            if back > 0.0 and not fingers_reach_backed_off(inventory[o.obj_id], spec.T_obj_tcp, back):
                 continue  # backed off this far the fingers end short of the item's wall (planning/bite.py)
             taken_by = _taken_in(Tb, spec, gripper, others, scene, req)
             if taken_by is not None:
