@@ -377,7 +377,8 @@ PADS = ("pad_a", "pad_b")
 
 
 def _pads_only(pairs) -> bool:
-    """Whether every colliding pair has an open pad in it (nothing else of the arm or the tool is in the way)."""
+    """Whether every colliding pair has an open pad in it (nothing else of the arm or the tool is in the way): what
+    Scene.only_pads_touch answers without listing the pairs (the reference its test compares it with)."""
     return bool(pairs) and all(a in PADS or b in PADS for a, b in pairs)
 
 
