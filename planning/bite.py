@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
+from kitchenbot.transforms import trans
 from kitchenbot.world.gripper import FINGERS
 from kitchenbot.world.inventory import ObjectModel
 
@@ -46,3 +47,20 @@ def fingers_reach(model: ObjectModel, T_obj_tcp: np.ndarray) -> bool:
                       np.hstack([centres + y * HALF_LINE, np.broadcast_to(-y, (n, 3))])]).astype(np.float32)
     t = _scene(model).cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
     return bool(np.any(np.isfinite(t[:n]) & np.isfinite(t[n:]) & (t[:n] + t[n:] < 2 * HALF_LINE)))
+
+
+_backed: dict[tuple, tuple[ObjectModel, bool]] = {}  # (id(model), T_obj_tcp bytes, back) -> (model, answer)
+
+
+def fingers_reach_backed_off(model: ObjectModel, T_obj_tcp: np.ndarray, back: float) -> bool:
+    """:func:`fingers_reach` for the grasp `T_obj_tcp` (the TCP in the item's frame) backed off `back` metres along
+    its approach (TCP -z). It depends on the item's model and the grasp alone, not on where the item lies, so it is
+    kept: grasp selection asks it for every candidate at every shallower bite, the same grasps again each plan."""
+    T = np.asarray(T_obj_tcp, float)
+    key = (id(model), T.tobytes(), float(back))
+    hit = _backed.get(key)
+    if hit is None or hit[0] is not model:
+        if len(_backed) > 20000:
+            _backed.clear()
+        hit = _backed[key] = (model, fingers_reach(model, T @ trans(0.0, 0.0, -float(back))))
+    return hit[1]

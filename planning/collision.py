@@ -20,7 +20,7 @@ for the other models); radii cover the motor housings, not the thinner tubes, so
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 import hashlib
 
@@ -462,6 +462,11 @@ def _tool_meets_item(a: str, b: str) -> bool:
     return (a in TOOL_PARTS and b.startswith(("obj:", "voxels"))) or (b in TOOL_PARTS and a.startswith(("obj:", "voxels")))
 
 
+def _has_pad(a: str, b: str) -> bool:
+    """A pair with an open pad in it."""
+    return a in PADS or b in PADS
+
+
 def _camera_near_item(a: str, b: str) -> bool:
     """A (camera, item or voxels) pair: it keeps the full margin in the grasp and release scenes too."""
     return (a == "camera" and b.startswith(("obj:", "voxels"))) or (b == "camera" and a.startswith(("obj:", "voxels")))
@@ -737,7 +742,9 @@ class Scene:
         self._gripper_pair = [(a in TOOL_PARTS or b in TOOL_PARTS or a == "held" or b == "held")
                               and not _camera_near_item(a, b) for a, b in self.pair_names]
         self._zone: tuple[Scene, int, float] | None = None  # (strict variant, target geometry, radius): for_grasp
-        self._tool_split: tuple[Scene, Scene] | None = None  # only_tool_touches' variants, made when first asked
+        self._zone_at: dict[bytes, bool] = {}  # q -> whether its TCP is within the contact zone (_tcp_in_zone)
+        # only_tool_touches' / only_pads_touch's variants (the pairs asked about, all the others), made when first asked
+        self._splits: dict[str, tuple[Scene, Scene]] = {}
         self._set_margins({}, world.margin)
 
     @property
@@ -914,7 +921,8 @@ class Scene:
         other._bp = None
         other._pools = {}  # its own pair activations and margins
         other._zone = None
-        other._tool_split = None
+        other._zone_at = {}
+        other._splits = {}
         return other
 
     def for_grasp(self, target_name: str | None, *, pads_only: bool = True) -> "Scene":
@@ -1064,31 +1072,55 @@ class Scene:
         """Whether all that collides at q is the tool meeting perceived objects or the map's voxels (at least one
         such pair, no other pair): what ``colliding_pairs(q)`` says read that way (a grasp's near miss), from two
         broad-phase checks, one over those pairs and one over all the others, instead of a check of every pair."""
-        if self._zone is not None:
-            p = tcp_positions(self.world.robot, np.asarray(q, float).reshape(1, 6))
-            if not self._in_contact_zone(p)[0]:
-                return self._zone[0].only_tool_touches(q)
-        if self._tool_split is None:
-            mine = {p for p in self.pair_names if _tool_meets_item(*p)}
-            tool = self._variant()
+        return self._only_pairs_touch(q, "tool", _tool_meets_item)
+
+    def only_pads_touch(self, q: np.ndarray) -> bool:
+        """Whether all that collides at q has an open pad in it (at least one such pair, no pair without a pad):
+        ``colliding_pairs(q)`` read that way (a grasp rejected only for its open pads), from two broad-phase
+        checks as :meth:`only_tool_touches`."""
+        return self._only_pairs_touch(q, "pads", _has_pad)
+
+    def _only_pairs_touch(self, q: np.ndarray, name: str, which: Callable[[str, str], bool]) -> bool:
+        """At least one active pair for which `which(a, b)` holds collides at q and no other active pair does (what
+        ``colliding_pairs(q)`` says, read so): a broad-phase check over the scene's variant with only those pairs
+        active, then one over the variant without them (both made once per scene and kept under `name`). Where the
+        grasp's contact zone applies, as colliding_pairs: outside it, the strict variant answers."""
+        if self._zone is not None and not self._tcp_in_zone(q):
+            return self._zone[0]._only_pairs_touch(q, name, which)
+        split = self._splits.get(name)
+        if split is None:
+            mine = {p for p in self.pair_names if which(*p)}
+            these = self._variant()
             for k, pr in enumerate(self.pair_names):
-                tool.gd.collisionRequests[k].security_margin = self.gd.collisionRequests[k].security_margin
+                these.gd.collisionRequests[k].security_margin = self.gd.collisionRequests[k].security_margin
                 if self.gd.activeCollisionPairs[k] and pr in mine:
-                    tool.gd.activateCollisionPair(k)
+                    these.gd.activateCollisionPair(k)
                 else:
-                    tool.gd.deactivateCollisionPair(k)
-            self._tool_split = (tool, self.allowing(mine))
-        tool, others = self._tool_split
+                    these.gd.deactivateCollisionPair(k)
+            split = self._splits[name] = (these, self.allowing(mine))
+        these, others = split
         q = np.asarray(q, float)
-        if not pin.computeCollisions(self.model, tool.data, tool._broadphase(), q, True):
+        if not pin.computeCollisions(self.model, these.data, these._broadphase(), q, True):
             return False
         return not pin.computeCollisions(self.model, others.data, others._broadphase(), q, True)
 
+    def _tcp_in_zone(self, q: np.ndarray) -> bool:
+        """Whether the TCP at q is within the grasp target's contact zone (where this scene's pad contacts apply;
+        outside it the strict variant answers the pair queries). Kept per configuration: a rejected grasp's
+        configurations are asked about again and again (its near miss, its pads alone in the way, what crowds it)."""
+        q = np.asarray(q, float).reshape(6)
+        key = q.tobytes()
+        hit = self._zone_at.get(key)
+        if hit is None:
+            hit = bool(self._in_contact_zone(tcp_positions(self.world.robot, q.reshape(1, 6)))[0])
+            if len(self._zone_at) >= 4096:
+                self._zone_at.clear()
+            self._zone_at[key] = hit
+        return hit
+
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
-        if self._zone is not None:
-            p = tcp_positions(self.world.robot, np.asarray(q, float).reshape(1, 6))
-            if not self._in_contact_zone(p)[0]:
-                return self._zone[0].colliding_pairs(q)
+        if self._zone is not None and not self._tcp_in_zone(q):
+            return self._zone[0].colliding_pairs(q)
         pin.computeCollisions(self.model, self.data, self.gm, self.gd, np.asarray(q, float), False)
         out = []
         for k, r in enumerate(self.gd.collisionResults):

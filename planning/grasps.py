@@ -20,7 +20,7 @@ import coal
 import numpy as np
 
 from kitchenbot.perception.types import ObjectPose
-from kitchenbot.planning.bite import fingers_reach
+from kitchenbot.planning.bite import fingers_reach_backed_off
 from kitchenbot.planning.collision import Scene, coal_transform
 from kitchenbot.planning.pad_give import pad_contacts
 from kitchenbot.planning.robot import RobotModel
@@ -377,7 +377,8 @@ PADS = ("pad_a", "pad_b")
 
 
 def _pads_only(pairs) -> bool:
-    """Whether every colliding pair has an open pad in it (nothing else of the arm or the tool is in the way)."""
+    """Whether every colliding pair has an open pad in it (nothing else of the arm or the tool is in the way): what
+    Scene.only_pads_touch answers without listing the pairs (the reference its test compares it with)."""
     return bool(pairs) and all(a in PADS or b in PADS for a, b in pairs)
 
 
@@ -524,9 +525,8 @@ def select_grasps(
         Ts = bites(T)
         if ik is None:
             ik = robot.ik_all_batch(Ts, q_current)
-        T_obj_base = np.linalg.inv(np.asarray(o.T_base_obj, float))
         for back, Tb, branches in zip(BITES, Ts, ik):
-            if back > 0.0 and not fingers_reach(inventory[o.obj_id], T_obj_base @ Tb):
+            if back > 0.0 and not fingers_reach_backed_off(inventory[o.obj_id], spec.T_obj_tcp, back):
                 continue  # backed off this far the fingers end short of the item's wall (planning/bite.py)
             taken_by = _taken_in(Tb, spec, gripper, others, scene, req)
             if taken_by is not None:
@@ -580,7 +580,7 @@ def select_grasps(
             if kind == "taken":
                 return True
             scenes[k].set_opening(spec.opening)
-            if _pads_only(scenes[k].colliding_pairs(x)):
+            if scenes[k].only_pads_touch(x):  # _pads_only(colliding_pairs(x)), by two broad-phase checks
                 return True
         return False
 

@@ -117,6 +117,41 @@ def check_segment(scene: Scene, Q: np.ndarray, r: np.ndarray, step: float) -> in
     return scene.first_invalid(densify(Q, r, step))
 
 
+def segment_free(scene: Scene, Q: np.ndarray, r: np.ndarray, step: float) -> bool:
+    """Whether the polyline Q passes the dense re-check (``check_segment(...) < 0``: the same densified states,
+    the same checks), where only yes or no is wanted: the states are asked coarse to fine (both ends, then the
+    midpoints of ever finer halvings, :func:`coarse_to_fine`) in one batch that stops at the first collision. A
+    segment that collides mostly does so over a stretch, which the first few states of that order reach; asked
+    from the start (check_segment) every state before the stretch was checked first."""
+    D = densify(Q, r, step)
+    return scene.all_valid(D[coarse_to_fine(len(D))])
+
+
+def coarse_to_fine(n: int) -> np.ndarray:
+    """Indices 0..n-1 ordered coarse to fine: 0 and n-1 first, then by the number of trailing zero bits of the
+    index, most first (n/2, then n/4 and 3n/4, ...; ties in index order). A permutation of range(n), kept."""
+    out = _COARSE_TO_FINE.get(n)
+    if out is None:
+        i = np.arange(1, max(n - 1, 1))
+        tz = np.zeros(len(i), int)
+        m = i.copy()
+        while True:
+            even = (m > 0) & (m % 2 == 0)
+            if not even.any():
+                break
+            tz[even] += 1
+            m[even] //= 2
+        inner = i[np.lexsort((i, -tz))]
+        out = np.concatenate([[0], [n - 1] if n > 1 else [], inner]).astype(int)
+        if len(_COARSE_TO_FINE) > 4096:
+            _COARSE_TO_FINE.clear()
+        _COARSE_TO_FINE[n] = out
+    return out
+
+
+_COARSE_TO_FINE: dict[int, np.ndarray] = {}
+
+
 def _why(scene: Scene, q: np.ndarray, pairs: list) -> str:
     robot = scene.world.robot
     if not robot.within_limits(q):
@@ -174,9 +209,9 @@ def plan_joint_path(
     r = reach_bounds(scene)
     t0 = time.perf_counter()
     # Straight line first: most short motions in an uncluttered cell need no search.
-    if check_segment(scene, np.vstack([q_start, q_goal]), r, planning_resolution) < 0:
+    if segment_free(scene, np.vstack([q_start, q_goal]), r, planning_resolution):
         t1 = time.perf_counter()
-        if check_segment(scene, np.vstack([q_start, q_goal]), r, validity_resolution) < 0:
+        if segment_free(scene, np.vstack([q_start, q_goal]), r, validity_resolution):
             t2 = time.perf_counter()
             return JointPlan(np.vstack([q_start, q_goal]), (t1 - t0) * 1e3, 0.0, (t2 - t1) * 1e3, used_rrt=False)
     for resolution in (planning_resolution, validity_resolution):
@@ -185,9 +220,9 @@ def plan_joint_path(
             return res
         path, plan_ms, simp_ms = res
         t1 = time.perf_counter()
-        bad = check_segment(scene, path, r, validity_resolution)
+        free = segment_free(scene, path, r, validity_resolution)
         recheck_ms = (time.perf_counter() - t1) * 1e3
-        if bad < 0:
+        if free:
             plan = JointPlan(path, plan_ms, simp_ms, recheck_ms)
             if shortcut_rounds > 0 and joint_speeds is not None and tcp_speed is not None:
                 _shortcut(plan, scene, r, validity_resolution, shortcut_rounds, joint_speeds, tcp_speed, seed)
@@ -201,10 +236,10 @@ def _shortcut(plan: JointPlan, scene: Scene, r: np.ndarray, resolution: float, r
     shortened path passes the dense check at `resolution` (its new segments were checked so already)."""
     t0 = time.perf_counter()
     robot = scene.world.robot
-    P = shortcut_path(plan.path, lambda Q: check_segment(scene, Q, r, resolution) < 0,
+    P = shortcut_path(plan.path, lambda Q: segment_free(scene, Q, r, resolution),
                       np.asarray(joint_speeds, float), float(tcp_speed), lambda Q: tcp_positions(robot, Q),
                       rounds=rounds, rng=np.random.default_rng(0 if seed is None else seed))
-    if (P.shape != plan.path.shape or not np.array_equal(P, plan.path)) and check_segment(scene, P, r, resolution) < 0:
+    if (P.shape != plan.path.shape or not np.array_equal(P, plan.path)) and segment_free(scene, P, r, resolution):
         plan.shortcut = P
     plan.shortcut_ms = (time.perf_counter() - t0) * 1e3
 

@@ -29,7 +29,7 @@ from kitchenbot.planning.doubtful_support import (NARROWING_TOL, POINT_REACH, PO
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_legs, sidesteps
-from kitchenbot.planning.motion import cartesian_line, check_segment, plan_joint_path, reach_bounds
+from kitchenbot.planning.motion import cartesian_line, plan_joint_path, reach_bounds, segment_free
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
 from kitchenbot.planning.resting import clear_travel, lies_on
 from kitchenbot.planning.robot import RobotModel
@@ -284,7 +284,7 @@ class Planner:
         proof: dict = {}
 
         def free(q: np.ndarray) -> bool:
-            proof["free"] = check_segment(scene, q, r, self.settings.validity_resolution) < 0
+            proof["free"] = segment_free(scene, q, r, self.settings.validity_resolution)
             return proof["free"]
 
         traj = self._time(path, name, "blended", free=free)

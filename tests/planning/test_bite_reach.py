@@ -60,3 +60,20 @@ def test_fingers_reach_the_ring_at_the_bites_the_simulator_holds_at(planner):
     assert fingers_reach(m, spec.T_obj_tcp)
     assert fingers_reach(m, spec.T_obj_tcp @ trans(0.0, 0.0, -0.004))
     assert not fingers_reach(m, spec.T_obj_tcp @ trans(0.0, 0.0, -0.008))
+
+
+def test_the_backed_off_answer_is_kept_per_model_and_grasp(planner, monkeypatch):
+    """fingers_reach_backed_off answers as fingers_reach at the backed-off pose, and asks it once per (model, grasp,
+    bite): it does not depend on where the item lies."""
+    from kitchenbot.planning import bite
+
+    m = planner.inventory.by_name("bowl")
+    spec = next(s for s in m.grasps if s.name == SPEC)
+    asked = []
+    real = bite.fingers_reach
+    monkeypatch.setattr(bite, "fingers_reach", lambda model, T: asked.append(1) or real(model, T))
+    monkeypatch.setattr(bite, "_backed", {})
+    for _ in range(3):
+        assert bite.fingers_reach_backed_off(m, spec.T_obj_tcp, 0.004)
+        assert not bite.fingers_reach_backed_off(m, spec.T_obj_tcp, 0.008)
+    assert len(asked) == 2
