@@ -306,3 +306,79 @@ def own_dishware_e(tmp_path_factory):
     """(models_dir, {obj_id: (name, expected class)}) of the fifth set (`write_own_dishware_e`)."""
     folder = tmp_path_factory.mktemp("own_dishware_e") / "models"
     return folder, write_own_dishware_e(folder)
+
+
+def write_own_dishware_f(folder):
+    """A sixth models/ folder of unseen dishware, sized from retail catalogues (rounded): a deep pasta plate (23.5 cm,
+    4.2 cm tall, a deep well in a narrow rim, a foot ring), a cereal bowl on a tall foot (14 cm, 7.5 cm tall), a tall
+    latte glass with a belly (7.4 cm, 15.5 cm tall, a 1.2 cm solid base), a stemmed water glass (a goblet: 8.6 cm bowl,
+    17 cm tall, a 7.6 cm disc foot), a mug with a squared handle (8.2 cm, 9.5 cm tall), a small side plate (16 cm,
+    1.8 cm tall), a conical bowl (17 cm rim on a 6 cm foot, 7 cm tall), a double-walled cup (8 cm, 9.5 cm tall, 7 mm
+    walls, its inner floor 2.5 cm up) and a matcha bowl (chawan: 11.5 cm, 7.5 cm tall, straight walls, a foot ring).
+    Meshes (mm) and diameters only. Returns {obj_id: (name, expected class)}."""
+    from kitchenbot.world.dishware import _profile_closed, lathe, tube
+
+    def vessel(outer, thickness, foot=None):
+        return lathe(_profile_closed(np.array(outer, float), thickness, foot=foot), segments=96)
+
+    def rounded_corner_path(points, radius, per_corner=6):
+        """A polyline through `points` (x, z in the xz plane) with each inner corner replaced by a quarter-ish arc."""
+        P = np.asarray(points, float)
+        out = [P[0]]
+        for a, b, c in zip(P[:-2], P[1:-1], P[2:]):
+            u, v = (a - b) / np.linalg.norm(a - b), (c - b) / np.linalg.norm(c - b)
+            p0, p1 = b + radius * u, b + radius * v
+            for s in np.linspace(0, 1, per_corner):  # a quadratic Bezier with b as its control point
+                out.append((1 - s) ** 2 * p0 + 2 * (1 - s) * s * b + s ** 2 * p1)
+        out.append(P[-1])
+        xz = np.array(out)
+        return np.stack([xz[:, 0], np.zeros(len(xz)), xz[:, 1]], 1)
+
+    pasta = vessel([(0, 0.005), (0.065, 0.005), (0.070, 0.008), (0.085, 0.020), (0.095, 0.032), (0.103, 0.038),
+                    (0.112, 0.040), (0.1175, 0.042)], 0.0045, foot=(0.064, 0.005, 0.005))
+    cereal = vessel([(0, 0.015), (0.032, 0.015), (0.036, 0.018), (0.052, 0.030), (0.064, 0.048), (0.069, 0.064),
+                     (0.070, 0.075)], 0.0042, foot=(0.030, 0.008, 0.015))  # a 1.5 cm tall foot
+    latte = vessel([(0, 0.012), (0.030, 0.012)] + [(0.030 + 0.007 * np.sin(np.pi * (z - 0.012) / 0.16), z)
+                                                   for z in np.linspace(0.018, 0.155, 9)],
+                   0.0025, foot=(0.030, 0.028, 0.012))  # a heavy solid base, widest two thirds of the way up
+    stem_h, t = 0.070, 0.0022
+    zs = np.linspace(0, 1, 10)
+    bowl = np.column_stack([0.005 + 0.038 * np.sin(zs * np.pi / 2) ** 0.6, stem_h + 0.100 * zs])
+    inner = np.column_stack([np.maximum(bowl[:, 0] - t, 0.0), bowl[:, 1] + t * 0.5])
+    inner[0] = (0.0, stem_h + 2 * t)
+    goblet = lathe(np.vstack([[(0, 0), (0.038, 0), (0.038, 0.003), (0.020, 0.006), (0.006, 0.012), (0.005, 0.018),
+                               (0.005, stem_h * 0.95)], bowl[1:], [(bowl[-1, 0] - t * 0.5, stem_h + 0.100 + t * 0.3)],
+                              inner[::-1][:-1], [(0.0, inner[0, 1])]]), segments=96)
+    mug = vessel([(0, 0), (0.037, 0), (0.040, 0.003)] + [(0.041, z) for z in np.linspace(0.010, 0.095, 7)], 0.0045)
+    mug += tube(rounded_corner_path([(0.038, 0.022), (0.072, 0.022), (0.072, 0.080), (0.038, 0.080)], 0.009),
+                0.006)  # a squared (D-shaped) handle, 3.4 cm out, 5.8 cm tall
+    side = vessel([(0, 0.003), (0.050, 0.003), (0.054, 0.005), (0.066, 0.010), (0.074, 0.014), (0.080, 0.018)],
+                  0.004, foot=(0.049, 0.004, 0.003))
+    cone = vessel([(0, 0.006), (0.030, 0.006)] + [(0.032 + 0.053 * (z - 0.006) / 0.064, z)
+                                                  for z in np.linspace(0.008, 0.070, 8)], 0.0045,
+                  foot=(0.030, 0.005, 0.006))
+    # double-walled: the outer wall from the standing base to the rim, the inner wall 7 mm in, its floor 2.5 cm up
+    outer = [(0, 0), (0.031, 0), (0.033, 0.003)] + [(0.033 + 0.007 * z / 0.095, z) for z in np.linspace(0.010, 0.095, 6)]
+    inner_wall = [(0.033 + 0.007 * z / 0.095 - 0.007, z) for z in np.linspace(0.092, 0.030, 6)] + [(0.024, 0.025),
+                                                                                                  (0.0, 0.025)]
+    rim = [(0.0365 + 0.0035 * np.cos(a), 0.095 + 0.0035 * np.sin(a)) for a in np.linspace(0.3, np.pi - 0.3, 5)]
+    double = lathe(np.array(outer + rim + inner_wall, float), segments=96)
+    chawan = vessel([(0, 0.008), (0.030, 0.008), (0.036, 0.012), (0.050, 0.022), (0.056, 0.040), (0.0575, 0.075)],
+                    0.005, foot=(0.029, 0.006, 0.008))
+    specs = [("deep_pasta_plate", "plate", pasta, (0.94, 0.93, 0.89)), ("footed_cereal_bowl", "bowl", cereal,
+                                                                          (0.30, 0.50, 0.65)),
+             ("belly_latte_glass", "glass", latte, (0.85, 0.90, 0.94)), ("water_goblet", "glass", goblet,
+                                                                          (0.78, 0.86, 0.92)),
+             ("square_handle_mug", "mug", mug, (0.80, 0.55, 0.25)), ("small_side_plate", "plate", side,
+                                                                      (0.92, 0.92, 0.95)),
+             ("conical_bowl_f", "bowl", cone, (0.20, 0.25, 0.30)), ("double_walled_cup", "cup", double,
+                                                                     (0.90, 0.88, 0.84)),
+             ("matcha_bowl", "bowl", chawan, (0.35, 0.40, 0.25))]
+    return _save_own_set(folder, specs)
+
+
+@pytest.fixture(scope="session")
+def own_dishware_f(tmp_path_factory):
+    """(models_dir, {obj_id: (name, expected class)}) of the sixth set (`write_own_dishware_f`)."""
+    folder = tmp_path_factory.mktemp("own_dishware_f") / "models"
+    return folder, write_own_dishware_f(folder)

@@ -51,3 +51,18 @@ def test_the_config_carries_the_override(tmp_path, own_dishware):
     cfg_path.write_text(f"inventory:\n  models_dir: {folder}\n  classes: {{3: cup}}   # the espresso cup\n")
     inv = load_inventory(load_config(cfg_path))
     assert [m.cls for m in inv] == ["plate", "glass", "cup", "bowl"]
+
+
+def test_a_sixth_set_sized_from_catalogues_is_classed_from_its_meshes(own_dishware_f):
+    """Set F (a deep pasta plate near the plate/bowl line, h/D 0.19; a cereal bowl on a tall foot; a latte glass with a
+    belly; a stemmed water goblet; a mug with a squared handle; a side plate; a conical bowl; a double-walled cup whose
+    inner floor is 2.5 cm up; a straight-walled matcha bowl): every class from the mesh is the intended one, the
+    squared handle is found as a handle, and only the mug lacks the symmetry about z."""
+    folder, expected = own_dishware_f
+    inv = Inventory.load(folder)
+    assert sorted(m.obj_id for m in inv) == sorted(expected)
+    for obj_id, (name, cls) in expected.items():
+        shape = classify(inv[obj_id].mesh)
+        assert inv[obj_id].cls == cls, (name, shape.describe())
+        assert shape.handle == (name == "square_handle_mug"), (name, shape.describe())
+        assert bool(inv[obj_id].symmetries_continuous) == (cls != "mug"), name
