@@ -38,7 +38,7 @@ from kitchenbot.perception.track import MapChange, best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (BASE_SEEN, base_seen, claimed_by, continuation, facing_unclaimed, filled,
                                           fine_fit, fine_tolerance, intruded, overhang, overhang_area, patch_normals,
-                                          surface_noise, verify, within_wall)
+                                          sunk, surface_noise, verify, within_wall)
 from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
 
@@ -60,6 +60,8 @@ SURFACE_TOL = 0.3
 # Classes whose fits are checked upside down too (tall, thin-walled, nearly as wide at the top as at the base); a
 # refine per object, so not for plates and bowls, whose sides the fits have not confused.
 FLIP_CLASSES = ("cup", "mug", "glass")
+# The `sunk` part is read on about this many of the model's surface points (evenly over it).
+SUNK_POINTS = 2000
 # Metres: a map point this close to a pose's surface is on it, when judging what continues past its ends (the
 # sensor's noise and the fit's error; another pose's surface gets 1.5x this).
 FINE_ON_TOL = 0.004
@@ -816,6 +818,10 @@ class Perceiver:
             # (its own points no neighbour claims, at the pose the fine fit nudged onto them)
             parts["straight"] = straightness(m.points[own][~claimed], normals[~claimed], db[hyp.obj_id], T_fine,
                                              tol, others)
+        inside = self._inside_solid(self._up())
+        if inside is not None:
+            dense = db[hyp.obj_id].dense_points
+            parts["sunk"] = sunk(dense[::max(1, len(dense) // SUNK_POINTS)], hyp.T_base_obj, inside)
         return parts
 
     def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:
