@@ -779,7 +779,9 @@ class Perceiver:
     def _fine_parts_computed(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis, own: np.ndarray,
                              found: list[tuple[Hypothesis, int, np.ndarray]],
                              along: list[tuple[Hypothesis, int, np.ndarray]]) -> dict[str, float]:
-        """`_fine_parts` computed: the verification parts it sets, by name (`found` filtered already)."""
+        """`_fine_parts` computed: the verification parts it sets, by name (`found` filtered already); `sunk` (the
+        model's surface behind a support found in the data, verify.sunk) for every pose of a scan segmented with
+        the surfaces found in it."""
         db = self.database
         reach = self.inventory[hyp.obj_id].diameter
         others = [(db[h.obj_id], h.T_base_obj) for h, _, _ in found if h is not hyp and
@@ -818,10 +820,13 @@ class Perceiver:
             # (its own points no neighbour claims, at the pose the fine fit nudged onto them)
             parts["straight"] = straightness(m.points[own][~claimed], normals[~claimed], db[hyp.obj_id], T_fine,
                                              tol, others)
-        inside = self._inside_solid(self._up())
-        if inside is not None:
+        if self._active_cell is None and self._surfaces is not None:
+            # Judged against the supports found in the data only (what items stand on). Not with the configured
+            # cell, a prior whose boxes (5 mm inside their faces) a right fit a few millimetres low reaches into
+            # with the whole of its flat base, nor against walls (a hand-made plate through the basin's side).
             dense = db[hyp.obj_id].dense_points
-            parts["sunk"] = sunk(dense[::max(1, len(dense) // SUNK_POINTS)], hyp.T_base_obj, inside)
+            parts["sunk"] = sunk(dense[::max(1, len(dense) // SUNK_POINTS)], hyp.T_base_obj,
+                                 lambda P: self._surfaces.inside_solid(P, supports_only=True))
         return parts
 
     def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:

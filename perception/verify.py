@@ -54,6 +54,7 @@ docs/perception.md "Verification").
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -506,7 +507,7 @@ def within_wall(q: np.ndarray, model_points: np.ndarray, margin: float) -> np.nd
     return (q[:, 2] > z0) & (q[:, 2] < z1) & (np.linalg.norm(q[:, :2] - axis, axis=1) < wall - margin)
 
 
-def sunk(model_points: np.ndarray, T_base_obj: np.ndarray, inside_solid) -> float:
+def sunk(model_points: np.ndarray, T_base_obj: np.ndarray, inside_solid: Callable[[np.ndarray], np.ndarray]) -> float:
     """The share of a posed model's surface (`model_points`, object frame, evenly over the surface; posed at
     `T_base_obj`) that `inside_solid` (base-frame points -> bool: inside known solid matter) says lies inside solid
     matter. A real item rests on a support or leans on a wall: its surface reaches at most the fit's error into

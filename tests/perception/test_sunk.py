@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from kitchenbot.perception.pipeline import SUNK_POINTS
+from kitchenbot.perception.pipeline import SUNK_POINTS, Perceiver
 from kitchenbot.perception.surfaces import find_surfaces
 from kitchenbot.perception.synthetic import render, resting_pose, scan_poses
 from kitchenbot.perception.verify import SUNK_FULL, Verification, sunk
@@ -43,12 +43,15 @@ def _sunk(perceiver, oid: int, T: np.ndarray, inside) -> float:
 
 
 def test_a_glass_through_the_floor_on_a_can_is_sunk_and_items_resting_on_it_are_not(perceiver, inventory, cell):
-    """Surfaces found in the data (no cell): the floor, seen round the can and the mug, is solid under them too.
+    """The supports found in the data (no cell): the floor, seen round the can and the mug, is solid under them too.
     A glass upside down with its base on the can's lid (its rim 14 mm under the floor) is rejected; the mug as it
     stands, a glass standing on the floor fitted 4 mm low, one lying on it and one upside down on the floor are
     not."""
     views, T_mug, (x, y), floor, can_h = _scene(inventory, cell)
-    inside = find_surfaces(views).inside_solid
+    surfaces = find_surfaces(views)
+
+    def inside(P):
+        return surfaces.inside_solid(P, supports_only=True)
     g = inventory[GLASS].points
     lo, hi = g[:, 2].min(), g[:, 2].max()
     down = rot_x(np.pi)[:3, :3]
@@ -64,10 +67,10 @@ def test_a_glass_through_the_floor_on_a_can_is_sunk_and_items_resting_on_it_are_
 
 
 def test_a_mug_beside_a_can_keeps_its_pose(perceiver, inventory, cell):
-    """Through the whole pipeline (the cell's surfaces): the mug beside the can is found, and nothing on the can;
-    the mug's `sunk` part is read and is 0."""
+    """Through the whole pipeline, segmented with the surfaces found in the data (where `sunk` is judged): the mug
+    beside the can is found, and nothing on the can; the mug's `sunk` part is 0."""
     views, T_mug, _, _, _ = _scene(inventory, cell)
-    poses = perceiver.perceive(views).poses
+    poses = Perceiver(perceiver.settings, inventory, cell, use_cell="never").perceive(views).poses
     assert [(p.obj_id, bool(np.linalg.norm(p.T_base_obj[:3, 3] - T_mug[:3, 3]) < 0.01)) for p in poses] == \
         [(MUG, True)], [(inventory[p.obj_id].name, np.round(p.T_base_obj[:3, 3], 3)) for p in poses]
     assert poses[0].checks["sunk"] == 0.0
