@@ -30,10 +30,10 @@ The checks, each a share in [0, 1]:
   than the vessel's own profile does, each fitted to the same points with the same freedom, over what the cylinder
   would lose on the vessel's own surface there (perception/straight.py): a drink can or a bottle's body is
   straight where a cup or a glass tapers (not a share: about -1 for the vessel, +1 for a straight cylinder).
-- sunk (every pose): the share of the posed model's surface inside known solid matter (the pipeline's
-  `inside_solid`: more than 1 cm behind a support or wall found in the data, or inside the cell's boxes): no item
-  passes through the table it stands on. A glass fitted upside down on a drink can shorter than it puts its base on
-  the can's lid and its rim through the table, where no camera sees it.
+- sunk (every pose of a scan segmented with the surfaces found in it): the share of the posed model's surface more
+  than 1 cm behind a support found in the data (perception/surfaces.py, `inside_solid` with `supports_only`): no
+  item passes through the table it stands on. A glass fitted upside down on a drink can shorter than it puts its
+  base on the can's lid and its rim through the table, where no camera sees it.
 
 verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
 1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - overhang_area / OVERHANG_AREA_FULL,
@@ -144,9 +144,9 @@ INTRUDE_VOXEL = 0.005
 STRAIGHT_FULL = 0.3 / 0.15
 # The sunk share (of the model's surface inside solid matter, see `sunk`) at which a pose scores 0 (linear from 0
 # at none); with the threshold 0.85 a pose is rejected above 0.0075 (15 of 2000 surface points). Every pose of the
-# development sink (cell) and table (surfaces from the data) scenes with distractors read 0, right or wrong; a
-# glass fitted upside down on a can, its rim 1.4-2 cm through the support, 0.025-0.04 (docs/perception_measurements.md,
-# "thirty-first session: fp31").
+# development table scenes with distractors (surfaces from the data) read 0, right or wrong; a glass fitted upside
+# down on a can, its rim 1.4-2 cm through the support, 0.025-0.04 (docs/perception_measurements.md, "thirty-first
+# session: fp31").
 SUNK_FULL = 0.05
 
 
@@ -163,7 +163,7 @@ class Verification:
     intruded: float = 0.0  # set by the pipeline on the final poses of tall vessels not facing up (intruded)
     overhang_area: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang_area)
     straight: float = 0.0  # set by the pipeline on the final poses of tall vessels (straight.straightness)
-    sunk: float = 0.0  # set by the pipeline on the final poses (sunk)
+    sunk: float = 0.0  # set by the pipeline on the final poses, with surfaces found in the data (sunk)
     normals_segment: float | None = None  # `normals` as judged on the whole segment (the pipeline's fine check
     # may raise `normals` to its value over the points no other pose explains: facing_unclaimed)
 
