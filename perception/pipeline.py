@@ -38,7 +38,7 @@ from kitchenbot.perception.track import MapChange, best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.perception.verify import (BASE_SEEN, base_seen, claimed_by, continuation, facing_unclaimed, filled,
                                           fine_fit, fine_tolerance, intruded, overhang, overhang_area, patch_normals,
-                                          surface_noise, verify, within_wall)
+                                          sunk, surface_noise, verify, within_wall)
 from kitchenbot.perception.verify import Verification
 from kitchenbot.transforms import inv
 
@@ -60,6 +60,8 @@ SURFACE_TOL = 0.3
 # Classes whose fits are checked upside down too (tall, thin-walled, nearly as wide at the top as at the base); a
 # refine per object, so not for plates and bowls, whose sides the fits have not confused.
 FLIP_CLASSES = ("cup", "mug", "glass")
+# The `sunk` part is read on about this many of the model's surface points (evenly over it).
+SUNK_POINTS = 2000
 # Metres: a map point this close to a pose's surface is on it, when judging what continues past its ends (the
 # sensor's noise and the fit's error; another pose's surface gets 1.5x this).
 FINE_ON_TOL = 0.004
@@ -777,7 +779,9 @@ class Perceiver:
     def _fine_parts_computed(self, m: InstanceMap, tree: cKDTree, tol: float, hyp: Hypothesis, own: np.ndarray,
                              found: list[tuple[Hypothesis, int, np.ndarray]],
                              along: list[tuple[Hypothesis, int, np.ndarray]]) -> dict[str, float]:
-        """`_fine_parts` computed: the verification parts it sets, by name (`found` filtered already)."""
+        """`_fine_parts` computed: the verification parts it sets, by name (`found` filtered already); `sunk` (the
+        model's surface behind a support found in the data, verify.sunk) for every pose of a scan segmented with
+        the surfaces found in it."""
         db = self.database
         reach = self.inventory[hyp.obj_id].diameter
         others = [(db[h.obj_id], h.T_base_obj) for h, _, _ in found if h is not hyp and
@@ -816,6 +820,13 @@ class Perceiver:
             # (its own points no neighbour claims, at the pose the fine fit nudged onto them)
             parts["straight"] = straightness(m.points[own][~claimed], normals[~claimed], db[hyp.obj_id], T_fine,
                                              tol, others)
+        if self._active_cell is None and self._surfaces is not None:
+            # Judged against the supports found in the data only (what items stand on). Not with the configured
+            # cell, a prior whose boxes (5 mm inside their faces) a right fit a few millimetres low reaches into
+            # with the whole of its flat base, nor against walls (a hand-made plate through the basin's side).
+            dense = db[hyp.obj_id].dense_points
+            parts["sunk"] = sunk(dense[::max(1, len(dense) // SUNK_POINTS)], hyp.T_base_obj,
+                                 lambda P: self._surfaces.inside_solid(P, supports_only=True))
         return parts
 
     def _through_each_other(self, a: Hypothesis, b: Hypothesis) -> bool:

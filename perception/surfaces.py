@@ -260,12 +260,15 @@ class SurfaceMap:
                 return True
         return False
 
-    def inside_solid(self, P: np.ndarray, depth: float = 0.01) -> np.ndarray:
+    def inside_solid(self, P: np.ndarray, depth: float = 0.01, supports_only: bool = False) -> np.ndarray:
         """Points more than `depth` behind a surface, inside its footprint (a pose may not put a model there);
         behind a support also in the holes of its footprint that were never seen through (`Surface.closed`:
-        a glass was fitted sunk into a table, in the board's hole under a pile, only its base above it)."""
+        a glass was fitted sunk into a table, in the board's hole under a pile, only its base above it).
+        `supports_only`: behind the supports only, not the walls."""
         out = np.zeros(len(P), bool)
         for s in self.surfaces:
+            if supports_only and s.kind != "support":
+                continue
             cand = ~out & (s.height(P) < -depth)
             if cand.any():
                 idx = np.nonzero(cand)[0]

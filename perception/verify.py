@@ -30,10 +30,14 @@ The checks, each a share in [0, 1]:
   than the vessel's own profile does, each fitted to the same points with the same freedom, over what the cylinder
   would lose on the vessel's own surface there (perception/straight.py): a drink can or a bottle's body is
   straight where a cup or a glass tapers (not a share: about -1 for the vessel, +1 for a straight cylinder).
+- sunk (every pose of a scan segmented with the surfaces found in it): the share of the posed model's surface more
+  than 1 cm behind a support found in the data (perception/surfaces.py, `inside_solid` with `supports_only`): no
+  item passes through the table it stands on. A glass fitted upside down on a drink can shorter than it puts its
+  base on the can's lid and its rim through the table, where no camera sees it.
 
 verification = min(1 - free / (seen + free), normals, fine / FINE_FULL, 1 - continued / CONTINUED_FULL,
 1 - filled / FILLED_FULL, 1 - overhang / OVERHANG_FULL, 1 - overhang_area / OVERHANG_AREA_FULL,
-1 - intruded / INTRUDED_FULL, 1 - max(0, straight) / STRAIGHT_FULL). Coverage both ways at one
+1 - intruded / INTRUDED_FULL, 1 - max(0, straight) / STRAIGHT_FULL, 1 - sunk / SUNK_FULL). Coverage both ways at one
 voxel (seen, explained) is gated before this by the registration's own thresholds (`min_overlap`, model->query >= 0.15,
 query->model >= 0.2): at that point the segment may still hold several touching items, so a low `explained` is no
 evidence against a pose, and a low `seen` is what an item half hidden under its neighbours looks like.
@@ -50,6 +54,7 @@ docs/perception.md "Verification").
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,6 +142,12 @@ INTRUDE_VOXEL = 0.005
 # The straight part (perception/straight.py: about -1 for the vessel's own wall, +1 for a straight cylinder) at
 # which a pose scores 0 (linear from 0 at 0 and below); with the threshold 0.85 a pose is rejected above 0.3.
 STRAIGHT_FULL = 0.3 / 0.15
+# The sunk share (of the model's surface inside solid matter, see `sunk`) at which a pose scores 0 (linear from 0
+# at none); with the threshold 0.85 a pose is rejected above 0.0075 (15 of 2000 surface points). Every pose of the
+# development table scenes with distractors (surfaces from the data) read 0, right or wrong; a glass fitted upside
+# down on a can, its rim 1.4-2 cm through the support, 0.025-0.04 (docs/perception_measurements.md, "thirty-first
+# session: fp31").
+SUNK_FULL = 0.05
 
 
 @dataclass
@@ -152,13 +163,15 @@ class Verification:
     intruded: float = 0.0  # set by the pipeline on the final poses of tall vessels not facing up (intruded)
     overhang_area: float = 0.0  # set by the pipeline on the final poses of tall vessels not standing (overhang_area)
     straight: float = 0.0  # set by the pipeline on the final poses of tall vessels (straight.straightness)
+    sunk: float = 0.0  # set by the pipeline on the final poses, with surfaces found in the data (sunk)
     normals_segment: float | None = None  # `normals` as judged on the whole segment (the pipeline's fine check
     # may raise `normals` to its value over the points no other pose explains: facing_unclaimed)
 
     def parts(self) -> dict[str, float]:
         return {"seen": self.seen, "explained": self.explained, "free_space": self.free_space, "normals": self.normals,
                 "fine": self.fine, "continued": self.continued, "filled": self.filled, "overhang": self.overhang,
-                "intruded": self.intruded, "overhang_area": self.overhang_area, "straight": self.straight}
+                "intruded": self.intruded, "overhang_area": self.overhang_area, "straight": self.straight,
+                "sunk": self.sunk}
 
     @property
     def score(self) -> float:
@@ -167,7 +180,8 @@ class Verification:
         return max(0.0, min(1.0 - through, self.normals, self.fine / FINE_FULL,
                             1.0 - self.continued / CONTINUED_FULL, 1.0 - self.filled / FILLED_FULL,
                             1.0 - self.overhang / OVERHANG_FULL, 1.0 - self.overhang_area / OVERHANG_AREA_FULL,
-                            1.0 - self.intruded / INTRUDED_FULL, 1.0 - max(0.0, self.straight) / STRAIGHT_FULL))
+                            1.0 - self.intruded / INTRUDED_FULL, 1.0 - max(0.0, self.straight) / STRAIGHT_FULL,
+                            1.0 - self.sunk / SUNK_FULL))
 
 
 def verify(points: np.ndarray, normals: np.ndarray, entry: ModelEntry, T_base_obj: np.ndarray,
@@ -491,6 +505,17 @@ def within_wall(q: np.ndarray, model_points: np.ndarray, margin: float) -> np.nd
     z0, z1 = model_points[:, 2].min(), model_points[:, 2].max()
     wall = _wall_at(model_points, r_model, z0, z1, q[:, 2])
     return (q[:, 2] > z0) & (q[:, 2] < z1) & (np.linalg.norm(q[:, :2] - axis, axis=1) < wall - margin)
+
+
+def sunk(model_points: np.ndarray, T_base_obj: np.ndarray, inside_solid: Callable[[np.ndarray], np.ndarray]) -> float:
+    """The share of a posed model's surface (`model_points`, object frame, evenly over the surface; posed at
+    `T_base_obj`) that `inside_solid` (base-frame points -> bool: inside known solid matter) says lies inside solid
+    matter. A real item rests on a support or leans on a wall: its surface reaches at most the fit's error into
+    them."""
+    if len(model_points) == 0:
+        return 0.0
+    P = model_points @ T_base_obj[:3, :3].T + T_base_obj[:3, 3]
+    return float(np.mean(inside_solid(P)))
 
 
 def intruded(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray, explained: np.ndarray,
