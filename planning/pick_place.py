@@ -111,6 +111,7 @@ class Planner:
             robot, cell, T_flange_cam, margin=s.collision_margin, grasp_margin=s.grasp_margin, voxel_size=s.map_voxel_size
         )
         self._placeable: dict = {}  # (obj_id, grasp name, targets) -> a release pose exists
+        self._fits: dict = {}  # grasp candidates' checks, kept with what they depend on (grasps.select_grasps' memo)
         self._place_reach = PlaceReach(robot, self.world)  # release-pose geometry, kept across queries
         self._turns_cache: dict = {}  # (obj_id, target pose, ...) -> the turns _place_turns allows
         self._voxel_cache: dict = {}
@@ -366,7 +367,7 @@ class Planner:
 
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
                              target=target, grasp_filter=flt, stats=stats, limit=limit, avoid=avoid_grasps,
-                             q_rest=self.q_rest)
+                             q_rest=self.q_rest, memo=self._fits)
 
     # ---- pick ------------------------------------------------------------------------------------------------------
     def plan_pick(
