@@ -309,6 +309,36 @@ def spun_grasps(model, frac: float) -> list:
     return [GraspSpec(spun_name(g.name, angle), S @ g.T_obj_tcp, g.opening, g.width) for g in expand_grasps(model)]
 
 
+def _may_place(specs: list, o: ObjectPose, grasp_filter) -> list:
+    """The spun grasps `specs` of `o` that might pass the place filter as given or swivelled by SWIVELS (its
+    `approachable`, see _spins_may_place); all of them without a filter or without that test. A spin selection
+    keeps a grasp only where the filter passes it, so it need not check the others (IK, collision) at all: its
+    answer is the same; only its counts, which no caller reads (select_grasps' last pass), are not."""
+    approachable = getattr(grasp_filter, "approachable", None)
+    if approachable is None or not specs:
+        return specs
+    turns = (0.0, *SWIVELS)
+    ok = approachable(o, np.array([g.T_obj_tcp @ rot_y(a) for g in specs for a in turns]))
+    ok = ok.reshape(len(specs), len(turns)).any(axis=1)
+    return [g for g, y in zip(specs, ok) if y]
+
+
+def _spins_may_place(items: Sequence[ObjectPose], inventory, grasp_filter) -> bool:
+    """Whether the spin selections (every SPIN_STEPS turn) of these round items might keep a grasp with this place
+    filter: False only where the filter's `approachable(obj, T_obj_tcps)` (a necessary condition, planning.
+    pick_place) refuses every grasp they could ask it about (each spun grasp as given and swivelled by SWIVELS;
+    the narrowed ones keep the spun grasp's pose). True without a filter or without that test."""
+    approachable = getattr(grasp_filter, "approachable", None)
+    if approachable is None:
+        return True
+    for o in items:
+        model = inventory[o.obj_id]
+        Ts = [g.T_obj_tcp @ rot_y(a) for frac in SPIN_STEPS for g in spun_grasps(model, frac) for a in (0.0, *SWIVELS)]
+        if Ts and approachable(o, np.array(Ts)).any():
+            return True
+    return False
+
+
 def _observed_near(o: ObjectPose, objects: Sequence[ObjectPose], reach: float = 0.25) -> np.ndarray:
     """The observed points (base frame) of `o` and of every perceived object within `reach` of it."""
     c = np.asarray(o.T_base_obj, float)[:3, 3]
@@ -479,6 +509,7 @@ def select_grasps(
             specs = expand_grasps(model)
         else:
             specs = spun_grasps(model, spin) if model.is_rotationally_symmetric else []
+            specs = _may_place(specs, o, grasp_filter)
         if not specs:
             continue
         any_model = True
@@ -750,8 +781,11 @@ def select_grasps(
     # copies (spun_grasps), every check run again. Its turn about the axis is unobservable, so which rim positions
     # its copies land on is chance; where a neighbour leaves a free window narrower than their spacing, it holds a
     # copy only for some turns. The failure reported stays that of the grasps as given.
-    if not spin and any(getattr(inventory.models.get(o.obj_id), "is_rotationally_symmetric", False)
-                        and not too_hidden(o, settings) for _, o in cands):
+    # Where the place filter tells cheaply that no spun grasp can reach a target (`grasp_filter.approachable`:
+    # every release of every one would come from below), the spin selections could only fail: not run.
+    round_items = [o for _, o in cands if getattr(inventory.models.get(o.obj_id), "is_rotationally_symmetric", False)
+                   and not too_hidden(o, settings)]
+    if not spin and round_items and _spins_may_place(round_items, inventory, grasp_filter):
         for frac in SPIN_STEPS:
             sub = GraspStats()
             res = select_grasps(robot, scene, inventory, objects, q_current, settings=settings, target=target,

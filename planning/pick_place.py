@@ -365,6 +365,20 @@ class Planner:
                     self._placeable[key] = ok
                 return self._placeable[key]
 
+            def approachable(obj, T_obj_tcps: np.ndarray) -> np.ndarray:
+                """Per grasp (object frame, (N, 4, 4)), whether it could pass flt: some turn of some target puts
+                its approach no more upwards than max_approach_up. The first cut of the release poses
+                (PlaceReach.options keeps only such turns), without IK: False means flt refuses it."""
+                Z = np.asarray(T_obj_tcps, float).reshape(-1, 4, 4)[:, :3, 2].T  # approach axes, (3, N)
+                ok = np.zeros(Z.shape[1], bool)
+                for t in targets:
+                    T_obj = np.asarray(t.T_base_obj, float)
+                    rows = np.array([(T_obj @ Rt)[2, :3] for Rt in self._place_turns(t, obj.obj_id)])
+                    ok |= np.any(rows @ Z <= self.settings.max_approach_up, axis=0)
+                return ok
+
+            flt.approachable = approachable
+
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
                              target=target, grasp_filter=flt, stats=stats, limit=limit, avoid=avoid_grasps,
                              q_rest=self.q_rest, memo=self._fits)

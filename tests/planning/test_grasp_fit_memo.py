@@ -89,3 +89,60 @@ def test_a_moved_neighbour_is_another_scene(planner, inventory, monkeypatch):
     kept = _select(planner, moved, cup_m, memo)
     assert ik.n > 0  # checked again
     _same(_select(planner, moved, cup_m, None), kept)
+
+
+# ---- the place filter's cheap first cut (`approachable`) in the spin selections ----------------------------------
+
+def _rack_filter(planner, inventory, objects, cup, monkeypatch):
+    """The place filter Planner.select_grasps makes for the cup towards the rack (mouth down: most grasps from
+    above come up from below there), caught on its way to grasps.select_grasps."""
+    from kitchenbot.planning import pick_place
+    from kitchenbot.planning.placement import SlotBook
+
+    caught = {}
+    orig = pick_place.select_grasps
+
+    def catch(*a, **kw):
+        caught["flt"] = kw["grasp_filter"]
+        return orig(*a, **kw)
+    monkeypatch.setattr(pick_place, "select_grasps", catch)
+    targets = SlotBook(planner.cell).targets_for(inventory.by_name("cup"))[:4]
+    planner.select_grasps(Q, objects, target=cup, place_target=targets)
+    monkeypatch.setattr(pick_place, "select_grasps", orig)
+    return caught["flt"]
+
+
+def test_approachable_is_a_necessary_condition_of_the_place_filter(planner, inventory, monkeypatch):
+    objects, cup = _pile(inventory, 0.0)
+    flt = _rack_filter(planner, inventory, objects, cup, monkeypatch)
+    model = inventory[cup.obj_id]
+    specs = grasps_mod.expand_grasps(model)[::3] + grasps_mod.spun_grasps(model, 0.5)[::3]
+    ok = flt.approachable(cup, np.array([g.T_obj_tcp for g in specs]))
+    assert ok.any() and not ok.all()
+    for g, y in zip(specs, ok):
+        if not y:
+            assert not flt(cup, g, cup.T_base_obj @ g.T_obj_tcp), g.name
+
+
+@pytest.mark.parametrize("spin", [0.0, 0.5])
+def test_the_first_cut_leaves_the_spin_selection_as_it_was(planner, inventory, spin, monkeypatch):
+    objects, cup = _pile(inventory, 0.0)
+    flt = _rack_filter(planner, inventory, objects, cup, monkeypatch)
+    plain_flt = lambda o, spec, T: flt(o, spec, T)  # the same filter without its first cut
+
+    def select(f):
+        scene = planner.scene(objects, None, own=[cup])
+        return grasps_mod.select_grasps(planner.robot, scene, planner.inventory, objects, Q, settings=planner.settings,
+                                        target=cup, grasp_filter=f, limit=planner.settings.max_grasp_candidates,
+                                        q_rest=planner.q_rest, spin=spin)
+    ik = _CountIK(planner.robot, monkeypatch)
+    plain = select(plain_flt)
+    n_plain = ik.n
+    cut = select(flt)
+    if isinstance(plain, list):
+        assert [g.spec.name for g in plain] == [g.spec.name for g in cut]
+        assert all(np.array_equal(a.q, b.q) and a.score == b.score for a, b in zip(plain, cut))
+    else:
+        assert not isinstance(cut, list) and cut.kind == plain.kind
+    if spin:
+        assert ik.n - n_plain < n_plain  # fewer candidates checked
