@@ -562,7 +562,7 @@ def select_grasps(
                    np.asarray(T, float).tobytes())
             kept = memo.get(key)
             if kept is not None:
-                return _replay(kept, misses)
+                return _replay(k, kept, misses)
         found: list = []  # the rejections, as `misses` would get them from an empty list
         res = checks(k, o, spec, T, found, ik() if callable(ik) else ik)
         if key is not None:
@@ -570,15 +570,19 @@ def select_grasps(
                 memo.clear()
             # the object taken in by index (the next selection's objects are other ObjectPose instances)
             taken_at = None if res[5] is None else next(j for j, x in enumerate(objects) if x is res[5])
-            memo[key] = (res[:5] + (taken_at,) + res[6:], found)
+            # the misses without their neighbour lists (made again from this selection's objects on replay: the
+            # memo keeps no perceived object alive)
+            memo[key] = (res[:5] + (taken_at,) + res[6:], [(kind, x) for kind, x, _ in found])
         if misses is not None:
             misses.extend(found)
         return res
 
-    def _replay(kept, misses):
+    def _replay(k, kept, misses):
         res, found = kept
         if misses is not None:
-            misses.extend(found)
+            others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
+                      if j != k and objects[j].obj_id in inventory.models]
+            misses.extend((kind, x, others if kind == "taken" else None) for kind, x in found)
         q_grasp, q_pre, Tg, brush, first_hit, taken_at, reached = res
         copy = (lambda a: None if a is None else np.array(a, float))
         return (copy(q_grasp), copy(q_pre), copy(Tg), brush, first_hit,
