@@ -913,6 +913,23 @@ class Scene:
             out[i] = bool(pin.computeCollision(self.gm, other.gd, k))
         return out
 
+    def content_key(self) -> tuple:
+        """What this scene's answers depend on, as a hashable value: the world, the held item, the obstacles
+        (names, models, poses), the voxels, the extra boxes, every pair's margin and activation and the contact
+        zone. Two scenes with equal keys answer every query alike (the pads' opening is left out: it is moved per
+        query, set_opening). For results kept across queries (grasps.select_grasps' `memo`)."""
+        held = None if self.held is None else (id(self.held.model), np.asarray(self.held.T_tcp_obj, float).tobytes(),
+                                               float(self.held.width))
+        objs = tuple((o.name, id(o.model), np.asarray(o.T_base_obj, float).tobytes()) for o in self.objects)
+        boxes = tuple(n for n in self.names if n.startswith("cell:"))
+        placements = tuple(self.gm.geometryObjects[i].placement.homogeneous.tobytes()
+                           for i in range(len(self.names)) if self.group.get(i) == "env")
+        margins = tuple(float(r.security_margin) for r in self.gd.collisionRequests)
+        active = tuple(bool(a) for a in self.gd.activeCollisionPairs)
+        zone = None if self._zone is None else (self._zone[0].content_key(), self._zone[1], self._zone[2])
+        return (id(self.world), held, objs, hashlib.sha1(self.voxels.tobytes()).hexdigest(), boxes,
+                placements, margins, active, zone)
+
     def _variant(self) -> "Scene":
         other = object.__new__(Scene)
         other.__dict__.update(self.__dict__)

@@ -309,6 +309,36 @@ def spun_grasps(model, frac: float) -> list:
     return [GraspSpec(spun_name(g.name, angle), S @ g.T_obj_tcp, g.opening, g.width) for g in expand_grasps(model)]
 
 
+def _may_place(specs: list, o: ObjectPose, grasp_filter) -> list:
+    """The spun grasps `specs` of `o` that might pass the place filter as given or swivelled by SWIVELS (its
+    `approachable`, see _spins_may_place); all of them without a filter or without that test. A spin selection
+    keeps a grasp only where the filter passes it, so it need not check the others (IK, collision) at all: its
+    answer is the same; only its counts, which no caller reads (select_grasps' last pass), are not."""
+    approachable = getattr(grasp_filter, "approachable", None)
+    if approachable is None or not specs:
+        return specs
+    turns = (0.0, *SWIVELS)
+    ok = approachable(o, np.array([g.T_obj_tcp @ rot_y(a) for g in specs for a in turns]))
+    ok = ok.reshape(len(specs), len(turns)).any(axis=1)
+    return [g for g, y in zip(specs, ok) if y]
+
+
+def _spins_may_place(items: Sequence[ObjectPose], inventory, grasp_filter) -> bool:
+    """Whether the spin selections (every SPIN_STEPS turn) of these round items might keep a grasp with this place
+    filter: False only where the filter's `approachable(obj, T_obj_tcps)` (a necessary condition, planning.
+    pick_place) refuses every grasp they could ask it about (each spun grasp as given and swivelled by SWIVELS;
+    the narrowed ones keep the spun grasp's pose). True without a filter or without that test."""
+    approachable = getattr(grasp_filter, "approachable", None)
+    if approachable is None:
+        return True
+    for o in items:
+        model = inventory[o.obj_id]
+        Ts = [g.T_obj_tcp @ rot_y(a) for frac in SPIN_STEPS for g in spun_grasps(model, frac) for a in (0.0, *SWIVELS)]
+        if Ts and approachable(o, np.array(Ts)).any():
+            return True
+    return False
+
+
 def _observed_near(o: ObjectPose, objects: Sequence[ObjectPose], reach: float = 0.25) -> np.ndarray:
     """The observed points (base frame) of `o` and of every perceived object within `reach` of it."""
     c = np.asarray(o.T_base_obj, float)[:3, 3]
@@ -367,6 +397,7 @@ MAX_MISSES = 4  # rejections of one grasp kept to tell whether it missed narrowl
 # item rests on: a Fin-Ray grasp still holds
 BITES = (0.0, 0.004, 0.008)
 IK_CHUNK = 8  # candidates whose IK (at every bite) is solved in one batch (RobotModel.ik_all_batch)
+FIT_MEMO_SIZE = 20000  # candidates' checks kept in select_grasps' `memo` (emptied when full)
 TOOL_PARTS = ("pad_a", "pad_b", "palm", "camera")
 # m: the pads' opening beyond the item's width (both sides together) of a grasp approached narrowly, where nothing
 # fits as given only because an open pad meets something (a basin wall beside a glass standing in a corner): the
@@ -429,6 +460,7 @@ def select_grasps(
     avoid: Sequence[str] = (),
     q_rest: np.ndarray | None = None,
     spin: float = 0.0,
+    memo: dict | None = None,
 ) -> list[Grasp] | PlanningFailure:
     """Ranked feasible grasps (best first), or the failure that explains why there are none.
 
@@ -442,6 +474,12 @@ def select_grasps(
     turned by whole turns for the shortest way out from `q_current` and back there.
     `spin`: only round items, their grasps turned about the axis by this fraction of their spacing (spun_grasps;
     the last pass, where none fits as given, tries SPIN_STEPS).
+    `memo`: a dict kept by the caller across selections, in which each candidate's checks (IK at every bite, the
+    pads' sweeps, collision, pre-grasp; `fit`) are kept with what they depend on (the scene's content, every
+    object's pose, `q_current`, `q_rest`, the candidate's grasp and pose): a later selection of the same item in
+    the same scene (the pick again towards other targets, a staging regrasp's pick, the same pick with grasps
+    avoided) reuses them instead of checking again. Only the answer is kept, never a decision: the place filter,
+    the ranking and the later passes run as without it.
     """
     st = stats or GraspStats()
     gripper = scene.world.gripper
@@ -471,6 +509,7 @@ def select_grasps(
             specs = expand_grasps(model)
         else:
             specs = spun_grasps(model, spin) if model.is_rotationally_symmetric else []
+            specs = _may_place(specs, o, grasp_filter)
         if not specs:
             continue
         any_model = True
@@ -502,16 +541,58 @@ def select_grasps(
         """The grasp pose at each bite (BITES), (3, 4, 4)."""
         return np.array([T @ trans(0.0, 0.0, -back) for back in BITES])
 
-    def fit(k, o, spec, T, misses: list | None = None, ik: list | None = None):
+    # what every candidate's checks depend on besides the candidate itself (select_grasps' `memo`)
+    context = None if memo is None else (
+        scene.content_key(), tuple((o.obj_id, np.asarray(o.T_base_obj, float).tobytes()) for o in objects),
+        np.asarray(q_current, float).tobytes(), None if q_rest is None else np.asarray(q_rest, float).tobytes(),
+        float(settings.approach_distance), repr(settings.pad_give), id(robot), id(inventory))
+
+    def fit(k, o, spec, T, misses: list | None = None, ik=None):
         """(q_grasp, q_pre, T at the bite taken, pad contacts, first colliding branch, first object taken in,
         reached); `misses` gets ("taken", T at the bite) and ("hit", q) of the first few rejections. `ik`: the
-        closed-form IK branches at each bite (RobotModel.ik_all_batch over `bites(T)`), when already solved."""
+        closed-form IK branches at each bite (RobotModel.ik_all_batch over `bites(T)`), when already solved, or a
+        function giving them (called only where the checks are not kept in `memo`)."""
         if k not in scenes:
             scenes[k] = scene.for_grasp(names[k])
+        scenes[k].set_opening(spec.opening)  # the opening stays set for what asks the grasp scene next (accept)
+        key = None
+        if context is not None:
+            key = (context, k, names[k], o.obj_id, np.asarray(o.T_base_obj, float).tobytes(), spec.name,
+                   np.asarray(spec.T_obj_tcp, float).tobytes(), float(spec.opening), float(spec.width),
+                   np.asarray(T, float).tobytes())
+            kept = memo.get(key)
+            if kept is not None:
+                return _replay(k, kept, misses)
+        found: list = []  # the rejections, as `misses` would get them from an empty list
+        res = checks(k, o, spec, T, found, ik() if callable(ik) else ik)
+        if key is not None:
+            if len(memo) >= FIT_MEMO_SIZE:  # bounded: emptied before this answer is kept, not after
+                memo.clear()
+            # the object taken in by index (the next selection's objects are other ObjectPose instances)
+            taken_at = None if res[5] is None else next(j for j, x in enumerate(objects) if x is res[5])
+            # the misses without their neighbour lists (made again from this selection's objects on replay: the
+            # memo keeps no perceived object alive)
+            memo[key] = (res[:5] + (taken_at,) + res[6:], [(kind, x) for kind, x, _ in found])
+        if misses is not None:
+            misses.extend(found)
+        return res
+
+    def _replay(k, kept, misses):
+        res, found = kept
+        if misses is not None:
+            others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
+                      if j != k and objects[j].obj_id in inventory.models]
+            misses.extend((kind, x, others if kind == "taken" else None) for kind, x in found)
+        q_grasp, q_pre, Tg, brush, first_hit, taken_at, reached = res
+        copy = (lambda a: None if a is None else np.array(a, float))
+        return (copy(q_grasp), copy(q_pre), copy(Tg), brush, first_hit,
+                None if taken_at is None else objects[taken_at], reached)
+
+    def checks(k, o, spec, T, misses: list, ik: list | None):
+        """fit's checks, where `memo` does not keep them (`misses`: an empty list, filled as fit describes)."""
         grasp_scene = scenes[k]
         others = [(objects[j], inventory[objects[j].obj_id]) for j in range(len(objects))
                   if j != k and objects[j].obj_id in inventory.models]
-        grasp_scene.set_opening(spec.opening)
         first_hit = None  # the first IK branch whose gripper collided (what crowds the item)
         first_taken = None  # the first object a pad's closing sweep would take in
         reached = False
@@ -627,17 +708,20 @@ def select_grasps(
 
     def ik_of(i: int) -> list:
         if i not in solved:
-            chunk = pending[i:i + IK_CHUNK]
+            # chunks start at multiples of IK_CHUNK whichever candidate asks first (the same batches, so the
+            # same branches to the last bit, whether or not the candidates before it were kept in `memo`)
+            start = i - i % IK_CHUNK
+            chunk = pending[start:start + IK_CHUNK]
             sols = robot.ik_all_batch(np.concatenate([bites(T) for _, _, _, T in chunk]), q_current)
             for m in range(len(chunk)):
-                solved[i + m] = sols[m * n_bites:(m + 1) * n_bites]
+                solved[start + m] = sols[m * n_bites:(m + 1) * n_bites]
         return solved[i]
 
     for i, (k, o, spec, T) in enumerate(pending):
         if limit is not None and len(out) >= limit:
             break
         misses: list = []
-        q_grasp, q_pre, Tg, brush, first_hit, first_taken, reached = fit(k, o, spec, T, misses, ik=ik_of(i))
+        q_grasp, q_pre, Tg, brush, first_hit, first_taken, reached = fit(k, o, spec, T, misses, ik=lambda i=i: ik_of(i))
         if q_grasp is None and misses:
             near.append((k, o, spec, T, misses))
         if q_grasp is None and first_taken is not None:
@@ -701,13 +785,16 @@ def select_grasps(
     # copies (spun_grasps), every check run again. Its turn about the axis is unobservable, so which rim positions
     # its copies land on is chance; where a neighbour leaves a free window narrower than their spacing, it holds a
     # copy only for some turns. The failure reported stays that of the grasps as given.
-    if not spin and any(getattr(inventory.models.get(o.obj_id), "is_rotationally_symmetric", False)
-                        and not too_hidden(o, settings) for _, o in cands):
+    # Where the place filter tells cheaply that no spun grasp can reach a target (`grasp_filter.approachable`:
+    # every release of every one would come from below), the spin selections could only fail: not run.
+    round_items = [o for _, o in cands if getattr(inventory.models.get(o.obj_id), "is_rotationally_symmetric", False)
+                   and not too_hidden(o, settings)]
+    if not spin and round_items and _spins_may_place(round_items, inventory, grasp_filter):
         for frac in SPIN_STEPS:
             sub = GraspStats()
             res = select_grasps(robot, scene, inventory, objects, q_current, settings=settings, target=target,
                                 grasp_filter=grasp_filter, stats=sub, limit=limit, avoid=avoid, q_rest=q_rest,
-                                spin=frac)
+                                spin=frac, memo=memo)
             if not isinstance(res, PlanningFailure):
                 st.spun += 1
                 st.feasible += len(res)

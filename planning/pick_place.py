@@ -111,6 +111,7 @@ class Planner:
             robot, cell, T_flange_cam, margin=s.collision_margin, grasp_margin=s.grasp_margin, voxel_size=s.map_voxel_size
         )
         self._placeable: dict = {}  # (obj_id, grasp name, targets) -> a release pose exists
+        self._fits: dict = {}  # grasp candidates' checks, kept with what they depend on (grasps.select_grasps' memo)
         self._place_reach = PlaceReach(robot, self.world)  # release-pose geometry, kept across queries
         self._turns_cache: dict = {}  # (obj_id, target pose, ...) -> the turns _place_turns allows
         self._voxel_cache: dict = {}
@@ -364,9 +365,23 @@ class Planner:
                     self._placeable[key] = ok
                 return self._placeable[key]
 
+            def approachable(obj, T_obj_tcps: np.ndarray) -> np.ndarray:
+                """Per grasp (object frame, (N, 4, 4)), whether it could pass flt: some turn of some target puts
+                its approach no more upwards than max_approach_up. The first cut of the release poses
+                (PlaceReach.options keeps only such turns), without IK: False means flt refuses it."""
+                Z = np.asarray(T_obj_tcps, float).reshape(-1, 4, 4)[:, :3, 2].T  # approach axes, (3, N)
+                ok = np.zeros(Z.shape[1], bool)
+                for t in targets:
+                    T_obj = np.asarray(t.T_base_obj, float)
+                    rows = np.array([(T_obj @ Rt)[2, :3] for Rt in self._place_turns(t, obj.obj_id)])
+                    ok |= np.any(rows @ Z <= self.settings.max_approach_up, axis=0)
+                return ok
+
+            flt.approachable = approachable
+
         return select_grasps(self.robot, scene, self.inventory, objects, q, settings=self.settings,
                              target=target, grasp_filter=flt, stats=stats, limit=limit, avoid=avoid_grasps,
-                             q_rest=self.q_rest)
+                             q_rest=self.q_rest, memo=self._fits)
 
     # ---- pick ------------------------------------------------------------------------------------------------------
     def plan_pick(
