@@ -168,6 +168,9 @@ class Belief:
     drops_found: int = 0  # of those, seen again: fallen back into the sink (the scans see it) or found where it fell
     first_total: int | None = None  # the task's items in the first perception
     seen_staged: set = field(default_factory=set)  # instance ids of staged records whose pose a view gave
+    # instance ids of staged records a grasp missed on since they were last looked at: the record is off by more
+    # than a grasp tolerates, so the next look does not keep it for agreeing with the view within a fit's error
+    missed_staged: set = field(default_factory=set)
     # contact marks that stand for an item that fell where no view recognised it: (its class, those marks); they go
     # once a perception recognises an item of that class among them (Belief.seen_where_marked)
     unseen_items: list = field(default_factory=list)
@@ -583,15 +586,23 @@ class Belief:
 
     def look_again(self, p: Placed) -> None:
         """A grasp of the staged item `p` closed on nothing or on something else: it does not lie as its record
-        has it (the view's pose was off, or the pads pushed it); the next selection looks at it again. Without
-        that, the same record planned the next grasp, which missed too, until its attempts ran out."""
+        has it (the view's pose was off, or the pads pushed it); the next selection looks at it again, and that
+        look does not keep the record for agreeing with the view within a pose fit's error (missed_on): the miss
+        says it is off by more than the grasp tolerates. Without that, the same record planned the next grasp,
+        which missed too, until its attempts ran out."""
         self.seen_staged.discard(p.instance_id)
+        self.missed_staged.add(p.instance_id)
+
+    def missed_on(self, p: Placed) -> bool:
+        """Whether a grasp planned on the staged record `p` missed since a view was last taken of it."""
+        return p.instance_id in self.missed_staged
 
     def looked_at(self, task, p: Placed, T_seen: np.ndarray | None) -> Placed:
         """A view was taken of the staged item `p`: it lies at `T_seen` (its record moves there, the same instance,
         footprint anew from `task`), or None when the view did not show it (the record stays). Not looked at
-        again either way."""
+        again either way (until a grasp planned on it misses: look_again)."""
         self.seen_staged.add(p.instance_id)
+        self.missed_staged.discard(p.instance_id)
         if T_seen is None:
             return p
         q = task.placed_record(as_pose(p), p.target, T_seen, p.instance_id)

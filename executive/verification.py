@@ -410,8 +410,9 @@ class Verification(DoneCheck):
         within STAGED_SEARCH of the record (and nearer to it than to any other record) replaces the record, at the
         record's height (it rests on the counter: the lowest points agree) or as fitted, whichever explains the
         view's depth better (tilted across an edge its lowest point is not the record's), where it explains it
-        better than the record does. The record returned: the new one, or `st` when no view is had or the view
-        does not show it."""
+        better than the record does; a view within STAGED_AGREE of the record confirms it, unless a grasp planned on
+        the record missed since its last look (then the depth decides). The record returned: the new one, or `st`
+        when no view is had or the view does not show it."""
         b = self.belief
         site = np.asarray(st.T_base_obj, float)[:3, 3]
         seen = None
@@ -440,8 +441,12 @@ class Verification(DoneCheck):
         if m.is_rotationally_symmetric:  # only its axis counts
             turned = float(np.degrees(np.arccos(np.clip(R0[:, 2] @ T[:3, 2], -1, 1))))
         # the view agrees with the record (within what a pose fit is off by): it lies where it was put down, and
-        # the record of that is the better pose
-        agrees = moved < self.STAGED_AGREE[0] and turned < self.STAGED_AGREE[1]
+        # the record of that is the better pose; not after a grasp planned on the record missed (Belief.missed_on):
+        # off by less than a fit's error, it can still be off by more than a grasp tolerates (a cup lying on its
+        # side 9 mm along its axis from its record: every pinch across its tapered body closed 4 mm wider than
+        # planned), so the depth of the view decides between them
+        doubted = b.missed_on(st)
+        agrees = not doubted and moved < self.STAGED_AGREE[0] and turned < self.STAGED_AGREE[1]
         fits = {}
         if not agrees:
             # Which pose does the view bear out? A mug's fit from above can put its handle on the wrong side (its
@@ -455,7 +460,7 @@ class Verification(DoneCheck):
             fits = {"record_fit": round(rec_fit.agree, 3), "view_fit": round(new_fit.agree, 3)}
             agrees = rec_fit.decided and rec_fit.agree >= new_fit.agree
         self._log("result", "staged item", cls=st.cls, xyz=T[:3, 3], seen=True, agrees=agrees,
-                  moved_cm=round(100 * moved, 1), turned_deg=round(turned, 1), **fits)
+                  moved_cm=round(100 * moved, 1), turned_deg=round(turned, 1), after_miss=doubted, **fits)
         return b.looked_at(self.task, st, None if agrees else T)
 
     def _staged_in(self, st: Placed, poses: list[ObjectPose]) -> ObjectPose | None:

@@ -164,3 +164,57 @@ def test_a_staged_bowl_seen_tilted_below_its_record_takes_the_views_pose(make_ru
     sel = runner.item.obj
     assert np.linalg.norm(sel.T_base_obj[:3, 3] - T_true[:3, 3]) < 0.005
     assert np.degrees(np.arccos(np.clip(sel.T_base_obj[:3, 2] @ T_true[:3, 2], -1, 1))) < 5.0
+
+
+def test_a_staged_item_whose_grasp_missed_takes_the_views_pose_though_it_agrees_within_a_fits_error(
+        make_runner, record_staged):
+    """A cup set down lying on its side settled 8.8 mm back along its axis, its axis tilted 2.5 deg: within what a
+    pose fit is off by (1 cm, 15 deg), so the look before its regrasp kept the record (where it was put down). Its
+    body tapers, so every pinch across it planned on the record closed 4 mm wider than planned and missed. After a
+    miss the look again does not keep the record for agreeing so: the view's depth decides, and the view's pose
+    (the item as it lies) replaces it (before: the record was kept after each miss, and three grasps planned on it
+    missed until its attempts ran out and it was left on the counter)."""
+    from kitchenbot.executive.belief import as_pose
+    from kitchenbot.executive.execution import Item
+    from kitchenbot.executive.failures import Failure
+    from kitchenbot.transforms import rot_x
+
+    runner, world = make_runner(task="sink-to-dishwasher")
+    for dev in (runner.arm, runner.gripper, runner.camera):
+        dev.connect()
+    cup = runner.robot.inventory.by_name("cup")
+    zone = runner.robot.cell.spec.drop_zone
+    xy = np.array(zone.origin_xy) + np.array(zone.size_xy) / 2
+
+    def resting(R, x, y):  # its lowest point on the counter
+        T = make_T(R, (x, y, 0.0))
+        T[2, 3] = zone.z - float((cup.points @ R.T)[:, 2].min())
+        return T
+
+    on_side = rot_x(-np.pi / 2)[:3, :3]  # its axis along +y
+    T_put = resting(on_side, xy[0], xy[1])
+    T_true = resting(rot_x(np.radians(2.5))[:3, :3] @ on_side, xy[0], xy[1] - 0.0088)
+    world.add_object(cup, T_true)
+    rec = record_staged(runner, cup, T_put)
+    b = runner.belief
+    logged = []
+    log = runner._log
+    runner._log = lambda kind, name, /, **kw: (logged.append((name, kw)), log(kind, name, **kw))[1]
+    assert runner._do_select_grasp() == "selected"
+    first = next(kw for name, kw in logged if name == "staged item")
+    assert first["seen"] and first["agrees"] and first["moved_cm"] < 1.0  # the first look keeps the record
+    assert np.allclose(runner.item.obj.T_base_obj, T_put)
+    runner.item = Item(as_pose(rec), runner.item.targets, rec)
+    miss = Failure("grasp_missed", "the gripper closed at 82.9 mm grasping the cup, not at the grasp's 79.1 mm",
+                   "execute", {"opening": 0.0829, "expected": 0.0791})
+    runner._act_record_failure(miss, {})
+    assert b.missed_on(rec)
+    logged.clear()
+    assert runner._do_select_grasp() == "selected"
+    sel = runner.item.obj
+    assert np.linalg.norm(sel.T_base_obj[:3, 3] - T_true[:3, 3]) < 0.002
+    assert np.degrees(np.arccos(np.clip(sel.T_base_obj[:3, 2] @ T_true[:3, 2], -1, 1))) < 1.0
+    again = next(kw for name, kw in logged if name == "staged item")
+    assert again["after_miss"] and not again["agrees"] and again["view_fit"] > again["record_fit"]
+    assert len(b.staged) == 1 and np.allclose(b.staged[0].T_base_obj, sel.T_base_obj)
+    assert not b.missed_on(b.staged[0]) and not b.needs_look(b.staged[0])  # looked at: not again until a miss
