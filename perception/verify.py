@@ -129,6 +129,10 @@ OVERHANG_AREA_FULL = 0.4 / 0.15
 OVERHANG_VOXEL = 0.005
 # Inside the wall by this much (metres; the wall's thickness and the fit's error) counts as the vessel's cavity.
 CAVITY_MARGIN = 0.006
+# What fills a vessel's cavity and rises more than CONTENT_OVER (metres) over its rim, joined in steps under
+# CONTENT_LINK (about two map voxels of the fine map), is content, not a lid (`filled`). Not tuned: the first values.
+CONTENT_OVER = 0.005
+CONTENT_LINK = 0.006
 # The intruded share (see `intruded`: the area of other surfaces inside the cavity over the opening's area) at
 # which a pose scores 0 (linear from 0 at none); with the threshold 0.85 a pose is rejected above 0.02 (for the
 # glass ~3 voxels of 5 mm). Right cups, mugs and glasses facing down: 0-0.004; glasses and a cup fitted over
@@ -442,7 +446,34 @@ def filled(points: np.ndarray, model_points: np.ndarray, T_base_obj: np.ndarray,
     q, axis, r_model, z0, z1 = _unexplained_along_axis(points, model_points, T_base_obj, explained)
     inside = (q[:, 2] > z0) & (q[:, 2] < z1 + 0.003)
     inside &= np.linalg.norm(q[:, :2] - axis, axis=1) < _wall_at(model_points, r_model, z0, z1, q[:, 2]) - margin
+    inside &= ~_sticking_out(q, inside, axis, r_model[model_points[:, 2] > z1 - 0.005].max(), z1)
     return float(inside.sum() / n_own)
+
+
+def _sticking_out(q: np.ndarray, inside: np.ndarray, axis: np.ndarray, r_rim: float, z1: float,
+                  over: float = CONTENT_OVER, link: float = CONTENT_LINK) -> np.ndarray:
+    """Which of the cavity points `inside` (`q`: unexplained points, object frame of a vessel with its rim at
+    `z1`, radius `r_rim`) belong to a body that rises out of the opening: joined (steps under `link`) to
+    unexplained points more than `over` above the rim within the opening's radius. Content (a scrap, a spoon
+    standing in a mug) sticks out of a vessel; a can's lid across the opening of a cup fitted over the can ends
+    at the rim (a can going on past the rim is `continued`)."""
+    out = np.zeros(len(q), bool)
+    top = (q[:, 2] > z1 + over) & (np.linalg.norm(q[:, :2] - axis, axis=1) < r_rim)
+    if not inside.any() or not top.any():
+        return out
+    # the body: cavity points and points over the opening, grown from those above the rim
+    body = np.nonzero(inside | ((q[:, 2] > z1 - 0.01) & (np.linalg.norm(q[:, :2] - axis, axis=1) < r_rim + link)))[0]
+    tree = cKDTree(q[body])
+    reached = np.isin(body, np.nonzero(top)[0])
+    frontier = np.nonzero(reached)[0]
+    while len(frontier):
+        nxt = np.unique(np.concatenate([np.asarray(n, int) for n in tree.query_ball_point(q[body[frontier]], link)]
+                                       + [np.zeros(0, int)]))
+        nxt = nxt[~reached[nxt]]
+        reached[nxt] = True
+        frontier = nxt
+    out[body[reached]] = True
+    return out & inside
 
 
 def _wall_at(model_points: np.ndarray, r_model: np.ndarray, z0: float, z1: float, z: np.ndarray) -> np.ndarray:

@@ -582,3 +582,32 @@ def _fine_verdict(perceiver, obj_id, T, own, extra):
     perceiver._active_cell = perceiver.cell
     perceiver._fine_check(m, [(h, 0, np.nonzero(ids == 0)[0])])
     return h.verification
+
+
+def test_content_sticking_out_of_a_cup_does_not_fill_it(perceiver, inventory):
+    """A cup holding something no pose explains (a food scrap, a spoon) that rises out of its opening: the
+    content's points in the cavity do not count as `filled` (the cup shows its surface, the content sticks out
+    over the rim). A can's lid at the rim (a cup fitted over a can) still fills it, and so does the same lump
+    sunk in the cavity up to the rim (nothing rises over it)."""
+    from kitchenbot.perception.register import on_surface
+    from kitchenbot.perception.verify import filled
+
+    entry, model = perceiver.database[4], inventory[4]
+    z0, z1 = model.points[:, 2].min(), model.points[:, 2].max()
+    T = make_T(np.eye(3), np.array([0.4, 0.0, 0.05]))
+    own, _ = _cup_surface(entry, T, 0.0005)
+    rng = np.random.default_rng(3)
+
+    def lump(top: float) -> np.ndarray:  # a rounded lump 3 cm across, its top at `top` (object frame)
+        d = rng.normal(size=(2500, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return d * np.array([0.015, 0.015, 0.012]) + np.array([0.005, 0.0, top - 0.012])
+
+    def judged(content: np.ndarray) -> float:
+        P = np.vstack([own, content @ T[:3, :3].T + T[:3, 3]])
+        return filled(P, model.points, T, on_surface(P, None, entry, T, 0.004), len(own))
+
+    assert judged(lump(z1 + 0.012)) < 0.02  # sticks out 12 mm over the rim: content
+    assert judged(lump(z1 - 0.004)) > 0.2  # all in the cavity, up to the rim: fills it
+    assert judged(_disk(0.02, z1)) > 0.05  # a lid at the rim
+    assert z1 - z0 > 0.05
