@@ -157,7 +157,8 @@ def narrow_lip_pinches(model: ObjectModel, n_around: int = 12) -> list[GraspSpec
     mesh (its axis z through the origin): the antipodal synthesis finds pinches of the lip too, but none this
     narrow and rolled, and without them a plate leaning against a basin wall has no grasp free of the wall and
     the counter (the rim ring and top are measured on the mesh as for the builtin plates). Each kept only where
-    its pads close across the lip (`pad_span`, within the opening); as the builtin plates' lip pinches, the inner
+    its pads close across the lip (`pad_span`, narrower than PINCH_MAX_WIDTH: a wide flat rim, a pasta plate's,
+    is not pinched across by it); as the builtin plates' lip pinches, the inner
     pad rests on the sloped lip (the planner lets the pads touch the item they grasp). Fallbacks
     (planning.grasps.FALLBACK_GRASPS), as the builtin plates' are."""
     V = np.asarray(model.mesh.vertices)
@@ -172,8 +173,8 @@ def narrow_lip_pinches(model: ObjectModel, n_around: int = 12) -> list[GraspSpec
         radial = np.array([np.cos(a), np.sin(a), 0.0])
         for kind, T in _narrow_lip_frames(np.zeros(3), radial, r_rim, z_top):
             w = pad_span(model, T, scene=scene)
-            if w is None or w <= 0 or w > MAX_OPENING - 0.01:
-                continue
+            if w is None or w <= 0 or w >= PINCH_MAX_WIDTH:
+                continue  # closing on nothing, or along a rim that lies nearly flat (not across a lip)
             out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=min(MAX_OPENING, w + NARROW_SLACK), width=w))
     return out
 # Pitches (degrees, about the pad width axis, leaning in from outside the ring) of the bowl's foot-ring pinch, and
