@@ -65,7 +65,7 @@ def own_f(own_dishware_f, tmp_path_factory):
     return inventory, plate
 
 
-def test_a_round_plate_known_by_its_mesh_gets_the_narrow_rolled_lip_pinches(own_f):
+def test_a_round_plate_known_by_its_mesh_gets_the_narrow_rolled_lip_pinches(own_f, sim_holds):
     inventory, plate = own_f
     names = [g.name for g in plate.grasps]
     for roll in ("+0", "+45", "-45"):
@@ -77,6 +77,8 @@ def test_a_round_plate_known_by_its_mesh_gets_the_narrow_rolled_lip_pinches(own_
     for g in plate.grasps:
         if g.name.startswith("rimnarrow"):
             assert np.allclose(g.T_obj_tcp, built[g.name].T_obj_tcp, atol=1e-6), g.name
+    # the simulated Fin-Ray holds the plate with them (each roll, a few places round the rim)
+    sim_holds(inventory, plate, [g for g in plate.grasps if g.name.startswith("rimnarrow")][::5], width_tol=0.006)
 
 
 def test_a_set_f_side_plate_leaning_on_a_basin_wall_is_picked(own_f, sim_contact_along, lift_contact):
