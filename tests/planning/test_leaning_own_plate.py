@@ -4,7 +4,8 @@ wall, the gripper over the counter at the lip's sides), or come from below, so i
 the sink. The builtin plates have a narrow lip pinch rolled 45 degrees for this (from above at the lip's side,
 `rimnarrow`); a plate known by its mesh gets it too now (`grasp_synthesis.narrow_lip_pinches`). Checked as the
 simulator sees it: approach and grasp free of contact, the simulated Fin-Ray holds the plate, the lift free of
-contact with the plate held."""
+contact with the plate held. Partial: at this pose one of the narrow pinch's 12 rim copies is free; 4 cm along the
+wall, or the plate turned 15 degrees about its axis, none is yet (docs/executive_measurements.md, lean31)."""
 
 from __future__ import annotations
 
