@@ -132,8 +132,51 @@ def pads_clear(points: np.ndarray, T_obj_tcp: np.ndarray, opening: float, tol: f
     return not bool(np.any((y > o + tol) & (y < o + PAD_BOX_THICKNESS - tol)))
 
 
-# Rolls (degrees, about the closing axis) of the narrow plate rim pinch (see generate_grasps).
+# Rolls (degrees, about the closing axis) of the narrow plate rim pinch (see _narrow_lip_frames).
 NARROW_ROLLS = (0, 45, -45)
+NARROW_SLACK = 0.016  # m added to the lip's width when opening a narrow pinch (8 mm per pad, as `rimlean`)
+
+
+def _narrow_lip_frames(axis: np.ndarray, radial: np.ndarray, r_rim: float, z_top: float) -> list:
+    """[(kind, T_obj_tcp)] of a plate's narrow lip pinches at the rim azimuth `radial` (its rim ring of radius
+    `r_rim` round `axis`, its top at `z_top`; the plate's axis is z).
+
+    A plate leaning against a basin wall (its upper lip touching the wall): the standard pinch (12 mm bite, 15 mm
+    slack per pad) puts the outer pad into the wall, and a pinch of the lip's side, where there is room, comes in
+    nearly level (along the plate's axis), which puts the wrist into the opposite wall. So a narrow pinch (8 mm
+    bite, opened NARROW_SLACK / 2 per pad past the lip, as `rimlean`), also rolled 45 degrees about its closing
+    axis towards the rim's tangent: from above at a leaning plate's side. The inner pad overlaps the sloped lip
+    as much as the standard pinch's does."""
+    p_narrow = axis + radial * (r_rim - 0.004) + np.array([0, 0, z_top - 0.008])
+    T_narrow = _tcp_frame(np.array([0, 0, -1.0]), radial, p_narrow)
+    return [(f"rimnarrow{roll:+d}", T_narrow @ rot_y(np.radians(roll))) for roll in NARROW_ROLLS]
+
+
+def narrow_lip_pinches(model: ObjectModel, n_around: int = 12) -> list[GraspSpec]:
+    """A round plate's narrow lip pinches (`_narrow_lip_frames`) all round its rim, for a plate known only by its
+    mesh (its axis z through the origin): the antipodal synthesis finds pinches of the lip too, but none this
+    narrow and rolled, and without them a plate leaning against a basin wall has no grasp free of the wall and
+    the counter (the rim ring and top are measured on the mesh as for the builtin plates). Each kept only where
+    its pads close across the lip (`pad_span`, narrower than PINCH_MAX_WIDTH: a wide flat rim, a pasta plate's,
+    is not pinched across by it); as the builtin plates' lip pinches, the inner
+    pad rests on the sloped lip (the planner lets the pads touch the item they grasp). Fallbacks
+    (planning.grasps.FALLBACK_GRASPS), as the builtin plates' are."""
+    V = np.asarray(model.mesh.vertices)
+    z_top = float(V[:, 2].max())
+    rim = V[V[:, 2] > z_top - 0.004]
+    r_rim = float(np.max(np.hypot(rim[:, 0], rim[:, 1])))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(model.mesh))
+    out = []
+    for k in range(n_around):
+        a = 2 * np.pi * k / n_around
+        radial = np.array([np.cos(a), np.sin(a), 0.0])
+        for kind, T in _narrow_lip_frames(np.zeros(3), radial, r_rim, z_top):
+            w = pad_span(model, T, scene=scene)
+            if w is None or w <= 0 or w >= PINCH_MAX_WIDTH:
+                continue  # closing on nothing, or along a rim that lies nearly flat (not across a lip)
+            out.append(GraspSpec(f"{kind}_{k:02d}", T, opening=min(MAX_OPENING, w + NARROW_SLACK), width=w))
+    return out
 # Pitches (degrees, about the pad width axis, leaning in from outside the ring) of the bowl's foot-ring pinch, and
 # how far (m) such a pinch may back off along its approach to keep its open pads out of the body (generate_grasps).
 FOOT_PITCHES = (10, 20)
@@ -188,16 +231,7 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
                 grasps.append((f"rimlean{lean}", k,
                                _tcp_frame(np.array([0, 0, -1.0]), radial, p_lip) @ rot_x(np.radians(lean))))
         if model.cls == "plate":
-            # A plate leaning against a basin wall (its upper lip touching the wall): the standard pinch (12 mm
-            # bite, 15 mm slack per pad) puts the outer pad into the wall, and a pinch of the lip's side, where
-            # there is room, comes in nearly level (along the plate's axis), which puts the wrist into the
-            # opposite wall. So a narrow pinch too (8 mm bite, opened 8 mm per pad past the lip, as `rimlean`),
-            # also rolled 45 degrees about its closing axis towards the rim's tangent: from above at a leaning
-            # plate's side. The inner pad overlaps the sloped lip as much as the standard pinch's does.
-            p_narrow = axis + radial * (r_rim - 0.004) + np.array([0, 0, z_top - 0.008])
-            T_narrow = _tcp_frame(np.array([0, 0, -1.0]), radial, p_narrow)
-            for roll in NARROW_ROLLS:
-                grasps.append((f"rimnarrow{roll:+d}", k, T_narrow @ rot_y(np.radians(roll))))
+            grasps += [(name, k, T) for name, T in _narrow_lip_frames(axis, radial, r_rim, z_top)]
         if model.cls in ("plate", "bowl"):
             # A plate or bowl lying on a flat floor leaves no room for a pad under a vertical pinch; tilt the
             # approach inwards (gripper outside the rim, one pad under the lip, one on top of it).
@@ -275,7 +309,7 @@ def generate_grasps(model: ObjectModel, n_around: int = 12, foot: tuple[float, f
                 continue
             if kind.startswith("footpitch") and abs(w - foot[1]) > 0.002:
                 continue  # the slanted line across the ring leaves its wall (through the chamfered edge)
-            slack = 0.016 if kind.startswith(("rimlean", "rimnarrow", "foot")) else 0.03
+            slack = NARROW_SLACK if kind.startswith(("rimlean", "rimnarrow", "foot")) else 0.03
             opening = min(MAX_OPENING, w + slack)
             if surface is not None and not pads_clear(surface, T, opening):
                 continue
@@ -442,7 +476,7 @@ MAX_RIM_LEVEL = 36  # a vessel's level pinches kept, on top of the others
 LEVEL_ACROSS = "acrosslevel"
 MAX_LEVEL_ACROSS = 36
 LEVEL_ACROSS_MIN_TILT = 5.0
-SYNTHESIS_VERSION = 15  # part of the cache key: bump when the method changes
+SYNTHESIS_VERSION = 16  # part of the cache key: bump when the method changes
 
 
 def _cast(scene: o3d.t.geometry.RaycastingScene, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -718,6 +752,8 @@ def synthesise_grasps(model: ObjectModel) -> list[GraspSpec]:
         for k in range(ROUND_COPIES):
             out.append(GraspSpec(f"{prefix}{rank:02d}_{k:02d}", rot_z(2 * np.pi * k / ROUND_COPIES) @ T,
                                  opening=best[i][1], width=best[i][2]))
+    if round_ and model.cls == "plate":
+        out += narrow_lip_pinches(model, ROUND_COPIES)  # a plate leaning on a basin wall: see there
     return out
 
 
