@@ -634,7 +634,7 @@ class Planner:
         near_wall = self._near_sink_wall(g.obj)
         centre = np.asarray(g.obj.T_base_obj, float)[:3, 3]
         separated = False  # whether the lift that first parts the held item from what it touches was tried
-        remade: list = []  # the up-then-away lifts refused only because a start contact may be made again
+        remade: list = []  # (lift, end) of up-then-away lifts refused only because a contact may be made within the fits
         # the first lift refused only because its start contact may break within the fits' resolution (lift, end,
         # info): used when nothing else plans (before that rule, it was planned)
         fallback = None
@@ -731,6 +731,9 @@ class Planner:
             if r is not None:
                 return with_approach(r[0], LIFT_CONTACT_TRAVEL, lift_separate_m=float(np.linalg.norm(r[2])),
                                      lift_separate_last=1.0)
+        if remade:  # the last resort: the up-then-away lift as it planned before the fits' rules applied to it
+            return with_approach(remade[0][0], UP_THEN_AWAY[0] + UP_THEN_AWAY[1], lift_up_then_away=1.0,
+                                 lift_fit_fallback=1.0)
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
@@ -1020,7 +1023,8 @@ class Planner:
         tolerates a start contact that lasts unbroken for 10 cm of travel (fakes/collision.py); here at most
         UP_THEN_AWAY[0] + UP_THEN_AWAY[1], and a neighbour's contact, once left, may not come back (nor come near
         again within the fits' error, as on every other lift: _remade_in_fit, which includes
-        _may_meet_doubtful_again; such a refusal is appended to `remade`, where given)."""
+        _may_meet_doubtful_again). A lift refused for the fits' error alone is appended to `remade` (lift, end), where
+        given: the caller's last resort, after the separating lift (it planned before that rule)."""
         up, keep = UP_THEN_AWAY
         info1: dict = {}
         r = self._line(vertical_start_scene, q_grasp, trans(0.0, 0.0, up) @ T_grasp, "lift", check_start=False,
@@ -1038,10 +1042,12 @@ class Planner:
             Q = np.vstack([info1["path"], info2["path"][1:]])
             if self._contact_comes_back(lift_scene, Q, held_item_pairs) is not None:
                 continue
-            p = self._remade_in_fit(lift_scene, Q, held_item_pairs, doubtful)
-            if p is not None:
-                if remade is not None:
-                    remade.append(p)
+            if self._remade_in_fit(lift_scene, Q, held_item_pairs, doubtful) is not None:
+                # refused for the fits' error alone (not a doubtful support's): kept as the last resort
+                if remade is not None and self._may_meet_doubtful_again(lift_scene, Q, held_item_pairs, doubtful) is None:
+                    traj = self._time(Q, "lift", "along_path")
+                    if not isinstance(traj, PlanningFailure):
+                        remade.append((traj, Q[-1]))
                 continue
             traj = self._time(Q, "lift", "along_path")
             if not isinstance(traj, PlanningFailure):
