@@ -634,6 +634,7 @@ class Planner:
         near_wall = self._near_sink_wall(g.obj)
         centre = np.asarray(g.obj.T_base_obj, float)[:3, 3]
         separated = False  # whether the lift that first parts the held item from what it touches was tried
+        remade: list = []  # (lift, end) of up-then-away lifts refused only because a contact may be made within the fits
         # the first lift refused only because its start contact may break within the fits' resolution (lift, end,
         # info): used when nothing else plans (before that rule, it was planned)
         fallback = None
@@ -714,7 +715,7 @@ class Planner:
         touching = [p for p in start_contacts if any(x.startswith("cell:") for x in p)]
         if touching and not keep_wall_gaps:
             r = self._up_then_away(lift_scene, vertical_start_scene, start_scene, held_scene, q_grasp, g.T_base_tcp,
-                                   centre, held_item_pairs, doubtful)
+                                   centre, held_item_pairs, doubtful, remade=remade)
             if r is not None:
                 return with_approach(r[0], UP_THEN_AWAY[0] + UP_THEN_AWAY[1], lift_up_then_away=1.0)
         # No line planned, so none reached the lift that first parts the item from what it touches. Where the fitted
@@ -722,12 +723,17 @@ class Planner:
         # centimetre off) and reaches deep into it, every line keeps that overlap past the travel a start contact may
         # last; lifted first along its own axis, checked against that support's seen points, it comes out. Only off
         # a doubtful support: tried for every support, it changed picks elsewhere whose grasps then missed.
-        if not separated and not keep_wall_gaps and any(
-                pose_doubtful(by_name[x], s.visible_fraction_unoccluded) for p in held_item_pairs for x in p if x in by_name):
+        # Likewise off any support where the up-then-away lift planned but was refused because a start contact may be
+        # made again within the fits' error (a bowl's foot under a plate's flange, the bowl by a basin wall).
+        if not separated and not keep_wall_gaps and (remade or any(
+                pose_doubtful(by_name[x], s.visible_fraction_unoccluded) for p in held_item_pairs for x in p if x in by_name)):
             r = self._separating_lift(lift_scene, start_scene, held_scene, q_grasp, g, held_item_pairs, by_name)
             if r is not None:
                 return with_approach(r[0], LIFT_CONTACT_TRAVEL, lift_separate_m=float(np.linalg.norm(r[2])),
                                      lift_separate_last=1.0)
+        if remade:  # the last resort: the up-then-away lift as it planned before the fits' rules applied to it
+            return with_approach(remade[0][0], UP_THEN_AWAY[0] + UP_THEN_AWAY[1], lift_up_then_away=1.0,
+                                 lift_fit_fallback=1.0)
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
@@ -817,7 +823,9 @@ class Planner:
             return None
         Qh = self._half_steps(Q)
         for p in pairs:
-            if self._remade_within_fit(scene.signed_gaps(Qh, p, self.GAP_SPAN)):
+            s = scene.signed_gaps(Qh, p, 2 * POSE_ERROR)
+            if self._remade_within_fit(np.clip(s, -self.GAP_SPAN, self.GAP_SPAN)) or \
+                    self._remade_within(s, self.FIT_POSE_REACH, NARROWING_TOL):
                 return p
         return self._may_meet_doubtful_again(scene, Q, pairs, doubtful)
 
@@ -855,6 +863,10 @@ class Planner:
     # m: how far the fitted poses may be off in how deep two resting items overlap (fits within a few tenths of a
     # millimetre): in the world the two only touch where the fitted poses overlap by up to this much
     FIT_RESOLUTION = 0.0005
+    # m: how much nearer than their fits say two well-seen resting items may be where a lift closes the gap between
+    # them again after parting (a bowl fitted 0.6 degrees off in tilt, 0.7 mm off, on a plate 0.4 mm off: its foot
+    # passed the plate's rim 1.0 mm clear in the fits and met it in the world)
+    FIT_POSE_REACH = 0.002
     # m: a change in the overlap that counts (the signed gaps' bisection is 0.02 mm)
     CONTACT_REMAKE_TOL = 0.00005
     # m: the overlaps and gaps measured along a lift (deeper or farther ones are clipped)
@@ -999,7 +1011,8 @@ class Planner:
 
     def _up_then_away(self, lift_scene: Scene, vertical_start_scene: Scene, start_scene: Scene, held_scene: Scene,
                       q_grasp: np.ndarray, T_grasp: np.ndarray, centre: np.ndarray,
-                      held_item_pairs, doubtful: set[str] = frozenset()) -> tuple[Trajectory, np.ndarray] | None:
+                      held_item_pairs, doubtful: set[str] = frozenset(),
+                      remade: list | None = None) -> tuple[Trajectory, np.ndarray] | None:
         """(lift, end) in two straight legs for an item that touches a basin wall at the grasp, or None: straight up by
         UP_THEN_AWAY[0] (its start contacts may last, as on any lift straight up), then tilted towards the sink's
         middle (planning.lift.base_directions' tilts) by lift_height, its start contacts allowed for the first
@@ -1009,7 +1022,9 @@ class Planner:
         up out of the neighbour first, then away from the wall, it comes out. The simulator, like a real arm,
         tolerates a start contact that lasts unbroken for 10 cm of travel (fakes/collision.py); here at most
         UP_THEN_AWAY[0] + UP_THEN_AWAY[1], and a neighbour's contact, once left, may not come back (nor come near
-        again within the error of a doubtful support's pose: _may_meet_doubtful_again)."""
+        again within the fits' error, as on every other lift: _remade_in_fit, which includes
+        _may_meet_doubtful_again). A lift refused for the fits' error alone is appended to `remade` (lift, end), where
+        given: the caller's last resort, after the separating lift (it planned before that rule)."""
         up, keep = UP_THEN_AWAY
         info1: dict = {}
         r = self._line(vertical_start_scene, q_grasp, trans(0.0, 0.0, up) @ T_grasp, "lift", check_start=False,
@@ -1025,8 +1040,14 @@ class Planner:
             if isinstance(r, PlanningFailure) or not held_scene.valid(r[1]):
                 continue
             Q = np.vstack([info1["path"], info2["path"][1:]])
-            if self._contact_comes_back(lift_scene, Q, held_item_pairs) is not None or \
-                    self._may_meet_doubtful_again(lift_scene, Q, held_item_pairs, doubtful) is not None:
+            if self._contact_comes_back(lift_scene, Q, held_item_pairs) is not None:
+                continue
+            if self._remade_in_fit(lift_scene, Q, held_item_pairs, doubtful) is not None:
+                # refused for the fits' error alone (not a doubtful support's): kept as the last resort
+                if remade is not None and self._may_meet_doubtful_again(lift_scene, Q, held_item_pairs, doubtful) is None:
+                    traj = self._time(Q, "lift", "along_path")
+                    if not isinstance(traj, PlanningFailure):
+                        remade.append((traj, Q[-1]))
                 continue
             traj = self._time(Q, "lift", "along_path")
             if not isinstance(traj, PlanningFailure):
