@@ -17,8 +17,6 @@ import pytest
 from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.executive.strategies import PlanRequest, plan_item, strategies_for
-from kitchenbot.fakes.arm import FakeArm
-from kitchenbot.fakes.gripper import FakeGripper
 from kitchenbot.fakes.placement import drop_onto
 from kitchenbot.tasks import make_task
 from kitchenbot.transforms import from_rotvec, make_T
@@ -49,7 +47,7 @@ def stack(empty_sim_cell):
     return cfg, world, planner, uids
 
 
-def test_the_top_plate_of_a_messy_stack_is_slid_then_picked(stack, run_slide):
+def test_the_top_plate_of_a_messy_stack_is_slid_then_picked(stack, run_slide, run_pick_on_fake_arm):
     cfg, world, planner, (lowest, middle, top_uid) = stack
     poses = OraclePerceiver(world).perceive([]).poses
     top = next(p for p in poses if p.instance_id == top_uid)
@@ -68,12 +66,5 @@ def test_the_top_plate_of_a_messy_stack_is_slid_then_picked(stack, run_slide):
     top = next(p for p in poses if p.instance_id == top_uid)
     pick = planner.plan_pick(world.q.copy(), poses, target=top)
     assert pick.ok, pick
-    arm, grip = FakeArm(world, cfg.safety_limits()), FakeGripper(world)
-    arm.connect()
-    grip.connect()
-    grip.open(pick.grasp.spec.opening)
-    for t in (pick.approach, pick.grasp_in):
-        arm.execute_trajectory(t.times, t.q)
-    assert grip.grasp(0.5).holding and world.held_uid == top_uid
-    arm.execute_trajectory(pick.lift.times, pick.lift.q)
-    assert arm.log.collisions == 0 and arm.log.protective_stops == 0 and world.held_uid == top_uid
+    run_pick_on_fake_arm(cfg, world, pick)
+    assert world.held_uid == top_uid

@@ -204,29 +204,6 @@ def grasps_hold():
 
 
 @pytest.fixture
-def run_pick_on_fake_arm():
-    """Run a planned pick (approach, grasp-in, grasp, lift) on the simulated arm and gripper; it must hold the item
-    and neither collide nor stop."""
-
-    def run(cfg, world, pick) -> None:
-        from kitchenbot.fakes.arm import FakeArm
-        from kitchenbot.fakes.gripper import FakeGripper
-
-        arm, grip = FakeArm(world, cfg.safety_limits()), FakeGripper(world)
-        arm.connect()
-        grip.connect()
-        grip.open(pick.grasp.spec.opening)
-        for t in (pick.approach, pick.grasp_in):
-            arm.execute_trajectory(t.times, t.q)
-        assert grip.grasp(0.5).holding
-        arm.execute_trajectory(pick.lift.times, pick.lift.q)
-        assert arm.log.collisions == 0 and arm.log.protective_stops == 0
-        assert world.held_uid is not None
-
-    return run
-
-
-@pytest.fixture
 def sim_items(cfg, inventory):
     """sim_items([(name, T_true, T_fit), ...]) -> (a SimWorld of the builtin cell with those items at their true
     poses, the items as perceived: ObjectPoses at T_fit with the simulator's instance ids)."""
