@@ -1,7 +1,8 @@
 """Scene.only_pads_touch: what a grasp's third pass asks (planning.grasps.select_grasps, `pads_in_the_way`): whether
 all that collides at a configuration has an open pad in it. It must say what `_pads_only(colliding_pairs(q))`
 (every pair checked) says, with the pads' contact zone of a grasp scene and with the pads moved between asks
-(set_opening: its variants share the geometry), and the two kinds of ask kept apart on one scene."""
+(set_opening: its variants share the geometry), and the two kinds of ask kept apart on one scene. The same for
+Scene.only_tool_touches (a grasp's near miss, `narrow`): what `_tool_only(colliding_pairs(q))` says."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ def test_only_pads_touch_is_what_every_pair_says(planner, inventory):
     grasp_scene = scene.for_grasp(object_name(cup, 0))
     model = inventory[cup.obj_id]
     asked = {True: 0, False: 0}
+    tool_asked = {True: 0, False: 0}
     for spec in expand_grasps(model)[::2]:
         T = np.asarray(cup.T_base_obj, float) @ spec.T_obj_tcp
         branches = planner.robot.ik_all_batch(T[None], Q)[0]
@@ -29,9 +31,12 @@ def test_only_pads_touch_is_what_every_pair_says(planner, inventory):
                     want = _pads_only(pairs)
                     assert s.only_pads_touch(q) == want, (spec.name, opening, q, pairs)
                     # the tool's split kept beside the pads' on the same scene
-                    assert s.only_tool_touches(q) == _tool_only(pairs), (spec.name, opening, q, pairs)
+                    tool = _tool_only(pairs)
+                    assert s.only_tool_touches(q) == tool, (spec.name, opening, q, pairs)
                     asked[want] += 1
+                    tool_asked[tool] += 1
     assert asked[True] > 0 and asked[False] > 0, asked
+    assert tool_asked[True] > 0 and tool_asked[False] > 0, tool_asked
 
 
 def test_the_contact_zone_kept_per_configuration_answers_as_computed(planner, inventory):
