@@ -818,8 +818,13 @@ class Perceiver:
                 self._overhang(near or self._explained_near(m, tree, hyp, found), hyp, own)
             parts["intruded"] = self._intruded(m, tree, tol, hyp, found, T_fine)
             # (its own points no neighbour claims, at the pose the fine fit nudged onto them)
-            parts["straight"] = straightness(m.points[own][~claimed], normals[~claimed], db[hyp.obj_id], T_fine,
-                                             tol, others)
+            # (remembered by its inputs: a pose checked again beside a new neighbour that claims none of its
+            # points and stays out of its reach, e.g. after a fit around a rejected pose, is judged as before)
+            parts["straight"] = self._memo(
+                ("straight", own_key, claimed.tobytes(), tol, hyp.obj_id, T_fine.tobytes(),
+                 tuple(sorted((e.obj_id, T.tobytes()) for e, T in others))),
+                lambda: straightness(m.points[own][~claimed], normals[~claimed], db[hyp.obj_id], T_fine, tol,
+                                     others))
         if self._active_cell is None and self._surfaces is not None:
             # Judged against the supports found in the data only (what items stand on). Not with the configured
             # cell, a prior whose boxes (5 mm inside their faces) a right fit a few millimetres low reaches into

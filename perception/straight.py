@@ -30,6 +30,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from kitchenbot.perception.database import ModelEntry
+from kitchenbot.perception.verify import medians_per_bin
 from kitchenbot.transforms import inv
 
 # Wall points: normal facing out from the axis (cos over STRAIGHT_OUTWARD with the radial direction), within
@@ -79,11 +80,8 @@ def outer_profile(dense_points: np.ndarray, dense_normals: np.ndarray,
     out = np.einsum("ij,ij->i", dense_normals[:, :2], xy) > STRAIGHT_OUTWARD * np.maximum(r, 1e-9)
     z0 = dense_points[:, 2].min()
     b = np.floor((dense_points[out, 2] - z0) / slice_h).astype(int)
-    zs, rs = [], []
-    for k in np.unique(b):
-        zs.append(z0 + (k + 0.5) * slice_h)
-        rs.append(np.median(r[out][b == k]))
-    return np.array(zs), np.array(rs)
+    ks, b = np.unique(b, return_inverse=True)
+    return z0 + (ks + 0.5) * slice_h, medians_per_bin(r[out], b.ravel(), len(ks))
 
 
 def envelope(dense_points: np.ndarray, slice_h: float = STRAIGHT_SLICE) -> tuple[np.ndarray, np.ndarray]:

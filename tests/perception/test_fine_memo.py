@@ -79,3 +79,34 @@ def test_a_new_map_is_not_judged_by_what_another_map_gave(perceiver, two_cups):
     assert second[1]["fine"] < first[1]["fine"]
     perceiver._fine_ctx = None
     assert _checked(perceiver, m2, ids, T, T2) == second
+
+
+def test_straightness_is_not_judged_again_beside_a_neighbour_out_of_its_reach(perceiver, two_cups, monkeypatch):
+    """A pose checked again because a new pose came near (the key of its parts changed) but whose `straight` part
+    reads the same inputs (its own points, none claimed by the newcomer, the same pose and neighbours within
+    reach) gets the value it was given: straightness is its costliest part (scipy fits)."""
+    m, ids, T, T2 = two_cups
+    calls = []
+    real = pipeline.straightness
+    monkeypatch.setattr(pipeline, "straightness", lambda *a, **k: calls.append(1) or real(*a, **k))
+    perceiver._fine_ctx = None
+    first = _checked(perceiver, m, ids, T, T2)
+    n = len(calls)
+    assert n == 2
+    # A third cup 1.2 diameters from the first across their axis: near enough to change the parts' key (two diameters),
+    # too far to be either cup's neighbour in its checks (half the two diameters) or to claim their points.
+    d = perceiver.inventory[4].diameter
+    T4 = make_T(T[:3, :3], T[:3, 3] + np.array([1.2 * d, 0.0, 0.0]))  # beside it, across the cups' axis
+    hyps = [Hypothesis(4, Tk.copy(), verification=Verification(seen=1.0, explained=1.0, free_space=0.0, normals=1.0))
+            for Tk in (T, T2, T4)]
+    found = [(h, k, np.nonzero(ids == k)[0]) for k, h in enumerate(hyps[:2])] + [(hyps[2], 2, np.zeros(0, int))]
+    fine_fits = []
+    real_fit = pipeline.fine_fit
+    monkeypatch.setattr(pipeline, "fine_fit", lambda *a, **k: fine_fits.append(1) or real_fit(*a, **k))
+    perceiver._fine_check(m, found)
+    assert [h.verification.parts() for h in hyps[:2]] == first
+    assert len(calls) == n
+    # (the parts were looked at anew: the key holds the new pose; the fine fit, remembered as it was, is not
+    # computed either)
+    assert fine_fits == []
+    perceiver._fine_ctx = None

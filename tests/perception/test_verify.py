@@ -611,3 +611,15 @@ def test_content_sticking_out_of_a_cup_does_not_fill_it(perceiver, inventory):
     assert judged(lump(z1 - 0.004)) > 0.2  # all in the cavity, up to the rim: fills it
     assert judged(_disk(0.02, z1)) > 0.05  # a lid at the rim
     assert z1 - z0 > 0.05
+
+
+def test_medians_per_bin_are_np_median_of_each_bin():
+    """The wall profile's medians from one sort: bit for bit np.median of each bin's values (odd and even counts,
+    repeated values, empty bins 0)."""
+    from kitchenbot.perception.verify import medians_per_bin
+    rng = np.random.default_rng(3)
+    for n, bins in ((1, 1), (2, 3), (7, 2), (500, 17), (4001, 40)):
+        values = np.round(rng.normal(0.04, 0.01, n), 4)  # repeated values among them
+        b = rng.integers(0, bins, n)
+        want = np.array([np.median(values[b == k]) if (b == k).any() else 0.0 for k in range(bins)])
+        assert np.array_equal(medians_per_bin(values, b, bins), want)
