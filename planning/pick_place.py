@@ -28,6 +28,7 @@ from kitchenbot.planning.doubtful_support import (NARROWING_TOL, POINT_REACH, PO
                                                   own_axis_directions, pose_doubtful)
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
+from kitchenbot.planning.lift_gaps import LiftGaps
 from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_legs, sidesteps
 from kitchenbot.planning.motion import cartesian_line, plan_joint_path, reach_bounds, segment_free
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
@@ -812,38 +813,39 @@ class Planner:
         return None
 
     def _remade_in_fit(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]],
-                       doubtful: set[str] = frozenset()) -> tuple[str, str] | None:
+                       doubtful: set[str] = frozenset(), gaps: LiftGaps | None = None) -> tuple[str, str] | None:
         """The first of `pairs` (the held item with a neighbour it touches at the start of the lift `Q`) whose contact
         may, within the fits' resolution, break and be made again (_remade_within_fit on the half-step samples'
         signed gaps), or, for a neighbour named in `doubtful` (its pose doubtful), within that pose's error
         (_may_meet_doubtful_again); or None. A lift refused for it alone is the last resort
         (Planner._plan_pick_with): the other directions, and first of all the one that parts the item from what it
-        touches, come before it."""
+        touches, come before it. `gaps`: the lift's signed gaps where the caller has them (planning/lift_gaps.py),
+        else computed here; both checks read the same ones."""
         if not pairs or len(Q) < 2:
             return None
-        Qh = self._half_steps(Q)
+        gaps = gaps or LiftGaps(scene, Q)
         for p in pairs:
-            s = scene.signed_gaps(Qh, p, 2 * POSE_ERROR)
+            s = gaps.of(p)
             if self._remade_within_fit(np.clip(s, -self.GAP_SPAN, self.GAP_SPAN)) or \
                     self._remade_within(s, self.FIT_POSE_REACH, NARROWING_TOL):
                 return p
-        return self._may_meet_doubtful_again(scene, Q, pairs, doubtful)
+        return self._may_meet_doubtful_again(scene, Q, pairs, doubtful, gaps)
 
     def _may_meet_doubtful_again(self, scene: Scene, Q: np.ndarray, pairs: list[tuple[str, str]],
-                                 doubtful: set[str]) -> tuple[str, str] | None:
+                                 doubtful: set[str], gaps: LiftGaps | None = None) -> tuple[str, str] | None:
         """The first of `pairs` with a neighbour named in `doubtful` (a support whose fitted pose is doubtful,
         doubtful_support.pose_doubtful) whose gap to the held item, along the lift `Q` (half steps), narrows again
         after parting while within doubtful_support.POSE_ERROR of the start's (each by more than NARROWING_TOL), or
         None. In the world the two touch at the start, and the support's wall may be POSE_ERROR nearer than its fit
         says: a bowl lifted along its own axis out of a bowl seen 11 % parted from its fitted pose to 1.9 mm and
         narrowed back to 1.6 mm; in the world the gap opened to 0.9 mm and closed (the simulator's collision). A lift
-        straight up, parting steadily, passes."""
+        straight up, parting steadily, passes. `gaps`: as for _remade_in_fit."""
         mine = [p for p in pairs if doubtful.intersection(p)]
         if not mine or len(Q) < 2:
             return None
-        Qh = self._half_steps(Q)
+        gaps = gaps or LiftGaps(scene, Q)
         for p in mine:
-            s = scene.signed_gaps(Qh, p, 2 * POSE_ERROR)
+            s = gaps.of(p)
             if len(s) and s[0] < -POSE_ERROR:
                 # the fit overlaps the held item deeper than POSE_ERROR at the grasp, where in the world the two only
                 # touch: it is off by more than this rule allows for and cannot say where the support's wall is (a
@@ -853,12 +855,6 @@ class Planner:
             if self._remade_within(s, POSE_ERROR, NARROWING_TOL):
                 return p
         return None
-
-    @staticmethod
-    def _half_steps(Q: np.ndarray) -> np.ndarray:
-        """The configurations of `Q` and the midpoints between them."""
-        Q = np.asarray(Q, float)
-        return np.vstack([np.vstack([a, (a + b) / 2]) for a, b in zip(Q[:-1], Q[1:])] + [Q[-1:]])
 
     # m: how far the fitted poses may be off in how deep two resting items overlap (fits within a few tenths of a
     # millimetre): in the world the two only touch where the fitted poses overlap by up to this much
@@ -958,9 +954,10 @@ class Planner:
             if isinstance(r, PlanningFailure):
                 continue
             lift, q_lifted = r
+            gaps = LiftGaps(lift_scene, lift.q)
             if not held_scene.valid(q_lifted) or self._contact_comes_back(lift_scene, lift.q, trusted) is not None \
-                    or self._remade_in_fit(lift_scene, lift.q, trusted) is not None \
-                    or self._may_meet_doubtful_again(lift_scene, lift.q, pairs, set(doubtful)) is not None:
+                    or self._remade_in_fit(lift_scene, lift.q, trusted, gaps=gaps) is not None \
+                    or self._may_meet_doubtful_again(lift_scene, lift.q, pairs, set(doubtful), gaps) is not None:
                 continue
             path = [self.robot.fk_tcp(q) @ T_tcp_obj for q in lift.q]
             if approaches_points(held_bvh, path, points, POINT_REACH):
@@ -1042,9 +1039,11 @@ class Planner:
             Q = np.vstack([info1["path"], info2["path"][1:]])
             if self._contact_comes_back(lift_scene, Q, held_item_pairs) is not None:
                 continue
-            if self._remade_in_fit(lift_scene, Q, held_item_pairs, doubtful) is not None:
+            gaps = LiftGaps(lift_scene, Q)
+            if self._remade_in_fit(lift_scene, Q, held_item_pairs, doubtful, gaps) is not None:
                 # refused for the fits' error alone (not a doubtful support's): kept as the last resort
-                if remade is not None and self._may_meet_doubtful_again(lift_scene, Q, held_item_pairs, doubtful) is None:
+                if remade is not None and \
+                        self._may_meet_doubtful_again(lift_scene, Q, held_item_pairs, doubtful, gaps) is None:
                     traj = self._time(Q, "lift", "along_path")
                     if not isinstance(traj, PlanningFailure):
                         remade.append((traj, Q[-1]))
