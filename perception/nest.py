@@ -42,10 +42,13 @@ NEST_CLASSES = ("plate",)
 #: from every pose found (m; the sensor's precision, as the fine check's 3 mm)
 NEST_TOL = 0.0025
 #: shifts tried, in the model's nest pitch, and the step between them (m)
-NEST_SHIFTS = (0.75, 1.75)
+NEST_SHIFTS = (0.9, 1.75)
 NEST_STEP = 0.0005
+#: a supporting point lies this share of the model's radius or more from the copy's axis: a lower plate of a nest
+#: shows the outer band of its rim, nothing else (points across a plate a little off its fit are not a level)
+RIM_SHARE = 0.85
 #: fewest supporting points of a level, and how far round the axis they must reach (rad)
-NEST_MIN_POINTS = 30
+NEST_MIN_POINTS = 20
 NEST_MIN_ARC = np.radians(45.0)
 #: the most free space (share of the copy's judged visible surface the depth sees through) a level may claim
 NEST_MAX_FREE = 0.1
@@ -105,31 +108,34 @@ def _level_under(perceiver, m, views, kept, hyp: Hypothesis, up: np.ndarray, ins
     idx = np.nonzero(((m.points - T[:3, 3]) ** 2).sum(axis=1) <= reach ** 2)[0]
     if len(idx) < NEST_MIN_POINTS:
         return None
-    P, N = m.points[idx], perceiver._map_normals(m, idx)
+    P = m.points[idx]
     free = np.ones(len(idx), bool)
     for k in kept:
-        free &= ~on_surface(P, N, perceiver.database[k[0].obj_id], k[0].T_base_obj, NEST_TOL)
-    idx, P, N = idx[free], P[free], N[free]
+        free &= ~on_surface(P, None, perceiver.database[k[0].obj_id], k[0].T_base_obj, NEST_TOL)
+    idx, P = idx[free], P[free]
     if len(idx) < NEST_MIN_POINTS:
         return None
+    N = perceiver._map_normals(m, idx)
+    r_rim = RIM_SHARE * float(np.linalg.norm(model.points[:, :2], axis=1).max())
     best = None
     for s in np.arange(NEST_SHIFTS[0] * model.nest_pitch, NEST_SHIFTS[1] * model.nest_pitch + 1e-9, NEST_STEP):
         C = T.copy()
         C[:3, 3] += s * down
-        on = on_surface(P, N, entry, C, NEST_TOL)
+        on = on_surface(P, N, entry, C, NEST_TOL) & _on_rim(P, C, r_rim)
         if best is None or on.sum() > best[1].sum():
             best = (C, on)
     C, on = best
     log.debug("nest level under %s: best shift %.1f mm, %d points", hyp.obj_id,
               1000 * ((C[:3, 3] - T[:3, 3]) @ down), on.sum())
-    if on.sum() < NEST_MIN_POINTS:
+    if on.sum() < NEST_MIN_POINTS // 2:
         return None
-    # Refit on its own points, the axis held (a lower plate settles a few millimetres off-centre).
-    near = on_surface(P, N, entry, C, 2 * NEST_TOL)
-    T_obj_base = icp_to_model(P[near], entry, inv(C), (2 * NEST_TOL, NEST_TOL), iters=10, upright=True,
-                              qn=N[near], symmetric=model.is_rotationally_symmetric)
+    # Refit on its own points, the axis held (a lower plate settles up to a centimetre off-centre: a copy on the
+    # axis of the one above then meets its rim band on one side only).
+    near = on_surface(P, N, entry, C, 3 * NEST_TOL) & _on_rim(P, C, r_rim - 2 * NEST_TOL)
+    T_obj_base = icp_to_model(P[near], entry, inv(C), (3 * NEST_TOL, 2 * NEST_TOL, NEST_TOL), iters=10,
+                              upright=True, qn=N[near], symmetric=model.is_rotationally_symmetric)
     C2 = inv(T_obj_base)
-    on2 = on_surface(P, N, entry, C2, NEST_TOL)
+    on2 = on_surface(P, N, entry, C2, NEST_TOL) & _on_rim(P, C2, r_rim)
     if on2.sum() >= on.sum() and _between(C2, T, down, model.nest_pitch):
         C, on = C2, on2
     log.debug("nest level refitted: %d points, arc %.0f deg", on.sum(), np.degrees(_arc(P[on], C)))
@@ -175,6 +181,12 @@ def _same_plate(perceiver, m, other: Hypothesis, C: np.ndarray, own: np.ndarray)
         return True
     on = on_surface(m.points[own], None, perceiver.database[other.obj_id], other.T_base_obj, SAME_PLATE_TOL)
     return bool(on.mean() >= 0.5)
+
+
+def _on_rim(P: np.ndarray, C: np.ndarray, r_rim: float) -> np.ndarray:
+    """Which points lie at least `r_rim` from the posed copy's axis (its rim's outer band)."""
+    q = (P - C[:3, 3]) @ C[:3, :3]
+    return np.linalg.norm(q[:, :2], axis=1) >= r_rim
 
 
 def _arc(P: np.ndarray, C: np.ndarray) -> float:
