@@ -47,6 +47,9 @@ NEST_STEP = 0.0005
 #: a supporting point lies this share of the model's radius or more from the copy's axis: a lower plate of a nest
 #: shows the outer band of its rim, nothing else (points across a plate a little off its fit are not a level)
 RIM_SHARE = 0.85
+#: how much wider and longer than where a level's rim band can be the candidate ring is (m): the refit's 1.5 cm
+#: across, its 7.5 mm reach, the 6 mm neighbourhood of a point's normal
+RING_MARGIN = 0.03
 #: fewest supporting points of a level, and how far round the axis they must reach (rad)
 NEST_MIN_POINTS = 20
 NEST_MIN_ARC = np.radians(45.0)
@@ -103,9 +106,17 @@ def _level_under(perceiver, m, views, kept, hyp: Hypothesis, up: np.ndarray, ins
     if abs(axis @ up) < NEST_MIN_UP:
         return None
     down = -axis if axis @ up > 0 else axis
-    # candidate points: map points within the model's reach of the pose, on no pose's surface
+    # candidate points: map points within the model's reach of the pose, on no pose's surface, in the ring round
+    # its axis where a level's rim band can lie (RING_MARGIN wider and longer: the refit's reach across, its
+    # tolerance, and the neighbours that set each point's normal)
     reach = entry.reach + 2 * model.nest_pitch * NEST_SHIFTS[1]
     idx = np.nonzero(((m.points - T[:3, 3]) ** 2).sum(axis=1) <= reach ** 2)[0]
+    r_model = float(np.linalg.norm(model.points[:, :2], axis=1).max())
+    r_rim = RIM_SHARE * r_model
+    q = (m.points[idx] - T[:3, 3]) @ T[:3, :3]
+    rad = np.linalg.norm(q[:, :2], axis=1)
+    idx = idx[(rad >= r_rim - RING_MARGIN) & (rad <= r_model + RING_MARGIN) &
+              (np.abs(q[:, 2]) <= float(np.abs(model.points[:, 2]).max()) + NEST_SHIFTS[1] * model.nest_pitch + RING_MARGIN)]
     if len(idx) < NEST_MIN_POINTS:
         return None
     P = m.points[idx]
@@ -113,15 +124,16 @@ def _level_under(perceiver, m, views, kept, hyp: Hypothesis, up: np.ndarray, ins
     for k in kept:
         free &= ~on_surface(P, None, perceiver.database[k[0].obj_id], k[0].T_base_obj, NEST_TOL)
     idx, P = idx[free], P[free]
-    if len(idx) < NEST_MIN_POINTS:
+    rim = np.nonzero(_on_rim(P, T, r_rim))[0]  # a shift along the axis keeps each point's distance from it
+    if len(idx) < NEST_MIN_POINTS or len(rim) < NEST_MIN_POINTS // 2:
         return None
     N = perceiver._map_normals(m, idx)
-    r_rim = RIM_SHARE * float(np.linalg.norm(model.points[:, :2], axis=1).max())
     best = None
     for s in np.arange(NEST_SHIFTS[0] * model.nest_pitch, NEST_SHIFTS[1] * model.nest_pitch + 1e-9, NEST_STEP):
         C = T.copy()
         C[:3, 3] += s * down
-        on = on_surface(P, N, entry, C, NEST_TOL) & _on_rim(P, C, r_rim)
+        on = np.zeros(len(P), bool)
+        on[rim] = on_surface(P[rim], N[rim], entry, C, NEST_TOL)
         if best is None or on.sum() > best[1].sum():
             best = (C, on)
     C, on = best
