@@ -6,11 +6,12 @@ under the rim above: at the splitting tolerance (0.8 voxel) the top plate's pose
 left over to fit, and a nest of four was perceived as one or two plates (the lower plates' rims under 3 % visible).
 
 So after the poses of a scan are final, each plate pose is asked whether a copy of its model lies one nest level
-under it: the pose shifted down its axis (the way that points down) by 0.75-1.75 of the model's nest pitch, in
-0.5 mm steps (a settled nest sits a little looser than the model's pitch). A level is supported by map points that
-lie on the copy's surface at the sensor's precision (NEST_TOL, facing the same way) and on no pose's surface
-(the plates above, the items around): the rim band beside the plate above. The shift with the most such points is
-refitted on them (ICP with the axis held: a lower plate settles a few millimetres off-centre) and kept where
+under it: the pose shifted down its axis (the way that points down) by 0.9-1.75 of the model's nest pitch, in
+0.5 mm steps (a settled nest sits a little looser than the model's pitch, never tighter). A level is supported by
+map points on no pose's surface (NEST_TOL: the plates above, the items around) that lie on the copy's surface at
+the sensor's precision (NEST_TOL, facing the same way) in its rim's outer band (RIM_SHARE of its radius or more):
+the band beside the plate above. The shift with the most such points is refitted on them (ICP with the axis held:
+a lower plate settles up to a centimetre or so off-centre) and kept where
 
 - it has at least NEST_MIN_POINTS of its own points, spread at least NEST_MIN_ARC around the axis (a rim band, not
   a lump of something else touching the plate),
@@ -19,7 +20,8 @@ refitted on them (ICP with the axis held: a lower plate settles a few millimetre
 - and none of its model inside known solid matter (a plate on the floor has no plate under it).
 
 A level kept becomes a pose (its own points taken from the plate above) and is itself asked for the level under
-it; a copy that falls where a pose of the same model already is stops the chain (that plate was found already).
+it; a level that a pose of the same model found before in the nest has on its surface (half its points within
+SAME_PLATE_TOL) is that plate, and the chain stops there (that pose is asked for its own level).
 A plate standing on its edge (axis within NEST_MIN_UP of horizontal) has no "under". Base frame, metres.
 """
 
@@ -67,16 +69,16 @@ SAME_PLATE_TOL = 0.003
 ARC_BIN = np.radians(15.0)
 
 
-def add_nest_levels(perceiver, m, views, kept: list[list]) -> int:
+def add_nest_levels(perceiver, m, views, kept: list[list], next_iid: int) -> int:
     """Append to `kept` ([hyp, iid, own] per pose) a pose per nest level the data supports under each plate pose,
-    taking its own points from the pose above; returns how many were added."""
+    taking its own points from the pose above; `next_iid`: the first instance id no instance of the scan has (a
+    level is an instance of its own); returns how many were added."""
     up = perceiver._up()
     if up is None:
         up = np.array([0.0, 0.0, 1.0])
-    db, vox = perceiver.database, perceiver.settings.voxel_size
+    vox = perceiver.settings.voxel_size
     inside = perceiver._inside_solid(perceiver._up())
     added = 0
-    next_iid = int(max([k[1] for k in kept] + [int(m.ids.max()) if len(m.ids) else 0])) + 1
     todo = [(k, 0) for k in kept if perceiver.inventory[k[0].obj_id].cls in NEST_CLASSES]
     while todo:
         above, depth = todo.pop(0)

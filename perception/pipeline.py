@@ -483,7 +483,7 @@ class Perceiver:
             # Plates nested under a plate show a rim band a few millimetres under the one above, which that
             # plate's pose explains at the splitting tolerance: each nest level the data supports is added
             # (perception/nest.py).
-            add_nest_levels(self, m, views, kept)
+            next_id += add_nest_levels(self, m, views, kept, next_id)
             for hyp, iid, own in kept:
                 ids_out[own] = iid
                 model = self.inventory[hyp.obj_id]
