@@ -33,6 +33,7 @@ from kitchenbot.perception.segment_geometric import GeometricSegmenter
 from kitchenbot.perception.settings import PerceptionSettings
 from kitchenbot.perception.surfaces import SurfaceMap, find_surfaces
 from kitchenbot.perception.refit import RefitMemo, refit_beside_unexplained
+from kitchenbot.perception.nest import add_nest_levels
 from kitchenbot.perception.straight import straightness
 from kitchenbot.perception.track import MapChange, best_prior, moved
 from kitchenbot.perception.types import ObjectPose, View
@@ -479,6 +480,10 @@ class Perceiver:
             # is fitted again with that part, whatever its source: a kept prior is otherwise never corrected.
             with timed("pose.refit"):  # inside "pose": map_seg_ms leaves it out
                 refit_beside_unexplained(self, m, views, kept)
+            # Plates nested under a plate show a rim band a few millimetres under the one above, which that
+            # plate's pose explains at the splitting tolerance: each nest level the data supports is added
+            # (perception/nest.py).
+            next_id += add_nest_levels(self, m, views, kept, next_id)
             for hyp, iid, own in kept:
                 ids_out[own] = iid
                 model = self.inventory[hyp.obj_id]
