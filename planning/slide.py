@@ -43,6 +43,71 @@ def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
                    points=np.asarray(o.points).reshape(-1, 3) + shift)
 
 
+TIPS_LEVEL = 0.001  # m: finger tips whose surfaces differ by no more than this press alike (yaw order kept)
+PRESS_MAX_DEPTH = 0.005  # m the deeper tip may go into the surface (the simulator stops past 6 mm; 1 mm margin)
+
+
+class TopSurface:
+    """The item's top (its model at its pose) as seen straight down: heights under points and under the two
+    closed finger tips of a press."""
+
+    def __init__(self, model, T_base_obj: np.ndarray):
+        self.scene = o3d.t.geometry.RaycastingScene()
+        mesh = o3d.geometry.TriangleMesh(model.mesh)
+        mesh.transform(np.asarray(T_base_obj, float))
+        self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+        self.top = float(np.asarray(mesh.vertices)[:, 2].max())
+
+    def heights(self, xy: np.ndarray) -> np.ndarray:
+        """z (base frame) of the item's top surface under each point of `xy` (N, 2); NaN where it misses."""
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        start = self.top + 0.05
+        rays = np.column_stack([xy, np.full(len(xy), start), np.zeros((len(xy), 2)), -np.ones(len(xy))])
+        t = self.scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+        return np.where(np.isfinite(t), start - t, np.nan)
+
+
+def tip_offset() -> float:
+    """How far (m) each closed finger's tip (the middle of its end face) is from the TCP along the closing axis."""
+    return FINGERS.finger_thickness / 2
+
+
+def closing_axis(a: float) -> np.ndarray:
+    """The closing axis (level, unit, base frame) of the press pose at yaw `a` (plan_slide's T_press)."""
+    return (rot_z(a)[:3, :3] @ np.diag([1.0, -1.0, -1.0]))[:3, 1]
+
+
+def press_yaws(surface: TopSurface, p: np.ndarray, yaws: list[float]) -> list[tuple[float, float]]:
+    """(yaw, z_tcp) of the closed fingers pressing at `p` (base frame) for each usable yaw in `yaws` and the yaw
+    whose closing axis lies along the top's level line at `p` (where it slopes), the most level tips first: the
+    TCP's height is set from the HIGHER of the two surfaces under the tips (that tip presses PRESS_DEPTH, or as deep
+    as puts the other tip on its surface), and a yaw whose deeper tip would then go more than PRESS_MAX_DEPTH in is
+    dropped. Before, the height came from the one surface point under the TCP: on a plate leaning 35 degrees, a
+    closing axis along its slope put one tip 7 mm into it and the simulated arm stopped. A tip whose line misses
+    the item presses nothing (the other one sets the height)."""
+    h = tip_offset()
+    zc = surface.heights(np.array([p[:2] + h * np.array(v) for v in ((1, 0), (-1, 0), (0, 1), (0, -1))]))
+    yaws = list(yaws)
+    if np.all(np.isfinite(zc)):
+        grad = np.array([zc[0] - zc[1], zc[2] - zc[3]]) / (2 * h)
+        if 2 * h * np.linalg.norm(grad) > TIPS_LEVEL:  # it slopes: the closing axis along its level line first
+            yaws.append(float(np.arctan2(grad[1], grad[0])))  # closing_axis(a) = (sin a, -cos a) _|_ grad
+    out = []
+    for a in yaws:
+        ax = closing_axis(a)[:2]
+        z = surface.heights(np.array([p[:2] + h * ax, p[:2] - h * ax]))
+        z = z[np.isfinite(z)]
+        if len(z) == 0:
+            z = np.array([p[2]])
+        rise = float(z.max() - z.min())  # how much higher the surface is under one tip than under the other
+        depth = max(PRESS_DEPTH, rise)  # the deeper tip's: the other one on its surface or PRESS_DEPTH - rise in
+        if depth > PRESS_MAX_DEPTH:
+            continue
+        out.append((rise if rise > TIPS_LEVEL else 0.0, a, float(z.max()) + FINGERS.tip_z - depth))
+    out.sort(key=lambda x: x[0])  # stable: level tips keep the given order
+    return [(a, z) for _, a, z in out]
+
+
 def press_point(model, T_base_obj: np.ndarray) -> np.ndarray | None:
     """Top surface point (base frame) on the vertical line through the item's centre, or None if it misses."""
     pts = press_points(model, T_base_obj)  # the centre's point first, [] when its line misses
@@ -397,6 +462,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
         planner._report_blocking(f, target, objects, leaned)
         return f
     presses = press_points(model, target.T_base_obj, planner.cell.sink_interior)
+    surface = TopSurface(model, target.T_base_obj)
     if not presses:
         return NoIK("slide: no top surface above the item's centre", {})
     # the longest slide that has room first (most overhang afterwards), shorter ones where the sink is full
@@ -422,7 +488,6 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     pickable: dict = {}  # candidate index -> whether the moved item can be picked there
     # the centre first; where the palm above it cannot come down (a wall beside it), points farther from the walls
     for p, (ci, (dist, d)) in ((p, c) for p in presses for c in enumerate(cands)):
-        z_tcp = p[2] + FINGERS.tip_z - PRESS_DEPTH
         if off:
             if ("off", ci) not in pickable:
                 moved = _moved(target, dist * d)
@@ -442,9 +507,12 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
                                                          {"segment": "slide", "after": grasps.kind})
             if not pickable[ci]:
                 continue
-        for yaw in np.radians((0.0, 90.0, 45.0, 135.0)):
-            # closed fingers pointing down; the closing axis across the slide or along it
-            a = float(np.arctan2(d[1], d[0])) + yaw
+        # closed fingers pointing down; the closing axis across the slide or along it, or along the top's level line
+        a_d = float(np.arctan2(d[1], d[0]))
+        yaws = press_yaws(surface, p, [a_d + yaw for yaw in np.radians((0.0, 90.0, 45.0, 135.0))])
+        if not yaws:
+            first = first or NoIK("slide: at every yaw a finger tip would go too deep into the item's top", {})
+        for a, z_tcp in yaws:
             T_press = make_T(rot_z(a)[:3, :3] @ np.diag([1.0, -1.0, -1.0]), (p[0], p[1], z_tcp))
             T_pre = trans(0.0, 0.0, s.approach_distance) @ T_press
             q_pre = None
