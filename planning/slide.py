@@ -36,6 +36,8 @@ PRESS_DEPTH = 0.003  # m the finger tips go into the surface (the simulator's ti
 NEAR_GAP = 0.001  # m: an item this near the slid one may be what carries it or not (below what a fit resolves)
 NEAR_SLACK = 0.0001  # m: nearer to such an item than at the start, or up or down leaving one, by more (NearItems)
 LEAVE_TOL = 0.00001  # m: a gap growing by more than this over a part of a step: that item is being left
+SAME_PRESS = 0.005  # m: a press this near a stopped slide's, ...
+SAME_WAY = np.radians(10.0)  # rad: ... its closing axis and direction this near that one's, is that slide again
 
 
 def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
@@ -106,6 +108,19 @@ def press_yaws(surface: TopSurface, p: np.ndarray, yaws: list[float]) -> list[tu
         out.append((rise if rise > TIPS_LEVEL else 0.0, a, float(z.max()) + FINGERS.tip_z - depth))
     out.sort(key=lambda x: x[0])  # stable: level tips keep the given order
     return [(a, z) for _, a, z in out]
+
+
+def repeats(T_base_press: np.ndarray, direction: np.ndarray, stopped) -> bool:
+    """Whether pressing at `T_base_press` (the TCP) and sliding along `direction` repeats one of the `stopped`
+    slides ((T_base_press, direction) pairs): its press point within SAME_PRESS, its closing axis (either way) and
+    its direction within SAME_WAY."""
+    for T, d in stopped:
+        T = np.asarray(T, float)
+        if (np.linalg.norm(T[:3, 3] - T_base_press[:3, 3]) <= SAME_PRESS
+                and abs(float(T[:3, 1] @ T_base_press[:3, 1])) >= np.cos(SAME_WAY)
+                and float(np.asarray(d, float) @ direction) >= np.cos(SAME_WAY)):
+            return True
+    return False
 
 
 def press_point(model, T_base_obj: np.ndarray) -> np.ndarray | None:
@@ -434,10 +449,12 @@ def _gap(planner, a: ObjectPose, b: ObjectPose) -> float:
 
 def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: ObjectPose, *,
                map_points: np.ndarray | None = None, distance: float = 0.06,
-               then_pickable: bool = True, off=()) -> SlidePlan | PlanningFailure:
+               then_pickable: bool = True, off=(), avoid=()) -> SlidePlan | PlanningFailure:
     """Plan sliding `target` sideways by `distance` (or 3/4, 1/2 of it where there is no room; see the module
     docstring); with `then_pickable`, only a slide after which `planner.select_grasps` finds a grasp of the moved
-    item is used; with `off` (perceived items), only one after which the item no longer lies on any of them."""
+    item is used; with `off` (perceived items), only one after which the item no longer lies on any of them;
+    `avoid`: slides of it that stopped ((T_base_press, direction) pairs), not planned again (`repeats`): the same
+    belief plans the same slide, and the arm stops the same way."""
     t0 = time.perf_counter()
     s = planner.settings
     q0 = np.asarray(q_start, float)
@@ -514,6 +531,9 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
             first = first or NoIK("slide: at every yaw a finger tip would go too deep into the item's top", {})
         for a, z_tcp in yaws:
             T_press = make_T(rot_z(a)[:3, :3] @ np.diag([1.0, -1.0, -1.0]), (p[0], p[1], z_tcp))
+            if repeats(T_press, d, avoid):
+                first = first or CartesianPathFailed("slide: only slides that stopped before", {"segment": "slide"})
+                continue
             T_pre = trans(0.0, 0.0, s.approach_distance) @ T_press
             q_pre = None
             for qb in planner.robot.ik_all(T_pre, q0):
@@ -557,5 +577,5 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
                 first = first or approach
                 continue
             timings["total_ms"] = (time.perf_counter() - t0) * 1e3
-            return SlidePlan(target, T1, d, dist, approach, press, slide, release, timings)
+            return SlidePlan(target, T1, d, dist, approach, press, slide, release, timings, T_base_press=T_press)
     return first or CartesianPathFailed("slide: no plannable slide", {"segment": "slide"})
