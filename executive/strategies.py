@@ -76,18 +76,11 @@ PLACE_GRASPS = 3
 
 def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) -> ItemPlan | PlanFailure:
     """Pick (only grasps that can also reach one of `targets`) then place (the first feasible target); when the
-    place does not plan, the pick again without that grasp (at most PLACE_GRASPS grasps). A plate a grip of which
-    closed across two rims (`Belief.nest_felt`) is planned with the plate that grip felt under it (`nested_under`,
-    as `slide_top_of_nest` plans its slide): a pinch that would close across both rims again takes in another
-    object and is not planned (before, the item's remaining attempts went on such pinches, each missing)."""
+    place does not plan, the pick again without that grasp (at most PLACE_GRASPS grasps)."""
     targets = req.targets if targets is None else targets
     obj, b = req.obj, req.belief
     q = req.joints()
-    scene_objs = req.scene_objs
-    under = nested_under(req.planner, obj) if b.nest_felt(obj) else None
-    if under is not None:
-        scene_objs = [*scene_objs, under]
-    others = [p for p in scene_objs
+    others = [p for p in req.scene_objs
               if p is not obj and not (obj.instance_id >= 0 and p.instance_id == obj.instance_id)]
     t = b.attempts_for(obj)
     missed = list(t.missed) if t is not None else []  # grasps that closed on nothing on this item
@@ -97,7 +90,7 @@ def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) ->
         req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
                  **({"staging": True} if staging else {}), **({"without": missed + failed} if missed or failed else {}))
         avoid = missed + failed
-        pick = req.planner.plan_pick(q, scene_objs, target=obj, map_points=b.map_points, place_target=targets,
+        pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets,
                                      **({"avoid_grasps": tuple(avoid)} if avoid else {}))
         req.check_deadline()
         if not pick.ok:
