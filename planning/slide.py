@@ -86,7 +86,8 @@ def press_yaws(surface: TopSurface, p: np.ndarray, yaws: list[float]) -> list[tu
     as puts the other tip on its surface), and a yaw whose deeper tip would then go more than PRESS_MAX_DEPTH in is
     dropped. Before, the height came from the one surface point under the TCP: on a plate leaning 35 degrees, a
     closing axis along its slope put one tip 7 mm into it and the simulated arm stopped. A tip whose line misses
-    the item presses nothing (the other one sets the height)."""
+    the item presses nothing (the other one sets the height). The fingers' inner edges meet over `p`: never
+    pressed deeper than PRESS_DEPTH there either (a top rounded over, higher there than under both tips)."""
     h = tip_offset()
     zc = surface.heights(np.array([p[:2] + h * np.array(v) for v in ((1, 0), (-1, 0), (0, 1), (0, -1))]))
     yaws = list(yaws)
@@ -105,7 +106,9 @@ def press_yaws(surface: TopSurface, p: np.ndarray, yaws: list[float]) -> list[tu
         depth = max(PRESS_DEPTH, rise)  # the deeper tip's: the other one on its surface or PRESS_DEPTH - rise in
         if depth > PRESS_MAX_DEPTH:
             continue
-        out.append((rise if rise > TIPS_LEVEL else 0.0, a, float(z.max()) + FINGERS.tip_z - depth))
+        # never lower than the point between the fingers allows (a top rounded over, higher there than under both)
+        z_tcp = max(float(z.max()) + FINGERS.tip_z - depth, float(p[2]) + FINGERS.tip_z - PRESS_DEPTH)
+        out.append((rise if rise > TIPS_LEVEL else 0.0, a, z_tcp))
     out.sort(key=lambda x: x[0])  # stable: level tips keep the given order
     return [(a, z) for _, a, z in out]
 
