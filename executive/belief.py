@@ -51,6 +51,9 @@ class Attempts:
     # a grip of it closed across more than its own rim (a nest of plates seen as one): slid before it is gripped
     # again (executive/strategies.py, SlideTopOfNest); cleared by the slide
     nest_felt: bool = False
+    # (T_base_press, direction) of its slides that stopped at the press or on the way: not planned again (the same
+    # belief plans the same slide; planning/slide.py `repeats`); cleared when it slides
+    stopped_slides: list = field(default_factory=list)
     set_aside_plans: int = 0  # plans to set it aside on the counter (it had no target and blocked another item)
     no_room: tuple | None = None  # (scene epoch, items keeping room) when its task last had no target for it
 
@@ -427,9 +430,20 @@ class Belief:
         t.slides += 1
         return t
 
+    def record_slide_stopped(self, t: Attempts, T_base_press: np.ndarray | None, direction: np.ndarray) -> None:
+        """A slide of the item (pressing at `T_base_press`, along `direction`) stopped on the press or the way."""
+        if T_base_press is not None:
+            t.stopped_slides.append((np.array(T_base_press, float), np.array(direction, float)))
+
+    def stopped_slides(self, obj: ObjectPose) -> list:
+        """(T_base_press, direction) of the slides of `obj` that stopped since it last slid."""
+        t = self.attempts_for(obj)
+        return list(t.stopped_slides) if t is not None else []
+
     def record_slid(self, t: Attempts, T_after: np.ndarray) -> None:
         """The item slid to T_after: the same item over there; the scene changed."""
         t.pos = T_after[:3, 3].copy()
+        t.stopped_slides = []
         if t.nest_felt:  # the top plate slid off the one its grips took in too: those grips say nothing of it alone
             t.nest_felt, t.missed = False, []
         self.scene_changed()

@@ -191,7 +191,12 @@ class Execution:
         self._cmd("gripper.open", opening=0.0, why="closed fingers press on the item")
         self.gripper.open(0.0)
         for traj in sl.trajectories:
-            self._run_trajectory(traj)
+            try:
+                self._run_trajectory(traj)
+            except ProtectiveStopError:
+                if traj is sl.press or traj is sl.slide:  # the same belief would plan it again: not that slide
+                    self.belief.record_slide_stopped(t, sl.T_base_press, sl.direction)
+                raise
         self.item.plan = None
         self.belief.record_slid(t, sl.T_base_obj_after)  # the scene changed: what could not be planned may be now
         self._log("result", "slid", cls=obj.cls, to=sl.T_base_obj_after[:3, 3])

@@ -426,7 +426,9 @@ def _slide_plan(name: str, req: PlanRequest, scene_objs: list[ObjectPose] | None
     """Strategy `name`'s slide of `req.obj` (`Planner.plan_slide` with `kw`) among `scene_objs` (default: the
     request's), or None (the reason noted)."""
     objs = req.scene_objs if scene_objs is None else scene_objs
-    slide = req.planner.plan_slide(req.joints(), objs, req.obj, map_points=req.belief.map_points, **kw)
+    stopped = req.belief.stopped_slides(req.obj)  # not planned again unchanged
+    slide = req.planner.plan_slide(req.joints(), objs, req.obj, map_points=req.belief.map_points,
+                                   **({"avoid": stopped} if stopped else {}), **kw)
     req.check_deadline()
     if not slide.ok:
         req.note("note", "no slide", reason=str(slide))

@@ -1309,17 +1309,17 @@ class Planner:
     # ---- free motion -----------------------------------------------------------------------------------------------
     def plan_slide(self, q_start: np.ndarray, objects: Sequence[ObjectPose], target: ObjectPose, *,
                    map_points: np.ndarray | None = None, distance: float = 0.06, then_pickable: bool = True,
-                   off: Sequence[ObjectPose] = ()):
+                   off: Sequence[ObjectPose] = (), avoid: Sequence = ()):
         """Slide `target` sideways with the closed fingers pressing on it, so that it can be picked afterwards
         (the top plate of a nested stack; `then_pickable`), or so that it no longer lies on the items `off` (it
-        blocks their lifts): see planning.slide."""
+        blocks their lifts); `avoid`: (T_base_press, direction) of its slides that stopped: see planning.slide."""
         from kitchenbot.planning.slide import plan_slide
 
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
             return q0
         return plan_slide(self, q0, list(objects), target, map_points=map_points, distance=distance,
-                          then_pickable=then_pickable, off=off)
+                          then_pickable=then_pickable, off=off, avoid=avoid)
 
     def onward_staging(self, q_current: np.ndarray, stage: Sequence[PlaceTarget], obj: ObjectPose,
                        targets, objects: Sequence[ObjectPose] = (), *,

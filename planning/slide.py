@@ -36,11 +36,94 @@ PRESS_DEPTH = 0.003  # m the finger tips go into the surface (the simulator's ti
 NEAR_GAP = 0.001  # m: an item this near the slid one may be what carries it or not (below what a fit resolves)
 NEAR_SLACK = 0.0001  # m: nearer to such an item than at the start, or up or down leaving one, by more (NearItems)
 LEAVE_TOL = 0.00001  # m: a gap growing by more than this over a part of a step: that item is being left
+SAME_PRESS = 0.005  # m: a press this near a stopped slide's, ...
+SAME_WAY = np.radians(10.0)  # rad: ... its closing axis and direction this near that one's, is that slide again
 
 
 def _moved(o: ObjectPose, shift: np.ndarray) -> ObjectPose:
     return replace(o, T_base_obj=trans(*shift) @ np.asarray(o.T_base_obj, float),
                    points=np.asarray(o.points).reshape(-1, 3) + shift)
+
+
+TIPS_LEVEL = 0.001  # m: finger tips whose surfaces differ by no more than this press alike (yaw order kept)
+PRESS_MAX_DEPTH = 0.005  # m the deeper tip may go into the surface (the simulator stops past 6 mm; 1 mm margin)
+
+
+class TopSurface:
+    """The item's top (its model at its pose) as seen straight down: heights under points and under the two
+    closed finger tips of a press."""
+
+    def __init__(self, model, T_base_obj: np.ndarray):
+        self.scene = o3d.t.geometry.RaycastingScene()
+        mesh = o3d.geometry.TriangleMesh(model.mesh)
+        mesh.transform(np.asarray(T_base_obj, float))
+        self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+        self.top = float(np.asarray(mesh.vertices)[:, 2].max())
+
+    def heights(self, xy: np.ndarray) -> np.ndarray:
+        """z (base frame) of the item's top surface under each point of `xy` (N, 2); NaN where it misses."""
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        start = self.top + 0.05
+        rays = np.column_stack([xy, np.full(len(xy), start), np.zeros((len(xy), 2)), -np.ones(len(xy))])
+        t = self.scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+        return np.where(np.isfinite(t), start - t, np.nan)
+
+
+def tip_offset() -> float:
+    """How far (m) each closed finger's tip (the middle of its end face) is from the TCP along the closing axis."""
+    return FINGERS.finger_thickness / 2
+
+
+def closing_axis(a: float) -> np.ndarray:
+    """The closing axis (level, unit, base frame) of the press pose at yaw `a` (plan_slide's T_press)."""
+    return (rot_z(a)[:3, :3] @ np.diag([1.0, -1.0, -1.0]))[:3, 1]
+
+
+def press_yaws(surface: TopSurface, p: np.ndarray, yaws: list[float]) -> list[tuple[float, float]]:
+    """(yaw, z_tcp) of the closed fingers pressing at `p` (base frame) for each usable yaw in `yaws` and the yaw
+    whose closing axis lies along the top's level line at `p` (where it slopes), the most level tips first: the
+    TCP's height is set from the HIGHER of the two surfaces under the tips (that tip presses PRESS_DEPTH, or as deep
+    as puts the other tip on its surface), and a yaw whose deeper tip would then go more than PRESS_MAX_DEPTH in is
+    dropped. Before, the height came from the one surface point under the TCP: on a plate leaning 35 degrees, a
+    closing axis along its slope put one tip 7 mm into it and the simulated arm stopped. A tip whose line misses
+    the item presses nothing (the other one sets the height). The fingers' inner edges meet over `p`: never
+    pressed deeper than PRESS_DEPTH there either (a top rounded over, higher there than under both tips)."""
+    h = tip_offset()
+    zc = surface.heights(np.array([p[:2] + h * np.array(v) for v in ((1, 0), (-1, 0), (0, 1), (0, -1))]))
+    yaws = list(yaws)
+    if np.all(np.isfinite(zc)):
+        grad = np.array([zc[0] - zc[1], zc[2] - zc[3]]) / (2 * h)
+        if 2 * h * np.linalg.norm(grad) > TIPS_LEVEL:  # it slopes: the closing axis along its level line first
+            yaws.append(float(np.arctan2(grad[1], grad[0])))  # closing_axis(a) = (sin a, -cos a) _|_ grad
+    out = []
+    for a in yaws:
+        ax = closing_axis(a)[:2]
+        z = surface.heights(np.array([p[:2] + h * ax, p[:2] - h * ax]))
+        z = z[np.isfinite(z)]
+        if len(z) == 0:
+            z = np.array([p[2]])
+        rise = float(z.max() - z.min())  # how much higher the surface is under one tip than under the other
+        depth = max(PRESS_DEPTH, rise)  # the deeper tip's: the other one on its surface or PRESS_DEPTH - rise in
+        if depth > PRESS_MAX_DEPTH:
+            continue
+        # never lower than the point between the fingers allows (a top rounded over, higher there than under both)
+        z_tcp = max(float(z.max()) + FINGERS.tip_z - depth, float(p[2]) + FINGERS.tip_z - PRESS_DEPTH)
+        out.append((rise if rise > TIPS_LEVEL else 0.0, a, z_tcp))
+    out.sort(key=lambda x: x[0])  # stable: level tips keep the given order
+    return [(a, z) for _, a, z in out]
+
+
+def repeats(T_base_press: np.ndarray, direction: np.ndarray, stopped) -> bool:
+    """Whether pressing at `T_base_press` (the TCP) and sliding along `direction` repeats one of the `stopped`
+    slides ((T_base_press, direction) pairs): its press point within SAME_PRESS, its closing axis (either way) and
+    its direction within SAME_WAY."""
+    for T, d in stopped:
+        T = np.asarray(T, float)
+        if (np.linalg.norm(T[:3, 3] - T_base_press[:3, 3]) <= SAME_PRESS
+                and abs(float(T[:3, 1] @ T_base_press[:3, 1])) >= np.cos(SAME_WAY)
+                and float(np.asarray(d, float) @ direction) >= np.cos(SAME_WAY)):
+            return True
+    return False
 
 
 def press_point(model, T_base_obj: np.ndarray) -> np.ndarray | None:
@@ -369,10 +452,12 @@ def _gap(planner, a: ObjectPose, b: ObjectPose) -> float:
 
 def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: ObjectPose, *,
                map_points: np.ndarray | None = None, distance: float = 0.06,
-               then_pickable: bool = True, off=()) -> SlidePlan | PlanningFailure:
+               then_pickable: bool = True, off=(), avoid=()) -> SlidePlan | PlanningFailure:
     """Plan sliding `target` sideways by `distance` (or 3/4, 1/2 of it where there is no room; see the module
     docstring); with `then_pickable`, only a slide after which `planner.select_grasps` finds a grasp of the moved
-    item is used; with `off` (perceived items), only one after which the item no longer lies on any of them."""
+    item is used; with `off` (perceived items), only one after which the item no longer lies on any of them;
+    `avoid`: slides of it that stopped ((T_base_press, direction) pairs), not planned again (`repeats`): the same
+    belief plans the same slide, and the arm stops the same way."""
     t0 = time.perf_counter()
     s = planner.settings
     q0 = np.asarray(q_start, float)
@@ -397,6 +482,7 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
         planner._report_blocking(f, target, objects, leaned)
         return f
     presses = press_points(model, target.T_base_obj, planner.cell.sink_interior)
+    surface = TopSurface(model, target.T_base_obj)
     if not presses:
         return NoIK("slide: no top surface above the item's centre", {})
     # the longest slide that has room first (most overhang afterwards), shorter ones where the sink is full
@@ -422,7 +508,6 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     pickable: dict = {}  # candidate index -> whether the moved item can be picked there
     # the centre first; where the palm above it cannot come down (a wall beside it), points farther from the walls
     for p, (ci, (dist, d)) in ((p, c) for p in presses for c in enumerate(cands)):
-        z_tcp = p[2] + FINGERS.tip_z - PRESS_DEPTH
         if off:
             if ("off", ci) not in pickable:
                 moved = _moved(target, dist * d)
@@ -442,10 +527,16 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
                                                          {"segment": "slide", "after": grasps.kind})
             if not pickable[ci]:
                 continue
-        for yaw in np.radians((0.0, 90.0, 45.0, 135.0)):
-            # closed fingers pointing down; the closing axis across the slide or along it
-            a = float(np.arctan2(d[1], d[0])) + yaw
+        # closed fingers pointing down; the closing axis across the slide or along it, or along the top's level line
+        a_d = float(np.arctan2(d[1], d[0]))
+        yaws = press_yaws(surface, p, [a_d + yaw for yaw in np.radians((0.0, 90.0, 45.0, 135.0))])
+        if not yaws:
+            first = first or NoIK("slide: at every yaw a finger tip would go too deep into the item's top", {})
+        for a, z_tcp in yaws:
             T_press = make_T(rot_z(a)[:3, :3] @ np.diag([1.0, -1.0, -1.0]), (p[0], p[1], z_tcp))
+            if repeats(T_press, d, avoid):
+                first = first or CartesianPathFailed("slide: only slides that stopped before", {"segment": "slide"})
+                continue
             T_pre = trans(0.0, 0.0, s.approach_distance) @ T_press
             q_pre = None
             for qb in planner.robot.ik_all(T_pre, q0):
@@ -489,5 +580,5 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
                 first = first or approach
                 continue
             timings["total_ms"] = (time.perf_counter() - t0) * 1e3
-            return SlidePlan(target, T1, d, dist, approach, press, slide, release, timings)
+            return SlidePlan(target, T1, d, dist, approach, press, slide, release, timings, T_base_press=T_press)
     return first or CartesianPathFailed("slide: no plannable slide", {"segment": "slide"})

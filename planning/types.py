@@ -305,6 +305,7 @@ class SlidePlan:
     slide: Trajectory
     release: Trajectory
     timings_ms: dict = field(default_factory=dict)
+    T_base_press: np.ndarray | None = None  # the TCP pressing on the item where the slide starts
     ok: ClassVar[bool] = True
 
     @property
