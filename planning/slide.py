@@ -498,7 +498,11 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
     # the fingers press on the item, towards what it rests on (never reaching it: the item is between; the
     # planner's fingers are 2 mm longer than the simulator's, so they may seem to); what it rests on may be the
     # cell itself (a plate lying on the sink floor whose well is one thin wall: its fingers seem to reach the floor)
-    under = [f"obj:{names[k]}" for k, o in enumerate(objects) if o is not target and _touching(planner, target, o)]
+    touching = [(f"obj:{names[k]}", o) for k, o in enumerate(objects) if o is not target and _touching(planner, target, o)]
+    under = [u for u, _ in touching]
+    # those it lies on (not beside it) are its supports for the slide too (below), whatever gap within _touching's
+    # their fitted poses leave: it cannot float (a plate nested in a plate seen in a small part, fitted 2 mm low)
+    supports = [u for u, o in touching if planner._lies_on(target, o)]
     under += [f"cell:{b.name}" for b in _cell_touching(planner, target)]
     press_scene = base_scene.for_grasp(names[k_t])
     if under:
@@ -557,6 +561,9 @@ def plan_slide(planner, q_start: np.ndarray, objects: list[ObjectPose], target: 
             # it slides on what it rests on; the fingers press through it towards those items (never reaching
             # them: the item is between), so those pairs are not checked either
             resting = [pr for pr in slide_scene.colliding_pairs(q_press) if "held" in pr]
+            # ... and what it lies on (`supports`, within _touching's gap: the press took them as what it rests on):
+            # pressed onto them, it rides on them, whatever gap the two fitted poses leave
+            resting += [("held", u) for u in supports if not any(u in pr for pr in resting)]
             under = {b if a == "held" else a for a, b in resting}
             shielded = [(f, u) for f in ("pad_a", "pad_b") for u in under]
             r = _slide_path(planner, slide_scene.allowing(resting + shielded + [("held", FLOOR)]), q_press, T_press,
