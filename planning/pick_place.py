@@ -470,7 +470,9 @@ class Planner:
         ids = [int(o.instance_id) for o in blockers]
         failure.details["blocking"] = ids[0]
         failure.details["blocking_all"] = [(i, o.cls) for i, o in zip(ids, blockers)]
-        failure.message += f" (blocked by the {blockers[0].cls}" + (f" {ids[0]})" if ids[0] >= 0 else ")")
+        named = f"the {blockers[0].cls}" + (f" {ids[0]}" if ids[0] >= 0 else "")
+        # where map points no item explains met the grasps more often (_report_voxels), the item is named second
+        failure.message += f" (fewer met {named})" if "blocked_by_voxels" in failure.details else f" (blocked by {named})"
 
     @staticmethod
     def _report_voxels(failure: PlanningFailure, crowded_by: dict) -> None:
