@@ -66,8 +66,9 @@ ACTIONS: dict[str, str] = {
                 "space the pads and the held item were about to sweep, kept as map points no object explains) "
                 "and go back along the stopped motion to its start (the one way known to be free); a stopped lift "
                 "goes back down to 5 mm above where the item was taken and lets go there (a put-down planned from "
-                "the stop point started against what the lift met and met it again); let go there, the item keeps "
-                "the lift's direction (its next plans lift it otherwise) and nothing is marked",
+                "the stop point started against what the lift met and met it again): that item keeps the lift's "
+                "direction instead (its next plans lift it another way) and its sliver is not marked (it filled "
+                "the space of the item's own next grasp)",
     "leave_after_slip": "after a slip: the strategies for a `slip` (below, executive/recovery_strategies.py): "
                         "on a lift, on up along its rest, checked, out of the items before the re-scan",
     "put_down_held": "anything still held: at its target, else the drop zone (staged, picked up again unless the "
