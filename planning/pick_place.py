@@ -28,8 +28,8 @@ from kitchenbot.planning.doubtful_support import (NARROWING_TOL, POINT_REACH, PO
                                                   own_axis_directions, pose_doubtful)
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
 from kitchenbot.planning.grasps import VOXELS, GraspStats, object_name, select_grasps
-from kitchenbot.planning.lift import (base_directions, directions_away, lift_fallbacks, repeats_stopped, separating_legs,
-                                      sidesteps)
+from kitchenbot.planning.lift import (base_directions, directions_away, lift_fallbacks, repeats_stopped,
+                                      separating_legs, sidesteps)
 from kitchenbot.planning.motion import cartesian_line, plan_joint_path, reach_bounds, segment_free
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
 from kitchenbot.planning.resting import clear_travel, lies_on
