@@ -56,6 +56,9 @@ class Attempts:
     stopped_slides: list = field(default_factory=list)
     set_aside_plans: int = 0  # plans to set it aside on the counter (it had no target and blocked another item)
     no_room: tuple | None = None  # (scene epoch, items keeping room) when its task last had no target for it
+    # directions (unit, base frame) of its lifts that a protective stop cut short, the item let go where it was
+    # taken: its next plans lift it otherwise (Planner.plan_pick's `stopped_lifts`); cleared when it moves (a slide)
+    stopped_lifts: list = field(default_factory=list)
 
     def plan_failed(self, epoch: int) -> None:
         if self.plan_epoch != epoch:
@@ -378,6 +381,21 @@ class Belief:
         if grasp not in t.missed:
             t.missed.append(grasp)
 
+    def record_stopped_lift(self, obj: ObjectPose, direction: np.ndarray) -> None:
+        """A lift of `obj` moving along `direction` (base frame) was cut short by a protective stop, and the item was
+        let go where it was taken: lifted that way again from there it meets the same thing. Its later plans lift
+        it in other directions (Attempts.stopped_lifts)."""
+        d = np.asarray(direction, float).reshape(3)
+        n = float(np.linalg.norm(d))
+        if n < 1e-9:
+            raise ValueError("record_stopped_lift: the direction has no length")
+        self.attempts_for(obj, create=True).stopped_lifts.append(d / n)
+
+    def stopped_lifts(self, obj: ObjectPose) -> list:
+        """The directions of `obj`'s lifts a protective stop cut short where it lies (record_stopped_lift)."""
+        t = self.attempts_for(obj)
+        return list(t.stopped_lifts) if t is not None else []
+
     def record_nest_felt(self, obj: ObjectPose) -> None:
         """A grip of `obj` (a plate) closed wider than planned by about the pitch of a nest: its pads took in the
         rim of the plate nested under it too (the pair is seen as one plate). Another pinch there closes across
@@ -446,6 +464,7 @@ class Belief:
         t.stopped_slides = []
         if t.nest_felt:  # the top plate slid off the one its grips took in too: those grips say nothing of it alone
             t.nest_felt, t.missed = False, []
+        t.stopped_lifts = []  # lifted from where it lies now, it meets other things
         self.scene_changed()
 
     def record_blocked(self, obj: ObjectPose, blocker: int | None) -> None:

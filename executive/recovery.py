@@ -139,12 +139,17 @@ class RecoveryActions:
         if stopped == "lift":
             # Back down the lift (the way it came: free in the world as it is) and let go where the item was taken
             # from. A put-down planned from the stop point starts right against what the lift met, which no model
-            # holds (a missed or mis-posed neighbour): its first move met the same thing again. Marked after
-            # (mark_lift_contact), so the next try lifts clear of it.
+            # holds (a missed or mis-posed neighbour): its first move met the same thing again. Where the item is
+            # let go there, the lift's direction is remembered for it (its next plans lift it otherwise); where it
+            # is put down elsewhere, what the lift was about to sweep is marked after (mark_lift_contact).
             ctx["lift_marks"] = self._contact_sliver(tr.stopped) if self.planner is not None else None
+            direction = self._stopped_direction(tr.stopped) if self.planner is not None else None
+            obj = self.item.obj
             try:
                 if self._retrace(tr.stopped, "back_off", short_of=self.RELEASE_ABOVE) and self._holding():
                     self._release_in_place()
+                    if obj is not None and direction is not None:
+                        self._remember_stopped_lift(obj, direction, ctx)
             except ProtectiveStopError as e:  # should not happen (the way back was free): put down from here
                 self._unlock_after_refused("back off stopped", e)
             tr.stopped = None
@@ -158,6 +163,18 @@ class RecoveryActions:
         self._cmd("gripper.open", opening=opening, release=True)
         self.gripper.open(opening)
         self._log("note", "backed down the stopped lift and let go where the item was taken from")
+
+    def _remember_stopped_lift(self, obj: ObjectPose, direction: np.ndarray, ctx: dict) -> None:
+        """The item of a stopped lift stands where it was taken: what the lift was about to sweep (the held item's
+        surface and the pads, CONTACT_LOOKAHEAD further along) is not marked. That sliver is the space the item's
+        own next grasp and lift need (the pads' boxes over its rim, its surface over where it stands): marked, every
+        grasp of it collided with the marks until the scene changed, while what the lift met may lie anywhere
+        along the item (a bowl's foot under a plate's flange, 5 cm below the marks). What is known is that lifting
+        it this way from here meets something: its next plans lift it otherwise (Belief.record_stopped_lift)."""
+        ctx["lift_marks"] = None
+        self.belief.record_stopped_lift(obj, direction)
+        self._log("note", "the stopped lift's direction is not tried again for this item", cls=obj.cls,
+                  direction=np.asarray(direction, float))
 
     def _act_leave_after_slip(self, f: Failure, ctx: dict) -> None:
         if f.kind == "slip" and not self._holding():  # the strategies for a slip (executive/recovery_strategies.py)
@@ -230,20 +247,43 @@ class RecoveryActions:
     CONTACT_LOOKAHEAD = 0.015  # m of tool travel past a stop within which what it touched must lie
     RELEASE_ABOVE = 0.005  # m short of a stopped lift's start where the item is let go (it drops that far)
 
+    def _ahead_of_stop(self, traj: Trajectory) -> np.ndarray | None:
+        """A protective stop cut `traj` short (the arm stands on it): its sample CONTACT_LOOKAHEAD of tool travel
+        further along (its last where it ends sooner), or None where the arm is not on it."""
+        robot = self.planner.robot
+        k = self._index_on(traj)
+        if k is None:
+            return None
+        p0 = robot.fk_tcp(self.arm.joint_positions())[:3, 3]
+        j = k
+        while j + 1 < len(traj) and np.linalg.norm(robot.fk_tcp(traj.q[j + 1])[:3, 3] - p0) < self.CONTACT_LOOKAHEAD:
+            j += 1
+        return traj.q[min(j + 1, len(traj) - 1)]
+
+    def _stopped_direction(self, traj: Trajectory) -> np.ndarray | None:
+        """The direction (unit, base frame) the tool moved in where a protective stop cut `traj` short: from the
+        stop point to CONTACT_LOOKAHEAD further along (from the motion's start where it stopped at its end), or
+        None where the arm is not on it or it did not move the tool."""
+        q_ahead = self._ahead_of_stop(traj)
+        if q_ahead is None:
+            return None
+        fk = self.planner.robot.fk_tcp
+        p = fk(self.arm.joint_positions())[:3, 3]
+        d = fk(q_ahead)[:3, 3] - p
+        if np.linalg.norm(d) < 1e-4:
+            d = p - fk(traj.q[0])[:3, 3]
+        n = float(np.linalg.norm(d))
+        return d / n if n >= 1e-4 else None
+
     def _contact_sliver(self, traj: Trajectory) -> np.ndarray | None:
         """A protective stop cut `traj` short (the arm stands on it): what the tool (or what it holds) touched
         lies in the space it was about to sweep, the next CONTACT_LOOKAHEAD of its path. Points filling that
         sliver (base frame), or None."""
         robot, g = self.planner.robot, self.planner.world.gripper
-        k = self._index_on(traj)
-        if k is None:
+        q_ahead = self._ahead_of_stop(traj)
+        if q_ahead is None:
             return None
         q = self.arm.joint_positions()
-        p0 = robot.fk_tcp(q)[:3, 3]
-        j = k
-        while j + 1 < len(traj) and np.linalg.norm(robot.fk_tcp(traj.q[j + 1])[:3, 3] - p0) < self.CONTACT_LOOKAHEAD:
-            j += 1
-        q_ahead = traj.q[min(j + 1, len(traj) - 1)]
         opening = float(self.gripper.opening())
         # the pads (and what they hold) lead the tool into whatever it meets; the palm and camera behind them are
         # left out: their slivers would fill the space the arm itself needs to back away

@@ -66,14 +66,16 @@ ACTIONS: dict[str, str] = {
                 "space the pads and the held item were about to sweep, kept as map points no object explains) "
                 "and go back along the stopped motion to its start (the one way known to be free); a stopped lift "
                 "goes back down to 5 mm above where the item was taken and lets go there (a put-down planned from "
-                "the stop point started against what the lift met and met it again)",
+                "the stop point started against what the lift met and met it again): that item keeps the lift's "
+                "direction instead (its next plans lift it another way) and its sliver is not marked (it filled "
+                "the space of the item's own next grasp)",
     "leave_after_slip": "after a slip: the strategies for a `slip` (below, executive/recovery_strategies.py): "
                         "on a lift, on up along its rest, checked, out of the items before the re-scan",
     "put_down_held": "anything still held: at its target, else the drop zone (staged, picked up again unless the "
                      "task takes it there), else open in place over the cell; never again within 10 cm of a target "
                      "whose way in was just stopped",
-    "mark_lift_contact": "after a stopped lift: the contact is marked once the item is let go, so the next try "
-                         "lifts clear of it",
+    "mark_lift_contact": "after a stopped lift whose item was put down elsewhere (not let go where it was "
+                         "taken): the sliver the lift was about to sweep is marked, so the next try lifts clear of it",
     "back_out": "after a failed grasp: open and retrace the grasp-in line, else 8 cm straight up",
     "search_drop_site": "an item that slipped out (or a placement not seen at its target) outside the sink: the "
                         "camera straight down at the spot, perception without the cell, and an item of its class "

@@ -86,12 +86,15 @@ def _direct(req: PlanRequest, name: str, targets=None, staging: bool = False) ->
     missed = list(t.missed) if t is not None else []  # grasps that closed on nothing on this item
     failed: list[str] = []  # grasps whose place did not plan
     first: PlanFailure | None = None
+    stopped = b.stopped_lifts(obj)  # lifts of it a protective stop cut short: it is lifted otherwise
     for _ in range(PLACE_GRASPS):
         req.note("command", "plan_pick", cls=obj.cls, targets=[t.T_base_obj[:3, 3] for t in targets],
-                 **({"staging": True} if staging else {}), **({"without": missed + failed} if missed or failed else {}))
+                 **({"staging": True} if staging else {}), **({"without": missed + failed} if missed or failed else {}),
+                 **({"lifts_stopped": [d.tolist() for d in stopped]} if stopped else {}))
         avoid = missed + failed
         pick = req.planner.plan_pick(q, req.scene_objs, target=obj, map_points=b.map_points, place_target=targets,
-                                     **({"avoid_grasps": tuple(avoid)} if avoid else {}))
+                                     **({"avoid_grasps": tuple(avoid)} if avoid else {}),
+                                     **({"stopped_lifts": tuple(stopped)} if stopped else {}))
         req.check_deadline()
         if not pick.ok:
             # the first place failure says more than "no other grasp" after it

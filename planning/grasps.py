@@ -355,8 +355,14 @@ def _observed_near(o: ObjectPose, objects: Sequence[ObjectPose], reach: float = 
 MAX_CROWD_CHECKS = 24
 
 
+# _crowded_by's key for the map's voxels (map points no perceived object explains: unexplained points, contact marks)
+VOXELS = "voxels"
+
+
 def _crowded_by(scenes: dict, names: list[str], collided: list, taken: list, objects) -> dict:
-    """{object name: how many rejected grasps collided with it or would take it in}."""
+    """{object name, or VOXELS for the map's voxels: how many rejected grasps collided with it or would take it
+    in}. The voxels count too: a grasp blocked only by map points no object explains (contact marks, an unseen
+    item's points) is reported as such, not as blocked by the neighbour a few of the grasps also touched."""
     out: dict[str, int] = {}
     for o in taken:
         k = next((j for j, x in enumerate(objects) if x is o), None)
@@ -365,7 +371,10 @@ def _crowded_by(scenes: dict, names: list[str], collided: list, taken: list, obj
     for k, q, opening in collided:
         sc = scenes[k]
         sc.set_opening(opening)
-        hit = {n[4:] for p in sc.colliding_pairs(q) for n in p if n.startswith("obj:") and n[4:] != names[k]}
+        pairs = sc.colliding_pairs(q)
+        hit = {n[4:] for p in pairs for n in p if n.startswith("obj:") and n[4:] != names[k]}
+        if any(n == VOXELS for p in pairs for n in p):
+            hit.add(VOXELS)
         for n in hit:
             out[n] = out.get(n, 0) + 1
     return out

@@ -95,26 +95,78 @@ def directions_away(centre: np.ndarray, objects, names: set[str], have: list[np.
     return out
 
 
+# A lift of this item that a protective stop cut short (the executive let the item go where it was taken and
+# remembers the direction the tool moved in at the stop): the lifts within this angle (rad) of it are the same
+# lift, and are not planned again; instead, these tilts (degrees from straight up) at AROUND_TURNS headings.
+STOPPED_LIFT_ANGLE = np.radians(10.0)
+AROUND_TILTS = (25.0, 45.0)
+AROUND_TURNS = 8
+
+
+def repeats_stopped(d: np.ndarray, stopped) -> bool:
+    """Whether moving along `d` (a unit direction, or any offset) repeats one of the `stopped` lift directions
+    (unit, base frame): within STOPPED_LIFT_ANGLE of it."""
+    d = np.asarray(d, float)
+    n = float(np.linalg.norm(d))
+    if n < 1e-9:
+        return False
+    return any(float(d @ np.asarray(s, float)) / n >= np.cos(STOPPED_LIFT_ANGLE) for s in stopped)
+
+
+def directions_around(p: np.ndarray, sink_lo_hi, have: list[np.ndarray]) -> list[np.ndarray]:
+    """Unit lift directions tilted by AROUND_TILTS at AROUND_TURNS headings, the first heading towards the sink's
+    middle, not within 10 degrees of one in `have`: the lifts tried where the item's usual one stopped (nothing
+    says which side what it met is on)."""
+    lo, hi = sink_lo_hi
+    to_mid = (np.asarray(lo, float) + np.asarray(hi, float))[:2] / 2 - np.asarray(p, float)[:2]
+    a0 = float(np.arctan2(to_mid[1], to_mid[0])) if np.linalg.norm(to_mid) > 1e-6 else 0.0
+    out: list[np.ndarray] = []
+    for tilt in AROUND_TILTS:
+        for k in range(AROUND_TURNS):  # alternating either side of the heading to the middle: 0, +1, -1, +2, ...
+            turn = (k + 1) // 2 * (1 if k % 2 else -1) * 2 * np.pi / AROUND_TURNS
+            t, a = np.radians(tilt), a0 + turn
+            d = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)])
+            if all(float(d @ h) < np.cos(np.radians(10.0)) for h in [*have, *out]):
+                out.append(d)
+    return out
+
+
 def lift_fallbacks(sink_lo_hi, T_base_obj: np.ndarray, objects, ran_into: set[str], *,
-                   near_wall: bool, ran_into_unknown: set | None = None) -> Iterator[tuple[np.ndarray, bool]]:
+                   near_wall: bool, ran_into_unknown: set | None = None,
+                   stopped: tuple = ()) -> Iterator[tuple[np.ndarray, bool]]:
     """(direction, along) for the lift of the item at T_base_obj, in the order to try them. `ran_into` is the
     caller's set of perceived objects the lifts tried so far ran into: read when the base directions are used up
     (a cup under the rim of a glass leaning over it slips out from under it, tilted away from the glass).
     `ran_into_unknown`: the caller's set of map voxels (base-frame points) no perceived object explains that those
     lifts ran into (an item perception did not recognise, leaning on this one): read likewise, they count as one
-    more item to tilt away from."""
+    more item to tilt away from. `stopped`: directions (unit, base frame) of lifts of this item a protective stop
+    cut short: no direction within STOPPED_LIFT_ANGLE of one is given, and after the others come
+    directions_around the item."""
     centre = np.asarray(T_base_obj, float)[:3, 3]
     base = base_directions(sink_lo_hi, centre, T_base_obj, away_from_walls=near_wall)
     tilted = tilted_axis(T_base_obj) is not None
+
+    def ok(d):
+        return not repeats_stopped(d, stopped)
+
     for k, d in enumerate(base):
-        yield d, k == 0 or (k == 1 and tilted)
+        if ok(d):
+            yield d, k == 0 or (k == 1 and tilted)
         if k == 1 and tilted:
             for d_between in between_up_and_axis(d):
-                yield d_between, True
+                if ok(d_between):
+                    yield d_between, True
     unknown = sorted(ran_into_unknown or ())
+    away: list[np.ndarray] = []
     if ran_into or unknown:
-        for d in directions_away(centre, objects, ran_into, base, unknown=unknown):
-            yield d, False
+        away = directions_away(centre, objects, ran_into, base, unknown=unknown)
+        for d in away:
+            if ok(d):
+                yield d, False
+    if len(stopped):
+        for d in directions_around(centre, sink_lo_hi, [*base, *away]):
+            if ok(d):
+                yield d, False
 
 
 # The first leg of a sideways-then-up lift: (m level, m up). An item under something that overhangs it (a plate's

@@ -27,9 +27,10 @@ from kitchenbot.planning.collision import TOOL_PARTS, CollisionWorld, Held, Scen
 from kitchenbot.planning.doubtful_support import (NARROWING_TOL, POINT_REACH, POSE_ERROR, approaches_points,
                                                   own_axis_directions, pose_doubtful)
 from kitchenbot.planning.grasp_synthesis import ensure_grasps
-from kitchenbot.planning.grasps import GraspStats, object_name, select_grasps
+from kitchenbot.planning.grasps import VOXELS, GraspStats, object_name, select_grasps
+from kitchenbot.planning.lift import (base_directions, directions_away, lift_fallbacks, repeats_stopped,
+                                      separating_legs, sidesteps)
 from kitchenbot.planning.lift_gaps import LiftGaps
-from kitchenbot.planning.lift import base_directions, directions_away, lift_fallbacks, separating_legs, sidesteps
 from kitchenbot.planning.motion import cartesian_line, plan_joint_path, reach_bounds, segment_free
 from kitchenbot.planning.place_reach import OnDemand, PlaceReach
 from kitchenbot.planning.resting import clear_travel, lies_on
@@ -394,6 +395,7 @@ class Planner:
         map_points: np.ndarray | None = None,
         place_target: PlaceTarget | Sequence[PlaceTarget] | None = None,
         avoid_grasps: Sequence[str] = (),
+        stopped_lifts: Sequence[np.ndarray] = (),
     ) -> PickPlan | PlanningFailure:
         """Pick the best graspable object in `objects` (or `target`): approach, straight grasp-in, lift.
 
@@ -402,7 +404,10 @@ class Planner:
         voxel obstacles; `place_target`: when given, only grasps that can also reach that placement (one of
         them, for a list) are kept (e.g. cups to be inverted into the upper rack need side grasps);
         `avoid_grasps`: grasp names not to use, with their tilted variants (those that closed on nothing on this item
-        before, or whose place did not plan).
+        before, or whose place did not plan);
+        `stopped_lifts`: directions (unit, base frame) in which a lift of `target` was cut short by a protective stop
+        (the item let go where it was taken): no lift of it starts within planning.lift.STOPPED_LIFT_ANGLE of one
+        (planning.lift.lift_fallbacks; the two-leg lifts' first legs likewise).
         """
         q0 = self._check_q(q_start, "q_start")
         if isinstance(q0, PlanningFailure):
@@ -420,8 +425,10 @@ class Planner:
                 # nothing on it, the neighbours its grasps collided with, most often first (taking one of them
                 # out first frees it)
                 blockers = self._resting_on(target, objects)
+                crowded_by = grasps.details.get("crowded_by") or {}
                 if not blockers and grasps.kind == "no_collision_free_grasp":
-                    blockers = self._crowding(target, objects, grasps.details.get("crowded_by") or {})
+                    self._report_voxels(grasps, crowded_by)
+                    blockers = self._crowding(target, objects, crowded_by)
                 self._report_blocking(grasps, target, objects, blockers)
             return grasps
         last: PlanningFailure | None = None
@@ -430,7 +437,8 @@ class Planner:
         why: list[str] = []  # per candidate tried: "grasp: kind: segment: what failed" (the failure's details["candidates"])
         for g in grasps[: self.settings.max_grasp_candidates]:
             tried += 1
-            res = self._plan_pick_with(q0, g, objects, map_points, base_scene, timings)
+            res = self._plan_pick_with(q0, g, objects, map_points, base_scene, timings,
+                                       stopped=tuple(np.asarray(d, float) for d in stopped_lifts))
             if not isinstance(res, PlanningFailure):
                 res.candidates_tried = tried
                 timings["total_ms"] = (time.perf_counter() - t0) * 1e3
@@ -463,7 +471,20 @@ class Planner:
         ids = [int(o.instance_id) for o in blockers]
         failure.details["blocking"] = ids[0]
         failure.details["blocking_all"] = [(i, o.cls) for i, o in zip(ids, blockers)]
-        failure.message += f" (blocked by the {blockers[0].cls}" + (f" {ids[0]})" if ids[0] >= 0 else ")")
+        named = f"the {blockers[0].cls}" + (f" {ids[0]}" if ids[0] >= 0 else "")
+        # where map points no item explains met the grasps more often (_report_voxels), the item is named second
+        failure.message += f" (fewer met {named})" if "blocked_by_voxels" in failure.details else f" (blocked by {named})"
+
+    @staticmethod
+    def _report_voxels(failure: PlanningFailure, crowded_by: dict) -> None:
+        """Where the map's voxels (map points no perceived object explains: contact marks, an unseen item's points)
+        crowd the rejected grasps at least as often as any perceived neighbour, the failure says so first
+        (details["blocked_by_voxels"]: how many rejected grasps collided with them): a neighbour a few of them also
+        touched is not what blocks the item."""
+        n = int(crowded_by.get(VOXELS, 0))
+        if n and n >= max((c for k, c in crowded_by.items() if k != VOXELS), default=0):
+            failure.details["blocked_by_voxels"] = n
+            failure.message += f" (blocked by map points no perceived item explains: {n} rejected grasps met them)"
 
     @staticmethod
     def _crowding(target: ObjectPose, objects, crowded_by: dict) -> list[ObjectPose]:
@@ -512,10 +533,11 @@ class Planner:
         return [o for _, o in sorted(out, key=lambda x: -x[0])]
 
     def _plan_pick_with(self, q0, g: Grasp, objects, map_points, base_scene: Scene, timings: dict,
-                        keep_wall_gaps: bool = False) -> PickPlan | PlanningFailure:
+                        keep_wall_gaps: bool = False, stopped: tuple = ()) -> PickPlan | PlanningFailure:
         """Grasp-in and lift of grasp `g`, then the approach. `keep_wall_gaps`: the basin walls the held item is
         within the grasp margin of, but clear of, at the grasp keep that gap for the whole lift (_wall_gaps): the
-        last resort, tried when every lift with the walls checked as before failed."""
+        last resort, tried when every lift with the walls checked as before failed. `stopped`: directions of lifts
+        of this item a protective stop cut short, not planned again (plan_pick's `stopped_lifts`)."""
         s = self.settings
         name = None
         for k, o in enumerate(objects):
@@ -640,7 +662,7 @@ class Planner:
         # info): used when nothing else plans (before that rule, it was planned)
         fallback = None
         for d, along in lift_fallbacks(self.cell.sink_interior, g.obj.T_base_obj, objects, lift_objects,
-                                       near_wall=near_wall, ran_into_unknown=lift_unknown):
+                                       near_wall=near_wall, ran_into_unknown=lift_unknown, stopped=stopped):
             T_lift = trans(*(s.lift_height * d)) @ g.T_base_tcp
             info: dict = {}
             r = self._line(lift_scene, q_grasp, T_lift, "lift", check_start=False,
@@ -670,7 +692,7 @@ class Planner:
                     if not separated:  # once: first along the direction that parts it from those it touches
                         separated = True
                         r = self._separating_lift(lift_scene, start_scene, held_scene, q_grasp, g, held_item_pairs,
-                                                  by_name)
+                                                  by_name, stopped)
                         if r is not None:
                             return with_approach(r[0], LIFT_CONTACT_TRAVEL,
                                                  lift_separate_m=float(np.linalg.norm(r[2])))
@@ -691,7 +713,7 @@ class Planner:
         # level, then up.
         for leg in (sidesteps(centre, objects, lift_objects, unknown=sorted(lift_unknown))
                     if lift_objects or lift_unknown else []):
-            r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg)
+            r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg, stopped)
             if isinstance(r, PlanningFailure):
                 pairs = r.details.get("pairs", ())
                 held_only &= bool(pairs) and all("held" in p for p in pairs)
@@ -714,7 +736,7 @@ class Planner:
         # Every line and sidestep failed, and the held item touches a basin wall at the grasp: up along the wall
         # first (within the start contacts' travel), then away from it (_up_then_away)
         touching = [p for p in start_contacts if any(x.startswith("cell:") for x in p)]
-        if touching and not keep_wall_gaps:
+        if touching and not keep_wall_gaps and not repeats_stopped(np.array([0.0, 0.0, 1.0]), stopped):
             r = self._up_then_away(lift_scene, vertical_start_scene, start_scene, held_scene, q_grasp, g.T_base_tcp,
                                    centre, held_item_pairs, doubtful, remade=remade)
             if r is not None:
@@ -728,7 +750,8 @@ class Planner:
         # made again within the fits' error (a bowl's foot under a plate's flange, the bowl by a basin wall).
         if not separated and not keep_wall_gaps and (remade or any(
                 pose_doubtful(by_name[x], s.visible_fraction_unoccluded) for p in held_item_pairs for x in p if x in by_name)):
-            r = self._separating_lift(lift_scene, start_scene, held_scene, q_grasp, g, held_item_pairs, by_name)
+            r = self._separating_lift(lift_scene, start_scene, held_scene, q_grasp, g, held_item_pairs, by_name,
+                                      stopped)
             if r is not None:
                 return with_approach(r[0], LIFT_CONTACT_TRAVEL, lift_separate_m=float(np.linalg.norm(r[2])),
                                      lift_separate_last=1.0)
@@ -738,13 +761,15 @@ class Planner:
         if walls and not keep_wall_gaps:
             # every lift failed with the walls checked as before: once more keeping the gaps to the walls (a lift
             # that planned before is unchanged: a plate leaning on a wall still leaves it tilted away from it)
-            again = self._plan_pick_with(q0, g, objects, map_points, base_scene, timings, keep_wall_gaps=True)
+            again = self._plan_pick_with(q0, g, objects, map_points, base_scene, timings, keep_wall_gaps=True,
+                                         stopped=stopped)
             if not isinstance(again, PlanningFailure):
                 return again
-        if first is not None:
-            if lift_objects:
-                first.details["lift_objects"] = sorted(lift_objects)
-            first.details["held_blocked"] = held_only
+        if first is None:  # every lift there was to try repeats one a protective stop cut short
+            first = CartesianPathFailed("lift: every lift repeats one a protective stop cut short", {"segment": "lift"})
+        if lift_objects:
+            first.details["lift_objects"] = sorted(lift_objects)
+        first.details["held_blocked"] = held_only
         return first
 
     # m: least gap to a basin wall at the grasp that a lift keeps as its margin with that wall (_wall_gaps); a
@@ -892,20 +917,22 @@ class Planner:
 
     def _separating_lift(self, lift_scene: Scene, start_scene: Scene, held_scene: Scene, q_grasp: np.ndarray,
                          g: Grasp, pairs: list[tuple[str, str]],
-                         by_name: dict) -> tuple[Trajectory, np.ndarray, np.ndarray] | None:
+                         by_name: dict, stopped: tuple = ()) -> tuple[Trajectory, np.ndarray, np.ndarray] | None:
         """(lift, its end, first leg) of a lift in two legs whose first opens the held item's start contacts with the
         items in `pairs` at once (planning.lift.separating_legs, on the perceived poses: out of the item it nests
         in along the contact's normal until clear of it by the grasp margin), then straight up; or None where no
         direction parts them, or every one's lift collides, makes a contact again (_contact_comes_back,
         _remade_in_fit) or ends within the transport margins (`held_scene`). The directions are tried best first, each checked against everything else with the lift's
         margins: the one that parts the item fastest from what it rests in may lead it towards something else (a
-        third bowl under the two, perceived as none, whose points stay obstacles)."""
+        third bowl under the two, perceived as none, whose points stay obstacles). `stopped`: directions of lifts a
+        protective stop cut short: no first leg along one (_two_leg_lift)."""
         names = sorted({x for p in pairs for x in p if x in by_name})
         if not names:
             return None
         doubtful = [n for n in names if pose_doubtful(by_name[n], self.settings.visible_fraction_unoccluded)]
         if doubtful:  # its pose may not choose the direction (planning/doubtful_support.py)
-            return self._lift_off_doubtful(lift_scene, start_scene, held_scene, q_grasp, g, pairs, by_name, doubtful)
+            return self._lift_off_doubtful(lift_scene, start_scene, held_scene, q_grasp, g, pairs, by_name, doubtful,
+                                           stopped)
         held_bvh = self.world.bvh(self.inventory[g.obj.obj_id])
         T_held = np.asarray(g.obj.T_base_obj, float)
         others = [(self.world.bvh(self.inventory[by_name[n].obj_id]), coal_transform(by_name[n].T_base_obj))
@@ -921,7 +948,7 @@ class Planner:
                                        coal.DistanceResult()))
 
         for leg in separating_legs(gap, others, self.settings.grasp_margin):
-            r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg)
+            r = self._two_leg_lift(lift_scene, start_scene, q_grasp, g.T_base_tcp, leg, stopped)
             if isinstance(r, PlanningFailure):
                 continue
             lift, q_lifted = r
@@ -932,7 +959,7 @@ class Planner:
 
     def _lift_off_doubtful(self, lift_scene: Scene, start_scene: Scene, held_scene: Scene, q_grasp: np.ndarray,
                            g: Grasp, pairs: list[tuple[str, str]], by_name: dict,
-                           doubtful: list[str]) -> tuple[Trajectory, np.ndarray, np.ndarray] | None:
+                           doubtful: list[str], stopped: tuple = ()) -> tuple[Trajectory, np.ndarray, np.ndarray] | None:
         """_separating_lift's answer where some of the items the held one touches at the grasp (`doubtful`, their
         pairs' names) have poses too poorly supported by what was seen of them to choose a direction
         (doubtful_support.pose_doubtful): a lift in two legs, first LIFT_CONTACT_TRAVEL along the held item's own
@@ -950,7 +977,7 @@ class Planner:
         T_tcp_obj = inv(g.spec.T_obj_tcp)
         for d in own_axis_directions(g.obj.T_base_obj):
             leg = LIFT_CONTACT_TRAVEL * d
-            r = self._two_leg_lift(lift_free, start_free, q_grasp, g.T_base_tcp, leg)
+            r = self._two_leg_lift(lift_free, start_free, q_grasp, g.T_base_tcp, leg, stopped)
             if isinstance(r, PlanningFailure):
                 continue
             lift, q_lifted = r
@@ -985,10 +1012,14 @@ class Planner:
         return [tuple(x) for x in v[near]]
 
     def _two_leg_lift(self, lift_scene: Scene, start_scene: Scene, q_grasp: np.ndarray, T_grasp: np.ndarray,
-                      leg: np.ndarray) -> tuple[Trajectory, np.ndarray] | PlanningFailure:
+                      leg: np.ndarray, stopped: tuple = ()) -> tuple[Trajectory, np.ndarray] | PlanningFailure:
         """A lift in two straight legs: by `leg` (base frame, m: nearly level, out from under what overhangs the
         item; the held item may leave its start contacts during the first LIFT_CONTACT_TRAVEL as on any lift),
-        then straight up by lift_height; timed as one path (planning.lift.sidesteps)."""
+        then straight up by lift_height; timed as one path (planning.lift.sidesteps). Refused where `leg` runs
+        along one of the `stopped` directions (a lift of this item a protective stop cut short)."""
+        if repeats_stopped(leg, stopped):
+            return CartesianPathFailed("lift: its first leg repeats a lift a protective stop cut short",
+                                       {"segment": "lift"})
         info1: dict = {}
         r = self._line(lift_scene, q_grasp, trans(*leg) @ T_grasp, "lift", check_start=False,
                        start_scene=start_scene, start_travel=LIFT_CONTACT_TRAVEL, info=info1)

@@ -44,3 +44,27 @@ def test_away_from_what_the_lifts_ran_into_once_the_others_are_used_up():
     ran_into.add("2")  # the straight lift ran into the glass (its planner name: the instance id)
     rest = [d for d, _ in gen]
     assert rest and all(d[0] < 0 for d in rest)  # tilted away from the glass (it lies towards +x)
+
+
+def test_a_stopped_lift_is_not_given_again_and_tilts_all_round_follow():
+    """`stopped`: a lift of this item a protective stop cut short (its item let go where it was taken): no direction
+    within STOPPED_LIFT_ANGLE of it, and after the others, tilts at every heading (the first towards the middle)."""
+    from kitchenbot.planning.lift import AROUND_TILTS, AROUND_TURNS, STOPPED_LIFT_ANGLE, repeats_stopped
+
+    sink = Cell().sink_interior
+    lo, hi = sink
+    p = np.array([0.4, 0.1, -0.15])  # off the sink's middle
+    T = make_T(t=p) @ rot_x(np.radians(6))  # resting tilted a little: its own axis is within the angle of up
+    up = np.array([0.0, 0.0, 1.0])
+    assert len(list(lift_fallbacks(sink, T, [], set(), near_wall=False))) == 4  # up, its axis, two between
+    got = [d for d, _ in lift_fallbacks(sink, T, [], set(), near_wall=False, stopped=(up,))]
+    assert len(got) == len(AROUND_TILTS) * AROUND_TURNS
+    assert all(float(d @ up) < np.cos(STOPPED_LIFT_ANGLE) for d in got)
+    to_mid = (np.asarray(lo) + np.asarray(hi))[:2] / 2 - p[:2]
+    assert np.isclose(np.degrees(np.arccos(got[0][2])), AROUND_TILTS[0])
+    assert float(got[0][:2] @ to_mid) > 0.99 * np.linalg.norm(got[0][:2]) * np.linalg.norm(to_mid)
+    # a tilted stopped lift leaves straight up in place, first
+    tilted = np.array([np.sin(np.radians(25)), 0.0, np.cos(np.radians(25))])
+    got = [d for d, _ in lift_fallbacks(sink, T, [], set(), near_wall=False, stopped=(tilted,))]
+    assert np.allclose(got[0], up) and not any(repeats_stopped(d, (tilted,)) for d in got)
+    assert repeats_stopped(0.02 * tilted, (tilted,)) and not repeats_stopped(np.zeros(3), (tilted,))
