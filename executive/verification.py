@@ -472,21 +472,40 @@ class Verification(DoneCheck):
         (target_presence decided, not present) or a grasp planned on it has closed on nothing since its last look
         (Belief.missed_on), that look put it where it is not: the record goes, the drop is lost again, and the drop
         site is looked at anew (an item perceived at the disproved spot is not taken for it; what the view shows
-        there unexplained is kept clear of). True if so. Before, the record stayed: every later look saw nothing
+        there unexplained is kept clear of). True if so. (The depth check of a placement, target_presence, cannot
+        tell: a plate lowered by its thickness agrees with the counter it is not on.) Before, the record stayed: every later look saw nothing
         near it, three grasps closed on nothing, and the plate, standing in a rack 24 cm away, was in no map
         (the camera later ran into it)."""
         b = self.belief
         if st.instance_id not in b.found_drops:
             return False
-        presence = target_presence(view, self.robot.inventory[st.obj_id], st.T_base_obj)
-        empty = presence.decided and not presence.present
-        if not (empty or b.missed_on(st)):
+        empty, missed = self._shows_nothing_at(view, st), b.missed_on(st)
+        if not (empty or missed):
             return False
         b.disprove_found_drop(st)
         self._log("note", "the dropped item is not where the drop-site look put it: looked for again", cls=st.cls,
-                  xyz=st.T_base_obj[:3, 3], presence=presence.as_dict(), after_miss=not empty)
+                  xyz=st.T_base_obj[:3, 3], empty=empty, after_miss=missed)
         self._search_drop_site(cls=st.cls)
         return True
+
+    EMPTY_MIN_POINTS = 30  # view points over a record's footprint needed to call its spot empty
+
+    def _shows_nothing_at(self, view, st: Placed) -> bool:
+        """Whether `view` sees the footprint of the record `st` (x-y box of its model at its pose) and nothing there
+        that the cell or another believed item does not explain: its spot is empty. False where the view has fewer
+        than EMPTY_MIN_POINTS points there (it cannot tell)."""
+        from kitchenbot.perception.rgbd import point_map
+
+        T = np.asarray(st.T_base_obj, float)
+        body = self.robot.inventory[st.obj_id].points @ T[:3, :3].T + T[:3, 3]
+        lo, hi = body.min(axis=0), body.max(axis=0)
+        P = point_map(view, stride=2).reshape(-1, 3).astype(float)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        P = P[np.all((P[:, :2] >= lo[:2]) & (P[:, :2] <= hi[:2]), axis=1) & (P[:, 2] <= hi[2] + 0.05)]
+        if len(P) < self.EMPTY_MIN_POINTS:
+            return False
+        others = [o for o in self.belief.scene_objects() if o.instance_id != st.instance_id]
+        return len(self.planner.unexplained(P, others)) == 0
 
     def _staged_in(self, st: Placed, poses: list[ObjectPose]) -> ObjectPose | None:
         """The pose among `poses` that is the staged item `st` (see _look_at_staged), None if none is."""
