@@ -95,6 +95,12 @@ class SinkDrop:
         """Where to look for it: where the item was when it fell, else where the tool was."""
         return self.site if self.look_at is None else self.look_at
 
+    def centred_over_basin(self) -> bool:
+        """Whether where it was (`where`) lies over the basin in x-y."""
+        lo, hi = self.sink_lo_hi
+        xy = self.where[:2]
+        return bool(np.all(xy >= np.asarray(lo)[:2]) and np.all(xy <= np.asarray(hi)[:2]))
+
     def holds(self, p: ObjectPose) -> bool:
         """`p` lies in the sink by its x-y (up to its rim, as the task counts it)."""
         lo, hi = self.sink_lo_hi

@@ -85,7 +85,9 @@ class DoneCheck:
             self._log("result", "looked where an item fell above the sink", xyz=sd.where, cls=sd.cls,
                       found=[p.T_base_obj[:3, 3] for p in found], above_rim=[t.centre for t in above])
             if not found:
-                if not above:  # nothing rests above the basin there: it fell back in, where the scans saw it
+                # nothing rests above the basin there: it fell back in, where the scans saw it (where the item's
+                # centre was over the basin: one held mostly over the counter may lie beyond the counter's edge)
+                if not above and sd.centred_over_basin():
                     b.found_sink_drop(sd)
                 for d in b.lost_drops():  # named at the end with what rests there
                     if above and d["cls"] == sd.cls and np.allclose(d["xyz"], np.round(sd.site, 3)):
