@@ -94,6 +94,18 @@ class SinkDrop:
     expect: int  # items of its class the sink holds if it fell back in (less those taken out since)
     sink_lo_hi: tuple  # the basin (Cell.sink_interior)
     looked: bool = False  # the done check looked where it fell
+    look_at: np.ndarray | None = None  # where the item was when it fell (None: `site`)
+
+    @property
+    def where(self) -> np.ndarray:
+        """Where to look for it: where the item was when it fell, else where the tool was."""
+        return self.site if self.look_at is None else self.look_at
+
+    def centred_over_basin(self) -> bool:
+        """Whether where it was (`where`) lies over the basin in x-y."""
+        lo, hi = self.sink_lo_hi
+        xy = self.where[:2]
+        return bool(np.all(xy >= np.asarray(lo)[:2]) and np.all(xy <= np.asarray(hi)[:2]))
 
     def holds(self, p: ObjectPose) -> bool:
         """`p` lies in the sink by its x-y (up to its rim, as the task counts it)."""
@@ -165,6 +177,9 @@ class Belief:
     prefer_instance: int | None = None  # the item to try next (it blocks the last one tried)
     waits: Waits = field(default_factory=Waits)  # items pinned by what lies on them: not planned until that moves
     drop_site: np.ndarray | None = None  # where the tool was when the last item slipped out
+    # the item that slipped out last as it was held when it left the gripper (its model's points in the base frame;
+    # None where the grasp is not known): where it fell is judged by it, not by the tool point (take_dropped_held)
+    dropped_held: np.ndarray | None = None
     unseen_placement: Placed | None = None  # the record of a placement its check did not see
     dropped: int = 0  # items that left the gripper on the way
     # each drop as it stands: {"cls", "xyz" (where the tool was), "found"}; the ones not found are named at the end
@@ -177,6 +192,12 @@ class Belief:
     # instance ids of staged records a grasp missed on since they were last looked at: the record is off by more
     # than a grasp tolerates, so the next look does not keep it for agreeing with the view within a fit's error
     missed_staged: set = field(default_factory=set)
+    # found-drop records (instance id -> the drop's entry in `drops`): a look at the drop site put the item there;
+    # a later look that shows the spot empty disproves it (Belief.disprove_found_drop)
+    found_drops: dict = field(default_factory=dict)
+    # where a drop-site look put a dropped item that a later look showed was not there: a look at the drop site
+    # does not take an item perceived there for it again (RecoveryActions._search_drop_site)
+    disproved_spots: list = field(default_factory=list)
     # contact marks that stand for an item that fell where no view recognised it: (its class, those marks); they go
     # once a perception recognises an item of that class among them (Belief.seen_where_marked)
     unseen_items: list = field(default_factory=list)
@@ -507,14 +528,19 @@ class Belief:
         rel, self.released = self.released, None
         return rel
 
-    def record_dropped(self, where: np.ndarray, staged: Placed | None = None, cls: str | None = None) -> None:
-        """An item left the gripper on the way (slipped, let go over the cell) about above `where`. `staged`: the
-        record it was picked up from when it was staged; it is not there any more (it fell near `where`, and the
-        look there records it anew where it is found). Kept, it was picked up "again" from an empty spot until its
-        attempts ran out, and the run ended with it "left on the counter"."""
+    def record_dropped(self, where: np.ndarray, staged: Placed | None = None, cls: str | None = None,
+                       held: np.ndarray | None = None) -> None:
+        """An item left the gripper on the way (slipped, let go over the cell) about above `where` (the tool point).
+        `staged`: the record it was picked up from when it was staged; it is not there any more (it fell near
+        `where`, and the look there records it anew where it is found). Kept, it was picked up "again" from an
+        empty spot until its attempts ran out, and the run ended with it "left on the counter". `held`: the item's
+        model points (base frame) as it was held when it left the gripper, where the grasp is known: it falls
+        from there, which for a plate held by its rim is 10 cm and more from the tool point."""
         self.dropped += 1
         self.drop_site = np.array(where, float)
-        self.drops.append({"cls": cls, "xyz": np.round(np.asarray(where, float), 3).tolist(), "found": False})
+        self.dropped_held = None if held is None else np.asarray(held, float).reshape(-1, 3)
+        self.drops.append({"cls": cls, "xyz": np.round(np.asarray(where, float), 3).tolist(), "found": False,
+                           "held": self.dropped_held})
         if staged is not None:
             self.unplace(staged)
 
@@ -523,22 +549,58 @@ class Belief:
         a placement is, not looked for as a drop (nor counted lost)."""
         self.dropped = max(self.dropped - 1, 0)
         self.drop_site = None
+        self.dropped_held = None
         if self.drops:
             self.drops.pop()
 
-    def record_drop_found(self) -> None:
-        """The item that dropped last is not lost: it fell back into the sink or was found where it fell."""
+    def record_drop_found(self) -> dict | None:
+        """The item that dropped last is not lost: it fell back into the sink or was found where it fell. Returns
+        its entry in `drops` (None if there is none)."""
         self.drops_found = min(self.drops_found + 1, self.dropped)
         d = next((d for d in reversed(self.drops) if not d["found"]), None)
         if d is not None:
             d["found"] = True
+        return d
 
-    def await_in_sink(self, cls: str, site: np.ndarray, expect: int, sink_lo_hi) -> None:
+    def record_found_drop(self, p: Placed, drop: dict | None) -> None:
+        """`p` is the record a drop-site look made of the dropped item `drop` (an entry of `drops`)."""
+        if drop is not None:
+            self.found_drops[p.instance_id] = drop
+
+    def disprove_found_drop(self, p: Placed) -> bool:
+        """The found-drop record `p` is not where the item lies (a later look showed its spot without it): the
+        record goes, the drop is lost again (looked for anew: `drop_site`), and a look at the drop site does not
+        take an item perceived at `p`'s spot for it (`disproved_spots`). False if `p` is no found-drop record."""
+        drop = self.found_drops.pop(p.instance_id, None)
+        if drop is None:
+            return False
+        self.unplace(p)
+        self.seen_staged.discard(p.instance_id)
+        self.missed_staged.discard(p.instance_id)
+        self.disproved_spots.append(np.asarray(p.T_base_obj, float)[:3, 3].copy())
+        if drop["found"]:
+            drop["found"] = False
+            self.drops_found = max(self.drops_found - 1, 0)
+        self.drop_site = np.asarray(drop["xyz"], float)
+        self.dropped_held = drop.get("held")
+        return True
+
+    def await_in_sink(self, cls: str, site: np.ndarray, expect: int, sink_lo_hi,
+                      look_at: np.ndarray | None = None) -> SinkDrop:
         """The item that dropped last left the gripper above the sink: it fell back into it, or came to rest where
         the sink scans do not look (on the rim, over the edge). It counts as seen again once a perception of the
         sink holds `expect` items of its class (as many as before it was picked, less those taken out since),
-        not before (Belief.perceived, record_taken)."""
-        self.sink_drops.append(SinkDrop(cls, np.array(site, float), expect, sink_lo_hi))
+        not before (Belief.perceived, record_taken). `site`: where the tool was (its drop's "xyz"); `look_at`:
+        where the done check looks for it (where the item was; `site` if not given)."""
+        sd = SinkDrop(cls, np.array(site, float), expect, sink_lo_hi,
+                      look_at=None if look_at is None else np.array(look_at, float))
+        self.sink_drops.append(sd)
+        return sd
+
+    def stop_awaiting(self, sd: SinkDrop) -> None:
+        """The drop `sd` was found out of the sink (a look where it fell): no scan need see it back in."""
+        if sd in self.sink_drops:
+            self.sink_drops.remove(sd)
 
     def _sink_drops_seen(self, poses: list[ObjectPose]) -> None:
         for sd in list(self.sink_drops):
@@ -546,18 +608,20 @@ class Belief:
                 self.sink_drops.remove(sd)
                 self._drop_seen(sd)
 
-    def _drop_seen(self, sd: "SinkDrop") -> None:
+    def _drop_seen(self, sd: "SinkDrop") -> dict | None:
         d = next((d for d in self.drops if not d["found"] and d["cls"] == sd.cls
                   and np.allclose(d["xyz"], np.round(sd.site, 3))), None)
         if d is not None:
             d["found"] = True
             self.drops_found = min(self.drops_found + 1, self.dropped)
+        return d
 
-    def found_sink_drop(self, sd: "SinkDrop") -> None:
-        """The drop over the sink was found where the scans do not look (the done check's look at it)."""
+    def found_sink_drop(self, sd: "SinkDrop") -> dict | None:
+        """The drop over the sink was found where the scans do not look (the done check's look at it); its entry
+        in `drops` (None if none was open)."""
         if sd in self.sink_drops:
             self.sink_drops.remove(sd)
-        self._drop_seen(sd)
+        return self._drop_seen(sd)
 
     def lost_drops(self) -> list[dict]:
         """The drops not seen again: each {"cls", "xyz" (where it was last held)}."""
@@ -579,11 +643,17 @@ class Belief:
         self.unverified.append(obj.cls)
         self.unseen_placement = record
         self.drop_site = np.array(site, float)
+        self.dropped_held = None
 
     def take_drop_site(self) -> tuple[np.ndarray | None, Placed | None]:
         """(where to look for a dropped item, the record of the unseen placement it may be), once."""
         out = (self.drop_site, self.unseen_placement)
         self.drop_site, self.unseen_placement = None, None
+        return out
+
+    def take_dropped_held(self) -> np.ndarray | None:
+        """The dropped item's model points as it was held when it fell (record_dropped), once; None if unknown."""
+        out, self.dropped_held = self.dropped_held, None
         return out
 
     def found_unseen(self, record: Placed) -> None:

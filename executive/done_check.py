@@ -67,38 +67,41 @@ class DoneCheck:
             sd.looked = True
             self.report.sink_drop_looks += 1
             try:
-                why = self._look_down_at(sd.site) if self.planner is not None else "no planner"
+                why = self._look_down_at(sd.where) if self.planner is not None else "no planner"
                 if why:
-                    self._log("note", "no view of where the item fell", xyz=sd.site, reason=why)
+                    self._log("note", "no view of where the item fell", xyz=sd.where, reason=why)
                     continue
                 view = self._capture_view(f"sinkdrop{self.report.sink_drop_looks}", "drop", spot=True)
             except (StepFailed, DriverTimeoutError) as e:
-                self._log("note", "no view of where the item fell", xyz=sd.site, reason=str(e))
+                self._log("note", "no view of where the item fell", xyz=sd.where, reason=str(e))
                 continue
             with self.stages.within("perceive"):
                 res = self._drop_perceiver().perceive([view])
             rim = float(sd.sink_lo_hi[1][2]) + self.ABOVE_RIM
             found = [p for p in res.poses if p.cls == sd.cls
-                     and np.linalg.norm(p.T_base_obj[:2, 3] - sd.site[:2]) < self.DROP_REACH
+                     and np.linalg.norm(p.T_base_obj[:2, 3] - sd.where[:2]) < self.DROP_REACH
                      and (not sd.holds(p) or p.T_base_obj[2, 3] > rim)]
-            above = [] if found else self._above_the_rim(view, sd.site, rim)
-            self._log("result", "looked where an item fell above the sink", xyz=sd.site, cls=sd.cls,
+            above = [] if found else self._above_the_rim(view, sd.where, rim)
+            self._log("result", "looked where an item fell above the sink", xyz=sd.where, cls=sd.cls,
                       found=[p.T_base_obj[:3, 3] for p in found], above_rim=[t.centre for t in above])
             if not found:
-                if not above:  # nothing rests above the basin there: it fell back in, where the scans saw it
+                # nothing rests above the basin there: it fell back in, where the scans saw it (where the item's
+                # centre was over the basin: one held mostly over the counter may lie beyond the counter's edge)
+                if not above and sd.centred_over_basin():
                     b.found_sink_drop(sd)
                 for d in b.lost_drops():  # named at the end with what rests there
                     if above and d["cls"] == sd.cls and np.allclose(d["xyz"], np.round(sd.site, 3)):
                         d["rests"] = above[0].describe()
                 continue
-            obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - sd.site[:2]))
-            b.found_sink_drop(sd)
+            obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - sd.where[:2]))
+            drop = b.found_sink_drop(sd)
             T_release = np.array(obj.T_base_obj, float)
             T_release[2, 3] += DROP_HEIGHT  # as if released there (place targets are release poses)
             placed = b.record_placed(self.task, obj, PlaceTarget(T_release, "drop", support="beside the basin "
                                                                  "(it fell there)"), obj.T_base_obj)
             self.report.recovered_drops += 1
             b.record_found(placed)
+            b.record_found_drop(placed, drop)
             return True
         return False
 

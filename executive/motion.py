@@ -250,9 +250,19 @@ class Motions:
         """The held object slipped out: it fell straight down from about where the tool is now."""
         where = self.arm.tcp_pose()[:3, 3].copy()
         obj = self.item.obj
-        self.belief.record_dropped(where, self.item.staged, obj.cls if obj is not None else None)
+        self.belief.record_dropped(where, self.item.staged, obj.cls if obj is not None else None, self._held_points())
         return StepFailed("slip", f"the {obj.cls if obj is not None else 'object'} slipped out during {what}",
                           at=where)
+
+    def _held_points(self) -> np.ndarray | None:
+        """The held item's model points (base frame) where the grasp holds it now (the tool's pose and the grasp's
+        T_tcp_obj); None where the item or its grasp is not known."""
+        it = self.item
+        pick = it.pick
+        if it.obj is None or pick is None or it.obj.obj_id not in self.robot.inventory.models:
+            return None
+        T = self.arm.tcp_pose() @ np.asarray(pick.grasp.T_tcp_obj, float)
+        return self.robot.inventory[it.obj.obj_id].points @ T[:3, :3].T + T[:3, 3]
 
     def _escape(self) -> bool:
         """The arm is within the collision margin of something (it stopped there): the strategies for a start

@@ -19,6 +19,7 @@ import numpy as np
 
 from kitchenbot.drivers.errors import DeviceNotConnectedError, DriverTimeoutError, LimitViolation, ProtectiveStopError
 from kitchenbot.executive.belief import as_pose
+from kitchenbot.executive.drop_footprint import drop_footprint
 from kitchenbot.executive.failures import Failure, StepFailed, Stopped
 from kitchenbot.executive.recovery_rules import CAMERA, rule_for
 from kitchenbot.executive.recovery_strategies import recover_with
@@ -425,24 +426,35 @@ class RecoveryActions:
 
     SEARCH_RADIUS = 0.25  # m around the drop site an item found there may have come to rest
 
-    def _search_drop_site(self) -> None:
+    def _search_drop_site(self, cls: str | None = None) -> None:
         """An item slipped out outside the sink (over the counter): the sink scans never look there. Look straight
         down at where it fell; an item of its class found there (and not one placed earlier) is picked up again
-        from there, as an item staged on the counter is."""
+        from there, as an item staged on the counter is. Where it fell is judged by the item as it was held
+        (executive/drop_footprint.py): part of it over the basin, a scan must see it back in the sink; its centre
+        (or a part of it well) beyond the basin, the counter is looked at too, straight down at its centre.
+        `cls`: the dropped item's class where no item is being handled (a drop looked for again)."""
         b = self.belief
         site, unseen_rec = b.take_drop_site()  # (unseen_rec: a placement not seen at its target, kept there)
-        if site is None or self.item.obj is None or self.planner is None:
+        held = b.take_dropped_held() if unseen_rec is None else None
+        cls = cls or (self.item.obj.cls if self.item.obj is not None else None)
+        if site is None or cls is None or self.planner is None:
             return
         lo, hi = self.robot.cell.sink_interior
-        cls = self.item.obj.cls
-        if np.all(site[:2] >= lo[:2]) and np.all(site[:2] <= hi[:2]):
-            if unseen_rec is None:  # it fell back into the sink, or onto its rim: a scan that sees it back says so
-                obj = self.item.obj
-                at = obj.T_base_obj[:3, 3]  # (a duplicate detection of it is not another item)
-                expect = 1 + sum(1 for p in b.poses if p.cls == cls and self.task.in_sink(p) and p is not obj
-                                 and not same_item(p.cls, p.T_base_obj[:3, 3], cls, at))
-                b.await_in_sink(cls, site, expect, (lo, hi))
+        fp = drop_footprint(site, held, (lo, hi))
+        awaited = None
+        if fp.over_basin and unseen_rec is None and self.item.obj is not None:
+            # it fell back into the sink, or onto its rim: a scan that sees it back says so
+            obj = self.item.obj
+            at = obj.T_base_obj[:3, 3]  # (a duplicate detection of it is not another item)
+            expect = 1 + sum(1 for p in b.poses if p.cls == cls and self.task.in_sink(p) and p is not obj
+                             and not same_item(p.cls, p.T_base_obj[:3, 3], cls, at))
+            awaited = b.await_in_sink(cls, site, expect, (lo, hi), look_at=fp.centre)
+        if not fp.beyond_basin:
             return
+        if awaited is not None:
+            self._log("note", "the dropped item was held over the basin's edge: awaited in the sink, looked for on "
+                      "the counter", cls=cls, tool=site, centre=fp.centre)
+        site = fp.centre
         keep_out = self._keep_out(site, cls)
         self.tracks.searching = True
         unseen = True
@@ -456,7 +468,7 @@ class RecoveryActions:
             unseen = False
         except (StepFailed, DriverTimeoutError, ProtectiveStopError) as e:
             self._log("note", "drop site not seen", reason=str(e))
-            self._restore_devices(self.failure)
+            self._restore_devices(self.failure or Failure("error", str(e), self.state))
             return
         finally:
             self.tracks.searching = False
@@ -472,7 +484,8 @@ class RecoveryActions:
         found = [p for p in res.poses if p.cls == cls
                  and np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]) < self.SEARCH_RADIUS
                  and not self.task.in_sink(p)
-                 and not any(self._is_placed_item(p, o) for o in placed)]
+                 and not any(self._is_placed_item(p, o) for o in placed)
+                 and not any(same_item(cls, p.T_base_obj[:3, 3], cls, x) for x in b.disproved_spots)]
         self._log("result", "drop site", at=site, found=[p.T_base_obj[:3, 3] for p in found])
         if not found:
             # nothing of its class recognised there (fallen into a rack, lying on its side against something): it
@@ -482,8 +495,9 @@ class RecoveryActions:
             self._add_contact_marks(self._unexplained_in(view, self._keep_out(site, cls, clear_of_tool=False)), cls)
             return
         obj = min(found, key=lambda p: np.linalg.norm(p.T_base_obj[:2, 3] - site[:2]))
-        if unseen_rec is None:
-            b.record_drop_found()
+        drop = b.record_drop_found() if unseen_rec is None else None
+        if awaited is not None:
+            b.stop_awaiting(awaited)
         if unseen_rec is not None and unseen_rec.cls == cls:  # nothing stands at its target; handled again from here
             b.found_unseen(unseen_rec)
             self._log("note", "the item not seen at its target lies near it", cls=cls, xyz=obj.T_base_obj[:3, 3],
@@ -499,7 +513,28 @@ class RecoveryActions:
             self._log("note", "the dropped item lies at its target", cls=cls, xyz=obj.T_base_obj[:3, 3])
             return
         b.record_found(placed)
+        b.record_found_drop(placed, drop)
+        b.seen_where_marked([obj])  # marks that stood for it unrecognised (an earlier look) would cage it
+        # what else the view shows where it may have fallen, that neither the cell nor a believed item (the found
+        # one included) explains, is kept clear of: the look may have put it in the wrong place (a plate standing
+        # in a rack, seen as one lying 24 cm away; the camera later hit it where it stood, in no map)
+        self._add_contact_marks(self._away_from(obj, self._unexplained_in(
+            view, self._keep_out(site, cls, clear_of_tool=False))), cls)
         self._emit({"type": "progress", "note": f"found the dropped {cls} on the counter"})
+
+    AWAY_FROM_FOUND = 0.03  # m: unexplained voxels this close to a found item's surface are its own (a fit's error)
+
+    def _away_from(self, obj: ObjectPose, vox: np.ndarray | None) -> np.ndarray | None:
+        """The voxel centres `vox` farther than AWAY_FROM_FOUND from `obj`'s model surface at its pose: what its
+        pose does not explain for being a few mm off is not kept as an obstacle around it (its regrasp goes there)."""
+        if vox is None or not len(vox) or obj.obj_id not in self.robot.inventory.models:
+            return vox
+        from scipy.spatial import cKDTree
+
+        T = np.asarray(obj.T_base_obj, float)
+        surface = self.robot.inventory[obj.obj_id].points @ T[:3, :3].T + T[:3, 3]
+        d, _ = cKDTree(surface).query(vox, distance_upper_bound=self.AWAY_FROM_FOUND)
+        return vox[~np.isfinite(d)]
 
     def _is_placed_item(self, p: ObjectPose, placed: ObjectPose) -> bool:
         """Whether the pose `p` found at a drop site is the item the robot put down as `placed`, seen again: where
@@ -646,7 +681,8 @@ class RecoveryActions:
         (x0, y0), (x1, y1) = self.robot.cell.spec.counter_extent_xy
         if x0 <= tcp[0] <= x1 and y0 <= tcp[1] <= y1:
             self._log("note", "no way to put the held object down; opening over the cell", tcp=tcp)
-            self.belief.record_dropped(tcp, it.staged, it.obj.cls if it.obj is not None else None)
+            self.belief.record_dropped(tcp, it.staged, it.obj.cls if it.obj is not None else None,
+                                       self._held_points())
             self._cmd("gripper.open", release=True)
             self.gripper.open()
             return False

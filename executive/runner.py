@@ -388,6 +388,8 @@ class TaskRunner(Execution, Verification, RecoveryActions, Motions):
         for st in b.staged_waiting():  # staged objects first: they wait on the counter for their regrasp
             if b.needs_look(st):  # where it settled when let go, not where it was put down
                 st = self._look_at_staged(st)
+                if st is None:  # a found drop the look disproved: looked for again, the record gone
+                    continue
             obj = as_pose(st)
             targets = self.task.targets(obj, b)
             if isinstance(targets, NoFreeSlot):

@@ -405,17 +405,18 @@ class Verification(DoneCheck):
     STAGED_SEARCH = 0.08
     STAGED_AGREE = (0.01, 15.0)  # (m, deg): a view's pose this close to the record confirms it
 
-    def _look_at_staged(self, st: Placed) -> Placed:
+    def _look_at_staged(self, st: Placed) -> Placed | None:
         """One view straight down at the staged item `st` before its regrasp; the item of its class the view shows
         within STAGED_SEARCH of the record (and nearer to it than to any other record) replaces the record, at the
         record's height (it rests on the counter: the lowest points agree) or as fitted, whichever explains the
         view's depth better (tilted across an edge its lowest point is not the record's), where it explains it
         better than the record does; a view within STAGED_AGREE of the record confirms it, unless a grasp planned on
         the record missed since its last look (then the depth decides). The record returned: the new one, or `st`
-        when no view is had or the view does not show it."""
+        when no view is had or the view does not show it; None when `st` was a found drop the view disproves
+        (_found_drop_disproved: the record went)."""
         b = self.belief
         site = np.asarray(st.T_base_obj, float)[:3, 3]
-        seen = None
+        seen = view = None
         try:
             why = self._look_down_at(site) if self.planner is not None else "no planner"
             if why:
@@ -428,6 +429,8 @@ class Verification(DoneCheck):
         except (StepFailed, DriverTimeoutError) as e:
             self._log("note", "no view of the staged item", cls=st.cls, xyz=site, reason=str(e))
         if seen is None:
+            if view is not None and self._found_drop_disproved(st, view):
+                return None
             b.looked_at(self.task, st, None)
             self._log("result", "staged item", cls=st.cls, xyz=site, seen=False)
             return st
@@ -462,6 +465,47 @@ class Verification(DoneCheck):
         self._log("result", "staged item", cls=st.cls, xyz=T[:3, 3], seen=True, agrees=agrees,
                   moved_cm=round(100 * moved, 1), turned_deg=round(turned, 1), after_miss=doubted, **fits)
         return b.looked_at(self.task, st, None if agrees else T)
+
+    def _found_drop_disproved(self, st: Placed, view) -> bool:
+        """The view of the staged record `st` shows no item of its class near it. Where `st` is the record a look at
+        a drop site made of the dropped item (Belief.found_drops), and the view's depth shows its spot without it
+        (target_presence decided, not present) or a grasp planned on it has closed on nothing since its last look
+        (Belief.missed_on), that look put it where it is not: the record goes, the drop is lost again, and the drop
+        site is looked at anew (an item perceived at the disproved spot is not taken for it; what the view shows
+        there unexplained is kept clear of). True if so. (The depth check of a placement, target_presence, cannot
+        tell: a plate lowered by its thickness agrees with the counter it is not on.) Before, the record stayed: every later look saw nothing
+        near it, three grasps closed on nothing, and the plate, standing in a rack 24 cm away, was in no map
+        (the camera later ran into it)."""
+        b = self.belief
+        if st.instance_id not in b.found_drops:
+            return False
+        empty, missed = self._shows_nothing_at(view, st), b.missed_on(st)
+        if not (empty or missed):
+            return False
+        b.disprove_found_drop(st)
+        self._log("note", "the dropped item is not where the drop-site look put it: looked for again", cls=st.cls,
+                  xyz=st.T_base_obj[:3, 3], empty=empty, after_miss=missed)
+        self._search_drop_site(cls=st.cls)
+        return True
+
+    EMPTY_MIN_POINTS = 30  # view points over a record's footprint needed to call its spot empty
+
+    def _shows_nothing_at(self, view, st: Placed) -> bool:
+        """Whether `view` sees the footprint of the record `st` (x-y box of its model at its pose) and nothing there
+        that the cell or another believed item does not explain: its spot is empty. False where the view has fewer
+        than EMPTY_MIN_POINTS points there (it cannot tell)."""
+        from kitchenbot.perception.rgbd import point_map
+
+        T = np.asarray(st.T_base_obj, float)
+        body = self.robot.inventory[st.obj_id].points @ T[:3, :3].T + T[:3, 3]
+        lo, hi = body.min(axis=0), body.max(axis=0)
+        P = point_map(view, stride=2).reshape(-1, 3).astype(float)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        P = P[np.all((P[:, :2] >= lo[:2]) & (P[:, :2] <= hi[:2]), axis=1) & (P[:, 2] <= hi[2] + 0.05)]
+        if len(P) < self.EMPTY_MIN_POINTS:
+            return False
+        others = [o for o in self.belief.scene_objects() if o.instance_id != st.instance_id]
+        return len(self.planner.unexplained(P, others)) == 0
 
     def _staged_in(self, st: Placed, poses: list[ObjectPose]) -> ObjectPose | None:
         """The pose among `poses` that is the staged item `st` (see _look_at_staged), None if none is."""
