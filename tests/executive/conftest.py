@@ -5,9 +5,12 @@ from __future__ import annotations
 import pytest
 
 from kitchenbot.executive.assembly import assemble, make_sim_world
+from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.config import load_config
 from kitchenbot.executive.runner import RunOptions
 from kitchenbot.executive.session import build_runner
+from kitchenbot.executive.strategies import PlanRequest, plan_item, strategies_for
+from kitchenbot.tasks import make_task
 
 
 def _small_config(n: int = 3, seed: int = 0, waypoints: int = 1):
@@ -150,3 +153,12 @@ def run_slide():
         return start, moved
 
     return run
+
+
+def plan_with_strategies(task_name, obj, world, planner, poses):
+    """Plan OBJ with TASK_NAME's strategies on a fresh belief, the arm where WORLD holds it: (plan, counts)."""
+    task, belief = make_task(task_name, world.inventory, planner.cell), Belief()
+    req = PlanRequest(obj, task.targets(obj, belief), None, task, belief, planner, lambda: world.q.copy(),
+                      lambda: False, lambda *a, **k: None, lambda: None, scene_objs=poses)
+    counts: dict = {}
+    return plan_item(req, strategies_for(task), counts), counts

@@ -43,12 +43,18 @@ def test_the_footprint_decides_where_an_item_fell():
     assert (out.over_basin, out.beyond_basin) == (False, True)
 
 
-def test_a_plate_held_by_its_rim_over_the_basin_is_awaited_in_the_sink(make_runner):
-    runner, world = make_runner(task="sink-pick")
+def _connected_and_empty(make_runner, task):
+    """A runner for TASK with its devices connected and nothing in its world."""
+    runner, world = make_runner(task=task)
     for dev in (runner.arm, runner.gripper, runner.camera):
         dev.connect()
     for u in list(world.objects):
         world.remove_object(u)
+    return runner, world
+
+
+def test_a_plate_held_by_its_rim_over_the_basin_is_awaited_in_the_sink(make_runner):
+    runner, world = _connected_and_empty(make_runner, "sink-pick")
     plate = runner.robot.inventory.by_name("dinner_plate")
     lo, hi = runner.robot.cell.sink_interior
     # the tool pointing down, 5 mm outside the basin in y; the plate held by its rim, its centre 13 cm inside
@@ -93,11 +99,7 @@ def test_a_found_drop_that_a_later_look_shows_absent_is_looked_for_again(make_ru
     nothing believed explained, is kept clear of (before: nothing; the camera later ran into the plate there). The
     look before its regrasp shows P's spot empty: the record goes, the drop site is looked at again, and the plate
     is found at Q (before: the record stayed, and three grasps closed on nothing at P)."""
-    runner, world = make_runner(task="sink-to-dishwasher")
-    for dev in (runner.arm, runner.gripper, runner.camera):
-        dev.connect()
-    for u in list(world.objects):
-        world.remove_object(u)
+    runner, world = _connected_and_empty(make_runner, "sink-to-dishwasher")
     plate = runner.robot.inventory.by_name("side_plate")
     z = plate.extents[2] / 2
     T_q = make_T(np.eye(3), (0.04, 0.62, z))  # where it lies
@@ -131,11 +133,7 @@ def test_a_found_drop_that_a_later_look_shows_absent_is_looked_for_again(make_ru
 def test_a_found_drop_the_look_does_not_recognise_but_sees_there_is_kept(make_runner):
     """The plate lies where the drop-site look put it, and the look before its regrasp recognises nothing: the view
     still shows something there that nothing else explains, so the record stays (it is not looked for again)."""
-    runner, world = make_runner(task="sink-to-dishwasher")
-    for dev in (runner.arm, runner.gripper, runner.camera):
-        dev.connect()
-    for u in list(world.objects):
-        world.remove_object(u)
+    runner, world = _connected_and_empty(make_runner, "sink-to-dishwasher")
     plate = runner.robot.inventory.by_name("side_plate")
     T_p = make_T(np.eye(3), (-0.20, 0.55, plate.extents[2] / 2))
     world.add_object(plate, T_p)

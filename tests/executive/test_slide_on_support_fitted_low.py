@@ -15,13 +15,12 @@ import coal
 import numpy as np
 import pytest
 
-from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.oracle import OraclePerceiver
-from kitchenbot.executive.strategies import PlanRequest, plan_item, strategies_for
 from kitchenbot.fakes.placement import drop_onto
 from kitchenbot.planning.collision import coal_transform
-from kitchenbot.tasks import make_task
 from kitchenbot.transforms import from_rotvec, make_T
+
+from .conftest import plan_with_strategies
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -69,11 +68,7 @@ def test_top_plate_slides_on_a_plate_fitted_low_under_it(stack, run_slide, run_p
         p.points = (p.points - T_true[:3, 3]) @ T_true[:3, :3] @ T_fit[:3, :3].T + T_fit[:3, 3]
     assert planner.settings.grasp_margin < _gap(planner, top, below) < 0.003
     assert [p.instance_id for p in planner.items_on(below, poses)] == [upper]
-    task, belief = make_task("sink-to-dishwasher", world.inventory, planner.cell), Belief()
-    req = PlanRequest(top, task.targets(top, belief), None, task, belief, planner, lambda: world.q.copy(),
-                      lambda: False, lambda *a, **k: None, lambda: None, scene_objs=poses)
-    counts: dict = {}
-    plan = plan_item(req, strategies_for(task), counts)
+    plan, counts = plan_with_strategies("sink-to-dishwasher", top, world, planner, poses)
     # no pinch of the top plate is free (the lower plate's rim); the slide on the lower plate plans
     assert counts["direct_pick"] == {"tried": 1, "planned": 0}
     assert plan.strategy == "slide_off_stack" and plan.slide is not None, counts

@@ -14,12 +14,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.oracle import OraclePerceiver
-from kitchenbot.executive.strategies import PlanRequest, plan_item, strategies_for
 from kitchenbot.fakes.placement import drop_onto
-from kitchenbot.tasks import make_task
 from kitchenbot.transforms import from_rotvec, make_T
+
+from .conftest import plan_with_strategies
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -51,11 +50,7 @@ def test_the_top_plate_of_a_messy_stack_is_slid_then_picked(stack, run_slide, ru
     cfg, world, planner, (lowest, middle, top_uid) = stack
     poses = OraclePerceiver(world).perceive([]).poses
     top = next(p for p in poses if p.instance_id == top_uid)
-    task, belief = make_task("sink-pick", world.inventory, planner.cell), Belief()
-    req = PlanRequest(top, task.targets(top, belief), None, task, belief, planner, lambda: world.q.copy(),
-                      lambda: False, lambda *a, **k: None, lambda: None, scene_objs=poses)
-    counts: dict = {}
-    plan = plan_item(req, strategies_for(task), counts)
+    plan, counts = plan_with_strategies("sink-pick", top, world, planner, poses)
     # the direct pick found no collision-free pinch (the plates under it crowd them); the slide applied
     assert counts["direct_pick"] == {"tried": 1, "planned": 0}
     assert plan.strategy == "slide_off_stack" and plan.slide is not None, counts

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kitchenbot.drivers.errors import ProtectiveStopError
-from kitchenbot.executive.assembly import assemble, make_sim_world
+from kitchenbot.executive.assembly import assemble
 from kitchenbot.executive.belief import Belief
 from kitchenbot.executive.oracle import OraclePerceiver
 from kitchenbot.executive.runner import RunOptions
@@ -18,7 +18,7 @@ from kitchenbot.executive.session import build_runner
 from kitchenbot.executive.strategies import PlanRequest, _slide_plan
 from kitchenbot.planning.slide import repeats
 
-from tests.planning.test_slide_sloping_top import LOWER, TOP, _pose
+from tests.planning.test_slide_sloping_top import nest_world
 
 from .conftest import _small_config
 
@@ -27,12 +27,7 @@ pytestmark = pytest.mark.timeout(300)
 
 def test_a_slide_stopped_on_the_way_is_not_planned_again_unchanged():
     cfg = _small_config()
-    world = make_sim_world(cfg, 0)
-    for u in list(world.objects):
-        world.remove_object(u)
-    plate = world.inventory.by_name("side_plate")
-    world.add_object(plate, _pose(LOWER))
-    top_uid = world.add_object(plate, _pose(TOP))
+    world, _, top_uid = nest_world(cfg)
     runner = build_runner(cfg, "sink-pick", 0, robot=assemble(cfg, world=world), oracle_perception=True,
                           journal_path=False, options=RunOptions(poll_period=0.05, confirm_empty_scans=1))
     for dev in (runner.arm, runner.gripper, runner.camera):

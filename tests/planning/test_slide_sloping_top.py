@@ -35,15 +35,20 @@ def _pose(rows) -> np.ndarray:
     return T
 
 
-@pytest.fixture
-def leaning_nest():
-    cfg = load_config("config/sim.yaml")
+def nest_world(cfg):
+    """A simulated world holding only the two nested side plates: (world, plate model, the top plate's uid)."""
     world = make_sim_world(cfg, 0)
     for u in list(world.objects):
         world.remove_object(u)
     plate = world.inventory.by_name("side_plate")
     world.add_object(plate, _pose(LOWER))
-    top_uid = world.add_object(plate, _pose(TOP))
+    return world, plate, world.add_object(plate, _pose(TOP))
+
+
+@pytest.fixture
+def leaning_nest():
+    cfg = load_config("config/sim.yaml")
+    world, plate, top_uid = nest_world(cfg)
     planner = Planner.from_config(cfg, world.inventory)
     poses = OraclePerceiver(world).perceive([]).poses
     top = next(p for p in poses if p.instance_id == top_uid)
