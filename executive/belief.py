@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from kitchenbot.executive import machine as M
+from kitchenbot.executive.left_reason import Reason
 from kitchenbot.executive.waiting import Waits
 from kitchenbot.perception.types import ObjectPose, View
 from kitchenbot.planning.types import MapPoints
@@ -43,7 +44,9 @@ class Attempts:
     cls: str
     pos: np.ndarray
     count: int = 0
-    reasons: list = field(default_factory=list)
+    reasons: list = field(default_factory=list)  # every failure's kind, oldest first (a strategy reads the history)
+    # its latest failure with what it named: the reason a run that gives up reports (executive/left_reason.py)
+    latest: Reason | None = None
     plan_failures: int = 0
     plan_epoch: int = -1
     slides: int = 0
@@ -380,20 +383,36 @@ class Belief:
         t.no_room = self._room_key()
         if reason not in t.reasons:
             t.reasons.append(reason)
+        t.latest = Reason(reason)
 
     def record_attempt(self, obj: ObjectPose) -> None:
         """A grasp of `obj` is executed."""
         self.attempts_for(obj, create=True).count += 1
 
-    def record_plan_failure(self, obj: ObjectPose, reason: str) -> None:
-        """No plan for `obj` with the current scene: skipped until the scene changes."""
+    def record_plan_failure(self, obj: ObjectPose, reason: str, strategy: str = "",
+                            named: list[ObjectPose] | tuple = ()) -> None:
+        """No plan for `obj` with the current scene: skipped until the scene changes. `strategy`: the one whose plan
+        failed last; `named`: the items the failure named lying on `obj` or in its way (its reported reason)."""
         t = self.attempts_for(obj, create=True)
         t.plan_failed(self.scene_epoch)
         t.reasons.append(reason)
+        t.latest = Reason.of(reason, strategy, named)
 
     def record_failure(self, obj: ObjectPose, reason: str) -> None:
         """An executed attempt on `obj` failed (it is counted when executed)."""
-        self.attempts_for(obj, create=True).reasons.append(reason)
+        t = self.attempts_for(obj, create=True)
+        t.reasons.append(reason)
+        t.latest = Reason(reason)
+
+    def why_left(self, obj: ObjectPose) -> str:
+        """Why `obj` is still where it is, for a run's last message: its latest failure with the items it named that
+        are still perceived where they were named (executive/left_reason.py); "" when nothing failed on it."""
+        t = self.attempts_for(obj)
+        if t is None:
+            return ""
+        if t.latest is None:  # attempts counted, no failure recorded
+            return ", ".join(sorted(set(t.reasons)))
+        return t.latest.describe(self.poses, itself=obj)
 
     def record_missed_grasp(self, obj: ObjectPose, grasp: str) -> None:
         """The grasp `grasp` (its spec name) of `obj` closed on nothing: the item is not where that grasp expects
@@ -452,6 +471,7 @@ class Belief:
         t.count = M.MAX_ATTEMPTS_PER_OBJECT
         if reason:
             t.reasons.append(reason)
+            t.latest = Reason(reason)
 
     def may_set_aside(self, obj: ObjectPose) -> bool:
         """Whether `obj` (no target for it, named as blocking another item) may still be planned to be set aside:
@@ -502,6 +522,8 @@ class Belief:
         why = self.waits.reason(obj)
         if why not in t.reasons:
             t.reasons.append(why)
+        # the failure just recorded (record_plan_failure) is the one that found it pinned: it names what pins it
+        t.latest = Reason.of(t.latest.kind if t.latest else "", t.latest.strategy if t.latest else "", on_it, True)
 
     def take_preferred(self) -> int | None:
         """The item to try next (once)."""

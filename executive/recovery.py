@@ -68,9 +68,18 @@ class RecoveryActions:
         obj = self.item.obj
         if obj is None:
             return
-        self.belief.record_plan_failure(obj, f.details.get("planning_kind", f.kind))
+        self._record_plan_failure(obj, f)
         if self.item.staged is None:
             self.belief.record_unplannable(obj)
+
+    def _record_plan_failure(self, obj: ObjectPose, f: Failure) -> None:
+        """The planning failure `f` against `obj`, with the strategy that failed last and the items it named lying
+        on `obj` or in its way (plan_item's ``strategy``, ``named``: instance ids in the belief's scene)."""
+        b = self.belief
+        scene = b.scene_objects()
+        named = [next((p for p in scene if p.instance_id == i), None) for i in f.details.get("named", ()) if i >= 0]
+        b.record_plan_failure(obj, f.details.get("planning_kind", f.kind), f.details.get("strategy", ""),
+                               [p for p in named if p is not None])
 
     def _act_prefer_blocker(self, f: Failure, ctx: dict) -> None:
         b, obj = self.belief, self.item.obj
@@ -88,7 +97,7 @@ class RecoveryActions:
         if obj is None:
             return
         if f.state in ("plan", "select_grasp"):  # skipped until the scene changes
-            self.belief.record_plan_failure(obj, f.details.get("planning_kind", f.kind))
+            self._record_plan_failure(obj, f)
         elif f.state in ("execute", "verify"):  # counted when executed
             self.belief.record_failure(obj, f.kind)
             if f.kind == "grasp_missed":

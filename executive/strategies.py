@@ -637,7 +637,10 @@ def plan_item(req: PlanRequest, strategies: list[Strategy], counts: dict) -> Ite
             c["planned"] += 1
             blocking = f.blocking
     pinned = {"pinned_by": f.blocking_all} if blocking is not None and f.pinned and f.blocking_all else {}
-    raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking, **pinned)
+    # strategy, named: the strategy whose plan failed last and every item its failure named lying on the item or in
+    # its way (the item's reported reason: executive/left_reason.py)
+    raise StepFailed("planning", f.message, planning_kind=f.kind, blocking=blocking, strategy=f.strategy,
+                     named=tuple(f.blocking_all), **pinned)
 
 
 def harder_settings(s):

@@ -153,10 +153,8 @@ class Verification(DoneCheck):
         """The run's message when it gives up with `left` still in the sink: each item with its reasons, what no
         pose explains, and the staged items on the counter with theirs."""
         b, why = self.belief, []
-        for q in left:
-            t = b.attempts_for(q)
-            rs = sorted(set(t.reasons)) if t is not None else []
-            why.append(f"{q.cls} ({', '.join(rs) or 'no attempts left'})")
+        for q in left:  # each with its latest failure (Belief.why_left)
+            why.append(f"{q.cls} ({b.why_left(q) or 'no attempts left'})")
         things = self._unrecognised_in_sink()
         if things:
             why.append(f"{len(things)} unrecognised thing(s) no pose explains (buried, seen too little, or not "
@@ -169,10 +167,9 @@ class Verification(DoneCheck):
         """The staged items still on the counter (a regrasp that failed, set aside), each with its reasons."""
         b = self.belief
 
-        def why(st) -> str:  # its reasons (a regrasp that failed, no room at its targets)
-            t = b.attempts_for(as_pose(st))
-            rs = sorted(set(t.reasons)) if t is not None else []
-            return f"{st.cls} ({', '.join(rs)})" if rs else st.cls
+        def why(st) -> str:  # its latest reason (a regrasp that failed, no room at its targets)
+            r = b.why_left(as_pose(st))
+            return f"{st.cls} ({r})" if r else st.cls
         return (f"{len(b.staged)} object(s) left on the counter after a regrasp failed or set aside: "
                 f"{', '.join(why(st) for st in b.staged)}")
 

@@ -73,7 +73,7 @@ def test_an_item_no_pose_explains_is_named_when_the_run_gives_up(make_runner, sa
     report = runner.run()
     safe_end(runner, world)
     assert report.status == "failed"
-    assert "1 object(s) left in the sink: cup (cartesian_path_failed)" in report.message
+    assert "1 object(s) left in the sink: cup (cartesian_path_failed in direct_pick)" in report.message
     assert "1 unrecognised thing(s)" in report.message, report.message
     x, y = T[:2, 3]
     where = report.message.split("at (")[1].split(")")[0]
