@@ -406,13 +406,14 @@ class Belief:
 
     def why_left(self, obj: ObjectPose) -> str:
         """Why `obj` is still where it is, for a run's last message: its latest failure with the items it named that
-        are still perceived where they were named (executive/left_reason.py); "" when nothing failed on it."""
+        are still where they were named (perceived, or put down there: scene_objects; executive/left_reason.py);
+        "" when nothing failed on it."""
         t = self.attempts_for(obj)
         if t is None:
             return ""
         if t.latest is None:  # attempts counted, no failure recorded
             return ", ".join(sorted(set(t.reasons)))
-        return t.latest.describe(self.poses, itself=obj)
+        return t.latest.describe(self.scene_objects(), itself=obj)
 
     def record_missed_grasp(self, obj: ObjectPose, grasp: str) -> None:
         """The grasp `grasp` (its spec name) of `obj` closed on nothing: the item is not where that grasp expects

@@ -6,9 +6,9 @@ on it ("pinned by the bowl lying on it") and, once the bowls were placed, failed
 plate, too hidden to plan, no free slot) was still reported "pinned by the bowl", the bowl long placed. Now each
 failure replaces the item's :class:`Reason`: its kind, the strategy whose plan failed last, and the items it named
 lying on the item or in its way (whether they pin it). The message names the named items only while they are
-still perceived where they were named (within NAMED_TOL); one that has gone since (placed, moved) is dropped
-and the message says so. The item's full history of failure kinds stays in ``Attempts.reasons`` (a strategy reads
-it: a lift blocked a second time).
+still where they were named (perceived or put down there, within NAMED_TOL); one that has gone since (placed
+elsewhere, moved) is dropped and the message says so. The item's full history of failure kinds stays in
+``Attempts.reasons`` (a strategy reads it: a lift blocked a second time).
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ class Reason:
         return cls(kind, strategy, [(p.cls, np.array(p.T_base_obj, float)[:3, 3].copy()) for p in named], pinned)
 
     def still_named(self, scene: Sequence[ObjectPose], itself: ObjectPose | None = None) -> list[str]:
-        """The classes of the named items still perceived in `scene` where they were named (not `itself`: the item
-        reported, which may lie within NAMED_TOL of an item nested on it)."""
+        """The classes of the named items still in `scene` (the belief's scene_objects) where they were named (not
+        `itself`: the item reported, which may lie within NAMED_TOL of an item nested on it)."""
         out = []
         for c, pos in self.named:
             if any(p is not itself and p.cls == c
