@@ -411,8 +411,10 @@ TOOL_PARTS = ("pad_a", "pad_b", "palm", "camera")
 # m: the pads' opening beyond the item's width (both sides together) of a grasp approached narrowly, where nothing
 # fits as given only because an open pad meets something (a basin wall beside a glass standing in a corner): the
 # widest slack the grasp synthesis gives any grasp is 30 mm, the narrowest (leaning and narrow rim pinches, foot
-# pinches: grasp_synthesis) this one
+# pinches: grasp_synthesis) this one; where that still leaves a pad in something, the next of NARROW_SLACKS (8 mm:
+# 4 mm a pad, a glass leaning on an upturned bowl by a wall, the bowl-side pad coming down between glass and dome)
 NARROW_SLACK = 0.016
+NARROW_SLACKS = (NARROW_SLACK, 0.008)  # tried in this order, the next only where every pass failed with the one before
 PADS = ("pad_a", "pad_b")
 
 
@@ -439,19 +441,19 @@ def _swivel_fits(model, spec, T_obj_tcp: np.ndarray) -> bool:
     return synth.pads_clear(_model_surface(model), T_obj_tcp, spec.opening)
 
 
-def narrowed_grasp(model, spec) -> GraspSpec | None:
-    """Grasp `spec` approached with its pads open only NARROW_SLACK wider than the item (same pose, same width),
+def narrowed_grasp(model, spec, slack: float) -> GraspSpec | None:
+    """Grasp `spec` approached with its pads open only `slack` wider than the item (same pose, same width),
     or None where it already opens no wider than that or where the narrower open pads would cut into the item's own
     mesh (the planner lets the pads touch their target, so that is checked here)."""
     from kitchenbot.planning import grasp_synthesis as synth
 
-    opening = spec.width + NARROW_SLACK
+    opening = spec.width + slack
     if opening >= spec.opening - 1e-4:
         return None
     if model.mesh is not None and len(model.mesh.triangles) and \
             not synth.pads_clear(_model_surface(model), spec.T_obj_tcp, opening):
         return None
-    return GraspSpec(narrowed_name(spec.name, NARROW_SLACK), spec.T_obj_tcp, opening, spec.width)
+    return GraspSpec(narrowed_name(spec.name, slack), spec.T_obj_tcp, opening, spec.width)
 
 
 def select_grasps(
@@ -470,6 +472,7 @@ def select_grasps(
     q_rest: np.ndarray | None = None,
     spin: float = 0.0,
     memo: dict | None = None,
+    narrow_level: int = 0,
 ) -> list[Grasp] | PlanningFailure:
     """Ranked feasible grasps (best first), or the failure that explains why there are none.
 
@@ -489,6 +492,8 @@ def select_grasps(
     the same scene (the pick again towards other targets, a staging regrasp's pick, the same pick with grasps
     avoided) reuses them instead of checking again. Only the answer is kept, never a decision: the place filter,
     the ranking and the later passes run as without it.
+    `narrow_level`: which of NARROW_SLACKS the third pass opens the pads by; where every pass fails with one, the
+    whole selection runs again with the next (the narrower slack is the last resort, after the spun grasps).
     """
     st = stats or GraspStats()
     gripper = scene.world.gripper
@@ -773,14 +778,16 @@ def select_grasps(
     # Third pass, only where nothing fits even swivelled: the grasps whose open pads were all that met something
     # (a basin wall, a neighbour; nothing else of the arm or the tool) approached with the pads opened only
     # NARROW_SLACK wider than the item (narrowed_grasp): each pad comes down nearer the item, farther from what
-    # is beside it. Less room for an error of the fitted pose, so only where the usual opening leaves none.
-    if not out:
+    # is beside it. Less room for an error of the fitted pose, so only where the usual opening leaves none; the
+    # next, narrower slack of NARROW_SLACKS only where the one before gave no grasp (the end of this function).
+    slack = NARROW_SLACKS[narrow_level] if narrow_level < len(NARROW_SLACKS) else None
+    if not out and slack is not None:
         for k, o, spec, T, misses in near:
             if limit is not None and len(out) >= limit:
                 break
             if not pads_in_the_way(k, spec, misses):
                 continue
-            narrowed = narrowed_grasp(inventory[o.obj_id], spec)
+            narrowed = narrowed_grasp(inventory[o.obj_id], spec, slack)
             if narrowed is None:
                 continue
             q_grasp, q_pre, Tg, brush, _, _, _ = fit(k, o, narrowed, T)
@@ -803,12 +810,24 @@ def select_grasps(
             sub = GraspStats()
             res = select_grasps(robot, scene, inventory, objects, q_current, settings=settings, target=target,
                                 grasp_filter=grasp_filter, stats=sub, limit=limit, avoid=avoid, q_rest=q_rest,
-                                spin=frac, memo=memo)
+                                spin=frac, memo=memo, narrow_level=narrow_level)
             if not isinstance(res, PlanningFailure):
                 st.spun += 1
                 st.feasible += len(res)
                 st.narrowed += sub.narrowed
                 return res
+    # Nothing fits with this slack, not even spun: the whole selection again with the next, narrower one (the
+    # checks of the candidates already made are kept in `memo`). The failure reported stays this one's.
+    if not spin and narrow_level + 1 < len(NARROW_SLACKS):
+        sub = GraspStats()
+        res = select_grasps(robot, scene, inventory, objects, q_current, settings=settings, target=target,
+                            grasp_filter=grasp_filter, stats=sub, limit=limit, avoid=avoid, q_rest=q_rest,
+                            memo=memo, narrow_level=narrow_level + 1)
+        if not isinstance(res, PlanningFailure):
+            st.feasible += len(res)
+            st.narrowed += sub.narrowed
+            st.spun += sub.spun
+            return res
     st.crowded_by = _crowded_by(scenes, names, collided, taken, objects)
     details = st.__dict__.copy()
     if not any_model or st.considered == 0:

@@ -49,7 +49,8 @@ class GraspSpec:
 # A grasp's name says where it came from: ``kind_NN`` is copy NN of one grasp turned about a round item's axis (the
 # same pinch, elsewhere round the rim), ``<grasp>_tilt+15`` is a grasp tilted about its closing axis by planning, and
 # ``<grasp>_spin+15`` one turned about a round item's axis by planning (between the copies), ``<grasp>_narrow16``
-# the grasp approached with its pads opened only 16 mm wider than the item (planning.grasps, NARROW_SLACK).
+# the grasp approached with its pads opened only 16 mm wider than the item (planning.grasps, NARROW_SLACKS;
+# ``_narrow8``: 8 mm, the last resort).
 TILT_TAG = "_tilt"
 SPIN_TAG = "_spin"
 NARROW_TAG = "_narrow"

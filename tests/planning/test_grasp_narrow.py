@@ -30,7 +30,7 @@ def _glass(inventory, at, turn_deg: float = 0.0) -> list[ObjectPose]:
 
 
 def test_before_the_glass_in_the_corner_has_no_grasp(planner, inventory, monkeypatch):
-    monkeypatch.setattr(grasps_mod, "NARROW_SLACK", 0.03)  # as the grasps open anyway: no third pass
+    monkeypatch.setattr(grasps_mod, "NARROW_SLACKS", ())  # no third pass
     objects = _glass(inventory, CORNER)
     out = planner.select_grasps(Q, objects, target=objects[0])
     assert not isinstance(out, list) and out.kind == "no_collision_free_grasp"
@@ -70,7 +70,7 @@ def test_a_glass_with_room_is_not_narrowed(planner, inventory):
 
 def test_a_grasp_that_opens_narrowly_already_is_not_narrowed(inventory):
     for s in grasps_mod.expand_grasps(inventory.by_name("glass")):
-        n = grasps_mod.narrowed_grasp(inventory.by_name("glass"), s)
+        n = grasps_mod.narrowed_grasp(inventory.by_name("glass"), s, grasps_mod.NARROW_SLACK)
         if s.opening <= s.width + grasps_mod.NARROW_SLACK + 1e-4:
             assert n is None
         elif n is not None:

@@ -42,7 +42,7 @@ def _pile(inventory, dz: float = 0.0) -> tuple[list[ObjectPose], ObjectPose]:
 def test_before_the_cups_grasp_depends_on_half_a_millimetre(planner, inventory, dz, monkeypatch):
     monkeypatch.setattr(grasps_mod, "SWIVELS", ())  # the selection as it was: no second pass
     monkeypatch.setattr(grasps_mod, "SPIN_STEPS", ())  # nor the last (the cup is round: spun grasps)
-    monkeypatch.setattr(grasps_mod, "NARROW_SLACK", 0.03)  # nor the third (pads opened as wide as given)
+    monkeypatch.setattr(grasps_mod, "NARROW_SLACKS", ())  # nor the third (pads opened as wide as given)
     objects, cup = _pile(inventory, dz)
     out = planner.select_grasps(Q, objects, target=cup)
     if dz == 0.0:

@@ -62,7 +62,7 @@ def _setup(gap):
 def test_pads_brushing_a_neighbour_within_their_give_grasp_it_without_a_collision(run_pick_on_fake_arm, monkeypatch):
     # the pads opened as wide as given (no narrowed grasp: planning.grasps' third pass would take the glass with
     # its pads opened narrower, clear of the neighbour, and the give would not be what is tested)
-    monkeypatch.setattr(grasps_mod, "NARROW_SLACK", 0.03)
+    monkeypatch.setattr(grasps_mod, "NARROW_SLACKS", ())
     cfg, world, planner, poses, target, avoid = _setup(0.002)
     home = np.asarray(cfg.robot.home, float)
     planner.settings = planner.settings.model_copy(update={"pad_give": 0.0})
@@ -77,7 +77,7 @@ def test_pads_brushing_a_neighbour_within_their_give_grasp_it_without_a_collisio
 
 
 def test_a_neighbour_deeper_than_the_give_still_blocks_the_grasp_and_is_named_as_the_blocker(monkeypatch):
-    monkeypatch.setattr(grasps_mod, "NARROW_SLACK", 0.03)  # the pads opened as wide as given (as above)
+    monkeypatch.setattr(grasps_mod, "NARROW_SLACKS", ())  # the pads opened as wide as given (as above)
     cfg, world, planner, poses, target, avoid = _setup(0.005)
     planner.settings = planner.settings.model_copy(update={"pad_give": PAD_GIVE})
     home = np.asarray(cfg.robot.home, float)
