@@ -14,30 +14,9 @@ import pytest
 
 from kitchenbot.executive.failures import StepFailed, classify
 from kitchenbot.executive.strategies import BlockerFirst, DirectPick, PlanRequest, plan_item
-from kitchenbot.perception.types import ObjectPose
 from kitchenbot.planning.types import CartesianPathFailed
 
-
-def _setup(make_runner):
-    """Three plates apart in the sink, X highest (the task's first), then Y, then Z."""
-    runner, _ = make_runner(task="sink-pick", journal=False)
-    plate = next(m for m in runner.planner.inventory.models.values() if m.cls == "plate")
-    lo, hi = (np.asarray(v, float) for v in runner.robot.cell.sink_interior)
-    c = (lo + hi) / 2
-    out = []
-    for k, (dx, z) in enumerate([(-0.12, 0.06), (0.0, 0.04), (0.12, 0.02)]):
-        T = np.eye(4)
-        T[:3, 3] = (c[0] + dx, c[1], lo[2] + z)
-        out.append(ObjectPose(plate.obj_id, "plate", T, 1.0, instance_id=k))
-    b = runner.belief
-    b.poses = list(out)
-    b.pending = []
-    return (runner, *out)
-
-
-def _select(runner):
-    assert runner._do_select_grasp() == "selected"
-    return runner.item.obj
+from .test_pinned_chain import _placed, _select, _setup
 
 
 def _plan_fails(runner, obj, by, pinned):
@@ -59,13 +38,6 @@ def _plan_fails(runner, obj, by, pinned):
     f = classify(e.value, "plan")
     runner._act_record_plan_failure(f, {})
     runner._act_prefer_blocker(f, {})
-
-
-def _placed(runner, obj):
-    """`obj` was picked and placed; no new perception (the placement view settled it)."""
-    b = runner.belief
-    b.picked_away(obj, [])
-    b.scene_changed()
 
 
 def test_an_item_that_waited_for_a_placed_blocker_is_reported_with_its_later_failure(make_runner):
